@@ -1,0 +1,54 @@
+# pgser set-up: `make demo` runs the main job on data/, `make test` runs every test.
+# Each target installs what it needs: MuJoCo's shared library from the mujoco==3.17.0 wheel
+# (SPEC §4.2) and a Python venv for cross-checks. Nothing outside the repo is touched.
+
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+DEPS := .deps
+MUJOCO_DIR := $(DEPS)/mujoco
+MUJOCO_LIB := $(MUJOCO_DIR)/libmujoco.so
+CARGO ?= cargo
+
+.PHONY: all build test demo bench deps venv fuzz clean
+all: build
+
+deps: $(MUJOCO_LIB)
+
+# The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
+$(MUJOCO_LIB):
+	@mkdir -p $(DEPS)/wheels $(MUJOCO_DIR)
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: mujoco==3.17.0 -d $(DEPS)/wheels
+	$(PYTHON) -c "import zipfile,glob,shutil; w=glob.glob('$(DEPS)/wheels/mujoco-3.17.0-*.whl')[0]; \
+	  z=zipfile.ZipFile(w); f=z.open('mujoco/libmujoco.so.3.17.0'); \
+	  shutil.copyfileobj(f, open('$(MUJOCO_DIR)/libmujoco.so.3.17.0','wb'))"
+	ln -sf libmujoco.so.3.17.0 $(MUJOCO_LIB)
+
+venv: $(VENV)/.stamp
+$(VENV)/.stamp: tests/requirements.txt
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r tests/requirements.txt
+	touch $@
+
+build: deps
+	$(CARGO) build --release
+
+test: deps venv
+	$(CARGO) test --release
+
+demo: build
+	@mkdir -p out
+	./target/release/pgser-etl convert data/fetch_reach_sample.pkl -o out/demo_traj.parquet --task FetchReach
+	./target/release/pgser-etl inspect out/demo_traj.parquet
+
+bench: build venv
+	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
+
+# Needs cargo-fuzz (cargo install cargo-fuzz); stable Rust works with RUSTC_BOOTSTRAP=1.
+fuzz: deps
+	cd fuzz && RUSTC_BOOTSTRAP=1 cargo fuzz run pickle -- -max_total_time=$${FUZZ_SECONDS:-300}
+
+clean:
+	$(CARGO) clean
+	rm -rf $(VENV) $(DEPS) out bench-out

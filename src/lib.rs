@@ -1,0 +1,15 @@
+//! pgser: Prioritized Offline Goal-Swapping Experience Replay as batch jobs over Parquet.
+//!
+//! Data flows one way: files → record batches → tensors. Each pipeline stage is one module:
+//! [`pickle`] reads WGCSL buffers without executing them, [`trajectory`] writes and reads the
+//! trajectory table, [`inspect`] summarises any pgser table. [`table`] and [`output`] hold what
+//! every writer shares (parallel row-group encoding, the footer, atomic files).
+
+pub mod cli;
+pub mod inspect;
+pub mod output;
+pub mod pickle;
+pub mod progress;
+pub mod table;
+pub mod task;
+pub mod trajectory;

@@ -1,0 +1,148 @@
+//! Atomic outputs: every file pgser writes appears whole or not at all.
+//!
+//! Data goes to a temporary file in the destination's own folder (so the final rename never
+//! crosses file systems), is fsynced, and is renamed over the destination only on `commit`.
+//! If the job fails or panics first, dropping the handle deletes the temporary file.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use tempfile::NamedTempFile;
+
+pub struct AtomicFile {
+    tmp: NamedTempFile,
+    dest: PathBuf,
+}
+
+impl AtomicFile {
+    pub fn create(dest: &Path) -> Result<Self> {
+        let name = dest
+            .file_name()
+            .with_context(|| format!("{}: output path has no file name", dest.display()))?;
+        let dir = match dest.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if !dir.is_dir() {
+            bail!(
+                "{}: output folder {} does not exist",
+                dest.display(),
+                dir.display()
+            );
+        }
+        if dest.is_dir() {
+            bail!("{}: output path is a folder", dest.display());
+        }
+        let tmp = tempfile::Builder::new()
+            .prefix(&format!(".{}.", name.to_string_lossy()))
+            .suffix(".tmp")
+            .tempfile_in(&dir)
+            .with_context(|| {
+                format!(
+                    "{}: cannot create a temporary file in {}",
+                    dest.display(),
+                    dir.display()
+                )
+            })?;
+        Ok(Self {
+            tmp,
+            dest: dest.to_path_buf(),
+        })
+    }
+
+    /// A second handle on the temporary file, for writers that want to own theirs.
+    pub fn handle(&self) -> Result<File> {
+        self.tmp
+            .as_file()
+            .try_clone()
+            .with_context(|| format!("{}: cannot reopen temporary file", self.dest.display()))
+    }
+
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Flush to disk and move into place.
+    pub fn commit(self) -> Result<()> {
+        let dest = self.dest.clone();
+        self.tmp
+            .as_file()
+            .sync_all()
+            .with_context(|| format!("{}: fsync failed", dest.display()))?;
+        self.tmp
+            .persist(&dest)
+            .map_err(|e| e.error)
+            .with_context(|| {
+                format!(
+                    "{}: cannot move the finished file into place",
+                    dest.display()
+                )
+            })?;
+        Ok(())
+    }
+}
+
+/// Refuse to overwrite an input with the output (we read inputs through mmap while writing).
+pub fn check_not_an_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
+    let out = canonical_maybe_missing(output);
+    for input in inputs {
+        if std::fs::canonicalize(input).ok().as_deref() == Some(out.as_path()) {
+            bail!(
+                "{}: output would overwrite input {}",
+                output.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+fn canonical_maybe_missing(p: &Path) -> PathBuf {
+    if let Ok(c) = std::fs::canonicalize(p) {
+        return c;
+    }
+    match (p.parent(), p.file_name()) {
+        (Some(dir), Some(name)) => {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            std::fs::canonicalize(dir)
+                .map(|d| d.join(name))
+                .unwrap_or_else(|_| p.to_path_buf())
+        }
+        _ => p.to_path_buf(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    #[test]
+    fn uncommitted_output_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let dest = dir.path().join("out.parquet");
+        {
+            let f = AtomicFile::create(&dest).unwrap();
+            f.handle().unwrap().write_all(b"partial").unwrap();
+        }
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        let f = AtomicFile::create(&dest).unwrap();
+        f.handle().unwrap().write_all(b"whole").unwrap();
+        f.commit().unwrap();
+        assert_eq!(std::fs::read(&dest).unwrap(), b"whole");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn missing_folder_is_named() {
+        let e = AtomicFile::create(Path::new("/nonexistent-dir/x.parquet"))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("does not exist"));
+    }
+}

@@ -1,0 +1,146 @@
+//! A pickle reader that executes nothing.
+//!
+//! Researchers hand us WGCSL replay buffers as Python pickles. `pickle.load` on such a file runs
+//! whatever callables the file names, so a downloaded dataset is a code-execution hazard. This
+//! module is a small pickle virtual machine over the opcodes of protocols 0–5 that only *builds
+//! values*: dict, list, tuple, set, str, bytes, int, float, bool, None, and numpy arrays. The only
+//! globals it resolves are an allow-list (numpy's array/dtype reconstruction, `_codecs.encode`
+//! for protocol ≤ 2 bytes, `bytearray`, `set`, `OrderedDict`); every other GLOBAL, STACK_GLOBAL,
+//! INST, OBJ, NEWOBJ or persistent id is refused with an error that names it.
+//!
+//! Memory: the file is memory-mapped and byte strings are *borrowed* from it, so every declared
+//! length is checked against the bytes that remain before anything is allocated, and a
+//! little-endian C-order array costs no copy at all. Arrays that need byte swapping or a
+//! Fortran→C transpose are converted once into an owned buffer.
+
+mod numpy;
+mod vm;
+
+use std::borrow::Cow;
+use std::fmt;
+use std::path::Path;
+
+pub use numpy::{DType, DTypeKind, NdArray, shape_text};
+
+/// Index of an object in a [`Pickle`]'s arena.
+pub type Id = usize;
+
+/// A fault in a pickle stream, with the byte offset of the opcode that hit it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("pickle byte {offset}: {message}")]
+pub struct PickleError {
+    pub offset: usize,
+    pub message: String,
+}
+
+/// One value built by the machine. Containers hold ids into the arena, so that a memoized
+/// object mutated later (the usual `EMPTY_DICT, MEMOIZE, MARK, …, SETITEMS`) is seen mutated
+/// through every reference, exactly as Python would see it.
+#[derive(Debug, Clone)]
+pub enum Obj<'a> {
+    None,
+    Bool(bool),
+    Int(i64),
+    /// An integer that does not fit in i64; kept opaque (little-endian two's complement).
+    BigInt(Vec<u8>),
+    Float(f64),
+    Str(Cow<'a, str>),
+    Bytes(Cow<'a, [u8]>),
+    List(Vec<Id>),
+    Tuple(Vec<Id>),
+    Set(Vec<Id>),
+    Dict(Vec<(Id, Id)>),
+    /// An allow-listed global, only usable as the callable of REDUCE or an argument.
+    Global(numpy::Global),
+    DType(DType),
+    Array(NdArray<'a>),
+    /// `_reconstruct(ndarray, (0,), b'b')` before its BUILD supplies shape, dtype and bytes.
+    PendingArray,
+}
+
+impl Obj<'_> {
+    /// Python-ish type name for error messages.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            Obj::None => "None",
+            Obj::Bool(_) => "bool",
+            Obj::Int(_) | Obj::BigInt(_) => "int",
+            Obj::Float(_) => "float",
+            Obj::Str(_) => "str",
+            Obj::Bytes(_) => "bytes",
+            Obj::List(_) => "list",
+            Obj::Tuple(_) => "tuple",
+            Obj::Set(_) => "set",
+            Obj::Dict(_) => "dict",
+            Obj::Global(_) => "global",
+            Obj::DType(_) => "numpy dtype",
+            Obj::Array(_) | Obj::PendingArray => "numpy array",
+        }
+    }
+}
+
+/// A parsed pickle: the object arena and the id of the object STOP returned.
+#[derive(Debug)]
+pub struct Pickle<'a> {
+    objs: Vec<Obj<'a>>,
+    root: Id,
+}
+
+impl<'a> Pickle<'a> {
+    /// Run the machine over `data` (a whole pickle stream).
+    pub fn parse(data: &'a [u8]) -> Result<Self, PickleError> {
+        vm::run(data)
+    }
+
+    pub fn root(&self) -> Id {
+        self.root
+    }
+
+    pub fn get(&self, id: Id) -> &Obj<'a> {
+        &self.objs[id]
+    }
+
+    /// Move an object out of the arena (leaving None), e.g. to own a large array.
+    pub fn take(&mut self, id: Id) -> Obj<'a> {
+        std::mem::replace(&mut self.objs[id], Obj::None)
+    }
+
+    /// The text of a str (or bytes, as Python 2 pickles spell dict keys), for keys and messages.
+    pub fn as_text(&self, id: Id) -> Option<Cow<'_, str>> {
+        match &self.objs[id] {
+            Obj::Str(s) => Some(Cow::Borrowed(s.as_ref())),
+            Obj::Bytes(b) => Some(String::from_utf8_lossy(b)),
+            _ => None,
+        }
+    }
+}
+
+/// A memory-mapped file, kept alive for as long as parsed values borrow from it.
+pub struct MappedFile {
+    map: Option<memmap2::Mmap>,
+}
+
+impl MappedFile {
+    pub fn open(path: &Path) -> std::io::Result<Self> {
+        let file = std::fs::File::open(path)?;
+        let len = file.metadata()?.len();
+        // mmap of an empty file fails on Linux; an empty slice is the honest answer.
+        if len == 0 {
+            return Ok(Self { map: None });
+        }
+        // SAFETY: the map is read-only; a concurrent writer truncating the file could fault,
+        // which is the accepted trade-off of every mmap-based reader (ripgrep, polars).
+        let map = unsafe { memmap2::Mmap::map(&file)? };
+        Ok(Self { map: Some(map) })
+    }
+
+    pub fn bytes(&self) -> &[u8] {
+        self.map.as_deref().unwrap_or(&[])
+    }
+}
+
+impl fmt::Debug for MappedFile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "MappedFile({} bytes)", self.bytes().len())
+    }
+}

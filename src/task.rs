@@ -1,0 +1,181 @@
+//! The tasks pgser knows: their episode length, dimensions, and goal metric.
+//!
+//! Values from Farama-Foundation/Gymnasium-Robotics 1.4.2 (`envs/fetch/*.py`,
+//! `envs/shadow_dexterous_hand/manipulate.py`); see SPEC §4.2. A task pgser does not know can
+//! still be used for data jobs: its dimensions come from the data and its success threshold from
+//! the user (`Task::custom`), with the Euclidean goal metric.
+
+use serde::{Deserialize, Serialize};
+
+/// How the distance between an achieved and a desired goal is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalMetric {
+    /// ‖ag − g‖₂ (Fetch: goals are 3-D positions).
+    Euclidean,
+    /// Angle between the quaternions in components 3..7, position ignored (Hand *Rotate*
+    /// tasks): `2·acos(clip(⟨q_a, q_b⟩, −1, 1))`, the w component of `q_a ⊗ conj(q_b)`,
+    /// exactly as gymnasium-robotics' `_goal_distance` computes it (no |·|).
+    QuatAngle,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Task {
+    pub name: String,
+    /// Observations per episode (actions per episode = T − 1).
+    #[serde(rename = "T")]
+    pub t: usize,
+    pub obs_dim: usize,
+    pub goal_dim: usize,
+    pub act_dim: usize,
+    /// Success iff distance < threshold.
+    pub threshold: f64,
+    pub metric: GoalMetric,
+}
+
+/// (name, T, obs, goal, act, threshold, metric)
+const KNOWN: &[(&str, usize, usize, usize, usize, f64, GoalMetric)] = &[
+    ("FetchReach", 50, 10, 3, 4, 0.05, GoalMetric::Euclidean),
+    ("FetchPush", 50, 25, 3, 4, 0.05, GoalMetric::Euclidean),
+    (
+        "FetchPickAndPlace",
+        50,
+        25,
+        3,
+        4,
+        0.05,
+        GoalMetric::Euclidean,
+    ),
+    ("FetchSlide", 50, 25, 3, 4, 0.05, GoalMetric::Euclidean),
+    (
+        "HandManipulateBlockRotateZ",
+        100,
+        61,
+        7,
+        20,
+        0.1,
+        GoalMetric::QuatAngle,
+    ),
+    (
+        "HandManipulateEggRotate",
+        100,
+        61,
+        7,
+        20,
+        0.1,
+        GoalMetric::QuatAngle,
+    ),
+];
+
+impl Task {
+    /// A built-in task by name. Accepts gymnasium ids with a version suffix (`FetchPush-v4`).
+    pub fn known(name: &str) -> Option<Task> {
+        let base = name.split_once("-v").map_or(name, |(b, _)| b);
+        KNOWN.iter().find(|k| k.0.eq_ignore_ascii_case(base)).map(
+            |&(name, t, obs_dim, goal_dim, act_dim, threshold, metric)| Task {
+                name: name.to_string(),
+                t,
+                obs_dim,
+                goal_dim,
+                act_dim,
+                threshold,
+                metric,
+            },
+        )
+    }
+
+    pub fn known_names() -> Vec<&'static str> {
+        KNOWN.iter().map(|k| k.0).collect()
+    }
+
+    /// Built-in tasks whose dimensions and T match, for inferring a task from data.
+    pub fn matching(t: usize, obs: usize, goal: usize, act: usize) -> Vec<Task> {
+        KNOWN
+            .iter()
+            .filter_map(|k| Task::known(k.0))
+            .filter(|k| (k.t, k.obs_dim, k.goal_dim, k.act_dim) == (t, obs, goal, act))
+            .collect()
+    }
+
+    /// A user-defined task: dimensions from the data, Euclidean goals.
+    pub fn custom(
+        name: &str,
+        t: usize,
+        obs: usize,
+        goal: usize,
+        act: usize,
+        threshold: f64,
+    ) -> Task {
+        Task {
+            name: name.to_string(),
+            t,
+            obs_dim: obs,
+            goal_dim: goal,
+            act_dim: act,
+            threshold,
+            metric: GoalMetric::Euclidean,
+        }
+    }
+
+    /// Distance between one achieved goal and one desired goal.
+    pub fn distance<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f64 {
+        match self.metric {
+            GoalMetric::Euclidean => ag
+                .iter()
+                .zip(g)
+                .map(|(&a, &b)| {
+                    let d = a.into() - b.into();
+                    d * d
+                })
+                .sum::<f64>()
+                .sqrt(),
+            GoalMetric::QuatAngle => {
+                let dot: f64 = ag[3..7]
+                    .iter()
+                    .zip(&g[3..7])
+                    .map(|(&a, &b)| a.into() * b.into())
+                    .sum();
+                2.0 * dot.clamp(-1.0, 1.0).acos()
+            }
+        }
+    }
+
+    pub fn success<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> bool {
+        self.distance(ag, g) < self.threshold
+    }
+
+    /// The paper's eq. 2 sparse reward: 0 when the goal is reached, −1 otherwise.
+    pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
+        if self.success(ag, g) { 0.0 } else { -1.0 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lookup_accepts_gym_ids() {
+        assert_eq!(Task::known("FetchPush-v4").unwrap().obs_dim, 25);
+        assert_eq!(Task::known("fetchreach").unwrap().name, "FetchReach");
+        assert!(Task::known("PointReach").is_none());
+        assert_eq!(Task::matching(50, 25, 3, 4).len(), 3);
+    }
+
+    #[test]
+    fn fetch_reward_is_thresholded_distance() {
+        let t = Task::known("FetchReach").unwrap();
+        assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.03, 0.03, 0.0]), 0.0); // 0.0424 < 0.05
+        assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.04, 0.04, 0.0]), -1.0); // 0.0566
+    }
+
+    #[test]
+    fn quaternion_angle_ignores_position() {
+        let t = Task::known("HandManipulateEggRotate").unwrap();
+        let half = 0.04f64; // rotation of 0.08 rad about z
+        let a = [9.0, 9.0, 9.0, 1.0, 0.0, 0.0, 0.0];
+        let b = [0.0, 0.0, 0.0, half.cos(), 0.0, 0.0, half.sin()];
+        assert!((t.distance(&a, &b) - 0.08).abs() < 1e-12);
+        assert!(t.success(&a, &b));
+    }
+}

@@ -1,0 +1,132 @@
+//! The trajectory table (SPEC §3.1): one row per observation, episodes contiguous and ordered
+//! by (episode, step). `desired_goal` and `action` are null on the last step, where WGCSL's
+//! `g` and `u` (T − 1 entries per episode) have nothing.
+
+mod convert;
+
+use std::sync::Arc;
+
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use serde::{Deserialize, Serialize};
+
+use crate::table::SCHEMA_VERSION;
+use crate::task::{GoalMetric, Task};
+
+pub use convert::{ConvertOptions, ConvertSummary, convert};
+
+/// The float type of a table's vector columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FloatType {
+    Float32,
+    Float64,
+}
+
+impl FloatType {
+    pub fn arrow(self) -> DataType {
+        match self {
+            FloatType::Float32 => DataType::Float32,
+            FloatType::Float64 => DataType::Float64,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            FloatType::Float32 => "float32",
+            FloatType::Float64 => "float64",
+        }
+    }
+}
+
+/// A FixedSizeList<float>[dim] column; the list items themselves are never null.
+pub fn vector_field(name: &str, float: FloatType, dim: usize, nullable: bool) -> Field {
+    let item = Arc::new(Field::new("item", float.arrow(), false));
+    Field::new(name, DataType::FixedSizeList(item, dim as i32), nullable)
+}
+
+pub fn schema(float: FloatType, task: &Task) -> SchemaRef {
+    Arc::new(Schema::new(vec![
+        Field::new("episode", DataType::Int64, false),
+        Field::new("step", DataType::Int32, false),
+        vector_field("obs", float, task.obs_dim, false),
+        vector_field("achieved_goal", float, task.goal_dim, false),
+        vector_field("desired_goal", float, task.goal_dim, true),
+        vector_field("action", float, task.act_dim, true),
+    ]))
+}
+
+/// Where a table's episodes came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SourceFile {
+    pub path: String,
+    pub sha256: String,
+    pub format: String,
+    pub episodes_in_file: usize,
+    pub episodes_taken: usize,
+}
+
+/// The `pgser` footer of a trajectory table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Footer {
+    pub schema_version: u32,
+    pub kind: String,
+    pub task: String,
+    #[serde(rename = "T")]
+    pub t: usize,
+    pub obs_dim: usize,
+    pub goal_dim: usize,
+    pub act_dim: usize,
+    pub goal_metric: GoalMetric,
+    pub success_threshold: f64,
+    pub float_type: FloatType,
+    pub episodes: usize,
+    pub rows: usize,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sources: Vec<SourceFile>,
+    /// For collected data: the policy and seed that produced it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub policy: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    pub command: String,
+    pub pgser_version: String,
+}
+
+pub const KIND: &str = "trajectory";
+
+impl Footer {
+    pub fn new(task: &Task, float_type: FloatType, episodes: usize, command: String) -> Self {
+        Footer {
+            schema_version: SCHEMA_VERSION,
+            kind: KIND.to_string(),
+            task: task.name.clone(),
+            t: task.t,
+            obs_dim: task.obs_dim,
+            goal_dim: task.goal_dim,
+            act_dim: task.act_dim,
+            goal_metric: task.metric,
+            success_threshold: task.threshold,
+            float_type,
+            episodes,
+            rows: episodes * task.t,
+            sources: Vec::new(),
+            policy: None,
+            seed: None,
+            command,
+            pgser_version: env!("CARGO_PKG_VERSION").to_string(),
+        }
+    }
+
+    /// The task this table was written for, with the threshold recorded in the file.
+    pub fn task(&self) -> Task {
+        Task {
+            name: self.task.clone(),
+            t: self.t,
+            obs_dim: self.obs_dim,
+            goal_dim: self.goal_dim,
+            act_dim: self.act_dim,
+            threshold: self.success_threshold,
+            metric: self.goal_metric,
+        }
+    }
+}
