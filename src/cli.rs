@@ -1,6 +1,11 @@
 //! What the binaries share: the one-line error report and the recorded command line.
 
 use std::process::ExitCode;
+use std::sync::LazyLock;
+
+/// `--version` text: our version and the MuJoCo library actually loaded at run time.
+pub static LONG_VERSION: LazyLock<String> =
+    LazyLock::new(|| format!("{} (MuJoCo {})", env!("CARGO_PKG_VERSION"), mujoco_rs::mujoco_version()));
 
 /// Run a command's body; print any error as one line `PROGRAM: error: …` and exit 1.
 pub fn main_with(program: &str, body: impl FnOnce() -> anyhow::Result<()>) -> ExitCode {

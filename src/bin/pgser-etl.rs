@@ -10,6 +10,7 @@ use pgser::{cli, inspect, progress, trajectory};
 #[command(
     name = "pgser-etl",
     version,
+    long_version = pgser::cli::LONG_VERSION.as_str(),
     about = "pgser data jobs: convert, inspect"
 )]
 struct Args {

@@ -144,3 +144,6 @@ impl fmt::Debug for MappedFile {
         write!(f, "MappedFile({} bytes)", self.bytes().len())
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,12 @@
+//! Give binaries and tests an rpath to MuJoCo's shared library, so `target/release/pgser-*`
+//! run with no LD_LIBRARY_PATH. The folder comes from `.cargo/config.toml` (`make deps`).
+
+fn main() {
+    println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
+    let dir = std::env::var("MUJOCO_DYNAMIC_LINK_DIR")
+        .expect("MUJOCO_DYNAMIC_LINK_DIR is unset: run `make deps` (see .cargo/config.toml)");
+    if !std::path::Path::new(&dir).join("libmujoco.so").exists() {
+        panic!("{dir}/libmujoco.so is missing: run `make deps` to fetch MuJoCo 3.17.0 from its wheel");
+    }
+    println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
+}

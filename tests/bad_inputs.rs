@@ -1,0 +1,84 @@
+//! Every bad input gets one clear line, a non-zero exit, no output file, and runs no code.
+
+mod common;
+
+use common::*;
+
+#[test]
+fn every_bad_input_fails_cleanly_and_executes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    py_ok("make_bad_pickles.py", &[dir.path().to_str().unwrap()]);
+    let entries = manifest(dir.path());
+    assert!(entries.len() >= 20, "bad corpus too small: {}", entries.len());
+    let mut failures = Vec::new();
+    for (i, e) in entries.iter().enumerate() {
+        let file = e["file"].as_str().unwrap();
+        let pkl = dir.path().join(file);
+        let out_dir = dir.path().join(format!("out{i}"));
+        std::fs::create_dir(&out_dir).unwrap();
+        let out = out_dir.join("traj.parquet");
+        let mut args = vec!["--task".to_string(), e["task"].as_str().unwrap().to_string()];
+        args.extend(strings(&e["extra_args"]));
+        let o = convert(&[&pkl], &out, &args);
+        let err = text(&o.stderr);
+        let line = err.trim_end();
+        let expect = e["expect"].as_str().unwrap();
+        let problems: Vec<&str> = [
+            (o.status.code() != Some(1), "exit code is not 1"),
+            (line.lines().count() != 1, "not exactly one line"),
+            (!line.starts_with("pgser-etl: error: "), "no error prefix"),
+            (!line.contains(file), "does not name the file"),
+            (!line.to_lowercase().contains(expect), "lacks the expected words"),
+            (line.contains("panicked"), "panicked"),
+            (std::fs::read_dir(&out_dir).unwrap().count() != 0, "left a file behind"),
+            (e.get("marker").is_some_and(|m| dir.path().join(m.as_str().unwrap()).exists()), "EXECUTED CODE"),
+        ]
+        .into_iter()
+        .filter_map(|(bad, what)| bad.then_some(what))
+        .collect();
+        if !problems.is_empty() {
+            failures.push(format!("{file} (expect {expect:?}): {problems:?}: {line}"));
+        }
+    }
+    assert!(failures.is_empty(), "{} bad inputs mishandled:\n{}", failures.len(), failures.join("\n"));
+}
+
+/// A failed run never touches an existing output: the old file stays byte for byte.
+#[test]
+fn failed_run_keeps_previous_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t.parquet");
+    let good = repo().join("tests/fixtures/np2_p3.pkl");
+    convert_ok(&[&good], &out, &["--task".into(), "FetchReach".into()]);
+    let before = std::fs::read(&out).unwrap();
+    let bad = tmp.path().join("bad.pkl");
+    std::fs::write(&bad, &std::fs::read(&good).unwrap()[..3000]).unwrap();
+    let o = convert(&[&bad], &out, &["--task".into(), "FetchReach".into()]);
+    assert!(!o.status.success());
+    assert!(text(&o.stderr).contains("truncated"));
+    assert_eq!(std::fs::read(&out).unwrap(), before);
+    assert_eq!(std::fs::read_dir(tmp.path()).unwrap().count(), 2, "temporary file left behind");
+}
+
+#[test]
+fn output_may_not_overwrite_an_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let pkl = tmp.path().join("in.pkl");
+    std::fs::copy(repo().join("tests/fixtures/np2_p3.pkl"), &pkl).unwrap();
+    let o = convert(&[&pkl], &pkl, &[]);
+    assert!(!o.status.success());
+    assert!(text(&o.stderr).contains("overwrite input"));
+    assert_eq!(std::fs::read(&pkl).unwrap(), std::fs::read(repo().join("tests/fixtures/np2_p3.pkl")).unwrap());
+}
+
+#[test]
+fn missing_input_and_output_folder_are_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = convert(&[&tmp.path().join("nope.pkl")], &tmp.path().join("o.parquet"), &[]);
+    assert!(text(&o.stderr).contains("nope.pkl: cannot open"), "{}", text(&o.stderr));
+    let good = repo().join("tests/fixtures/np2_p3.pkl");
+    let o = convert(&[&good], &tmp.path().join("no/such/dir/o.parquet"), &[]);
+    assert!(text(&o.stderr).contains("does not exist"), "{}", text(&o.stderr));
+    let o = convert(&[&good, &good], &tmp.path().join("o.parquet"), &["--episodes".into(), "1".into()]);
+    assert!(text(&o.stderr).contains("one count per input"), "{}", text(&o.stderr));
+}

@@ -1,0 +1,60 @@
+//! Helpers shared by the integration tests: the binaries, the test venv's Python, manifests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The venv `make test` creates (numpy, pyarrow). Tests that cross-check with Python need it.
+pub fn python() -> PathBuf {
+    let p = repo().join(".venv/bin/python");
+    assert!(p.exists(), "{} is missing: run `make venv` (or `make test`)", p.display());
+    p
+}
+
+pub fn etl() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_pgser-etl"))
+}
+
+/// Run a script from tests/py with the venv's Python; panics with its output if it fails.
+pub fn py_ok(script: &str, args: &[&str]) -> Output {
+    let out = Command::new(python()).arg(repo().join("tests/py").join(script)).args(args).output().unwrap();
+    assert!(out.status.success(), "{script} {args:?} failed:\n{}\n{}", text(&out.stdout), text(&out.stderr));
+    out
+}
+
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+pub fn manifest(dir: &Path) -> Vec<serde_json::Value> {
+    let t = std::fs::read_to_string(dir.join("manifest.json")).unwrap();
+    serde_json::from_str(&t).unwrap()
+}
+
+pub fn strings(v: &serde_json::Value) -> Vec<String> {
+    v.as_array().map(|a| a.iter().map(|s| s.as_str().unwrap().to_string()).collect()).unwrap_or_default()
+}
+
+/// `pgser-etl convert` with the given arguments; returns the process output.
+pub fn convert(inputs: &[&Path], out: &Path, extra: &[String]) -> Output {
+    etl().arg("convert").args(inputs).arg("-o").arg(out).args(extra).output().unwrap()
+}
+
+/// Convert and require success.
+pub fn convert_ok(inputs: &[&Path], out: &Path, extra: &[String]) {
+    let o = convert(inputs, out, extra);
+    assert!(o.status.success(), "convert {inputs:?} {extra:?} failed: {}", text(&o.stderr));
+}
+
+/// Cross-check a table against its source pickles with numpy + pyarrow, bit for bit.
+pub fn check_roundtrip(parquet: &Path, inputs: &[&Path], extra: &[String]) {
+    let mut args: Vec<String> = vec!["--parquet".into(), parquet.display().to_string()];
+    args.extend(extra.iter().cloned());
+    args.extend(inputs.iter().map(|p| p.display().to_string()));
+    let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+    py_ok("check_roundtrip.py", &args);
+}

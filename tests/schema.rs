@@ -1,0 +1,82 @@
+//! `schemas/*.json` are the machine-readable contract; what the code writes must match them.
+
+mod common;
+
+use std::fs::File;
+use std::path::Path;
+
+use arrow_schema::DataType;
+use common::*;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use serde_json::Value;
+
+fn json_type_ok(v: &Value, ty: &str) -> bool {
+    match ty {
+        "integer" => v.is_u64() || v.is_i64(),
+        "number" => v.is_number(),
+        "string" => v.is_string(),
+        "array" => v.is_array(),
+        other => panic!("schema names unknown JSON type {other}"),
+    }
+}
+
+/// Check a written table against a schema file: columns in order, types, nullability, footer.
+pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
+    let spec: Value = serde_json::from_str(&std::fs::read_to_string(schema_file).unwrap()).unwrap();
+    let footer = pgser::table::read_footer(table).unwrap();
+    let builder = ParquetRecordBatchReaderBuilder::try_new(File::open(table).unwrap()).unwrap();
+    let schema = builder.schema();
+    let cols = spec["columns"].as_array().unwrap();
+    let names: Vec<&str> = schema.fields().iter().map(|f| f.name().as_str()).collect();
+    let want: Vec<&str> = cols.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(names, want, "column names/order");
+    let float = footer["float_type"].as_str().unwrap_or("float32");
+    for (field, col) in schema.fields().iter().zip(cols) {
+        let name = field.name();
+        assert_eq!(field.is_nullable(), col["nullable"].as_bool().unwrap(), "{name} nullability");
+        match col["type"].as_str().unwrap() {
+            "fixed_size_list" => {
+                let DataType::FixedSizeList(item, n) = field.data_type() else { panic!("{name} is {}", field.data_type()) };
+                let size_key = col["size"].as_str().unwrap();
+                assert_eq!(*n as u64, footer[size_key].as_u64().unwrap(), "{name} size vs footer {size_key}");
+                let want_item = match col["item"].as_str().unwrap() {
+                    "float" => float.to_string(),
+                    other => other.to_string(),
+                };
+                assert_eq!(item.data_type().to_string().to_lowercase(), want_item, "{name} item type");
+                assert!(!item.is_nullable(), "{name} items must not be nullable");
+            }
+            scalar => assert_eq!(field.data_type().to_string().to_lowercase(), scalar, "{name} type"),
+        }
+    }
+    let f = &spec["footer"];
+    assert_eq!(footer["kind"], f["kind"]);
+    assert_eq!(footer["schema_version"], spec["schema_version"]);
+    for (key, ty) in f["required"].as_object().unwrap() {
+        assert!(json_type_ok(&footer[key], ty.as_str().unwrap()), "footer {key} missing or not {ty}");
+    }
+    let known: Vec<&String> = f["required"].as_object().unwrap().keys().chain(f["optional"].as_object().unwrap().keys()).collect();
+    for key in footer.as_object().unwrap().keys() {
+        assert!(known.contains(&key), "footer key {key} is not in {}", schema_file.display());
+    }
+    if let Some(fields) = f.get("source_fields").and_then(|s| s.as_object()) {
+        for source in footer["sources"].as_array().into_iter().flatten() {
+            for (key, ty) in fields {
+                assert!(json_type_ok(&source[key], ty.as_str().unwrap()), "source {key} missing or not {ty}");
+            }
+        }
+    }
+}
+
+#[test]
+fn convert_writes_the_trajectory_schema() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t.parquet");
+    let pkl = repo().join("tests/fixtures/np1_p4.pkl");
+    for extra in [vec![], vec!["--float32".to_string()]] {
+        let mut args = vec!["--task".to_string(), "FetchReach".to_string()];
+        args.extend(extra);
+        convert_ok(&[&pkl], &out, &args);
+        check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
+    }
+}
