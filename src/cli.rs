@@ -23,10 +23,7 @@ pub fn main_with(program: &str, body: impl FnOnce() -> anyhow::Result<()>) -> Ex
 pub fn command_line() -> String {
     std::env::args()
         .map(|a| {
-            if !a.is_empty()
-                && a.chars()
-                    .all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@".contains(c))
-            {
+            if !a.is_empty() && a.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@".contains(c)) {
                 a
             } else {
                 format!("'{}'", a.replace('\'', r"'\''"))

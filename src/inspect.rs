@@ -31,13 +31,7 @@ pub struct Moments {
 
 impl Default for Moments {
     fn default() -> Self {
-        Moments {
-            count: 0,
-            mean: 0.0,
-            m2: 0.0,
-            min: f64::INFINITY,
-            max: f64::NEG_INFINITY,
-        }
+        Moments { count: 0, mean: 0.0, m2: 0.0, min: f64::INFINITY, max: f64::NEG_INFINITY }
     }
 }
 
@@ -55,13 +49,7 @@ impl Moments {
         }
         let mean = sum / n as f64;
         let m2 = values.map(|v| (v - mean) * (v - mean)).sum();
-        Moments {
-            count: n,
-            mean,
-            m2,
-            min,
-            max,
-        }
+        Moments { count: n, mean, m2, min, max }
     }
 
     pub fn merge(&mut self, o: &Moments) {
@@ -79,11 +67,7 @@ impl Moments {
 
     /// Population standard deviation.
     pub fn std(&self) -> f64 {
-        if self.count == 0 {
-            0.0
-        } else {
-            (self.m2 / self.count as f64).sqrt()
-        }
+        if self.count == 0 { 0.0 } else { (self.m2 / self.count as f64).sqrt() }
     }
 }
 
@@ -116,26 +100,20 @@ pub fn inspect(path: &Path) -> Result<Summary> {
     let at = path.display();
     let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
     let bytes = file.metadata()?.len();
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-        .with_context(|| format!("{at}: not a Parquet file"))?;
+    let builder =
+        ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
     let meta = builder.metadata().clone();
     let footer = meta
         .file_metadata()
         .key_value_metadata()
         .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
         .and_then(|e| e.value.as_deref())
-        .map(|t| {
-            serde_json::from_str(t)
-                .with_context(|| format!("{at}: the `{FOOTER_KEY}` footer is not valid JSON"))
-        })
+        .map(|t| serde_json::from_str(t).with_context(|| format!("{at}: the `{FOOTER_KEY}` footer is not valid JSON")))
         .transpose()?;
     let traj: Option<trajectory::Footer> = footer
         .as_ref()
         .filter(|f: &&serde_json::Value| f["kind"] == trajectory::KIND)
-        .map(|f| {
-            serde_json::from_value(f.clone())
-                .with_context(|| format!("{at}: malformed trajectory footer"))
-        })
+        .map(|f| serde_json::from_value(f.clone()).with_context(|| format!("{at}: malformed trajectory footer")))
         .transpose()?;
     let schema = builder.schema().clone();
     let mut columns: Vec<ColumnSummary> = schema
@@ -151,10 +129,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         })
         .collect();
     let mut success = traj.as_ref().map(|f| SuccessCounter::new(f.task()));
-    let reader = builder
-        .with_batch_size(65_536)
-        .build()
-        .with_context(|| format!("{at}: cannot read"))?;
+    let reader = builder.with_batch_size(65_536).build().with_context(|| format!("{at}: cannot read"))?;
     for batch in reader {
         let batch = batch.with_context(|| format!("{at}: cannot read a row group"))?;
         for (c, col) in columns.iter_mut().zip(batch.columns()) {
@@ -163,15 +138,11 @@ pub fn inspect(path: &Path) -> Result<Summary> {
                 if c.per_dim.is_empty() {
                     c.per_dim = vec![Moments::default(); dims.len()];
                 }
-                c.per_dim
-                    .iter_mut()
-                    .zip(&dims)
-                    .for_each(|(a, b)| a.merge(b));
+                c.per_dim.iter_mut().zip(&dims).for_each(|(a, b)| a.merge(b));
             }
         }
         if let Some(s) = success.as_mut() {
-            s.add(&batch)
-                .with_context(|| format!("{at}: cannot compute success"))?;
+            s.add(&batch).with_context(|| format!("{at}: cannot compute success"))?;
         }
     }
     for c in &mut columns {
@@ -188,9 +159,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         columns,
         episodes,
         final_success,
-        success_rate: episodes
-            .zip(final_success)
-            .map(|(e, s)| if e == 0 { 0.0 } else { s as f64 / e as f64 }),
+        success_rate: episodes.zip(final_success).map(|(e, s)| if e == 0 { 0.0 } else { s as f64 / e as f64 }),
     })
 }
 
@@ -205,48 +174,24 @@ fn type_text(t: &DataType) -> String {
 
 /// Per-component moments of a numeric or FixedSizeList-of-numeric column (nulls skipped).
 fn column_moments(col: &ArrayRef) -> Option<Vec<Moments>> {
-    let (values, dim, valid): (ArrayRef, usize, Option<&arrow_buffer::NullBuffer>) =
-        match col.data_type() {
-            DataType::FixedSizeList(_, n) => {
-                let l = col.as_fixed_size_list();
-                (l.values().clone(), *n as usize, l.nulls())
-            }
-            _ => (col.clone(), 1, None),
-        };
+    let (values, dim, valid): (ArrayRef, usize, Option<&arrow_buffer::NullBuffer>) = match col.data_type() {
+        DataType::FixedSizeList(_, n) => {
+            let l = col.as_fixed_size_list();
+            (l.values().clone(), *n as usize, l.nulls())
+        }
+        _ => (col.clone(), 1, None),
+    };
     let flat: Vec<f64> = match values.data_type() {
         DataType::Float64 => values.as_primitive::<Float64Type>().values().to_vec(),
-        DataType::Float32 => values
-            .as_primitive::<Float32Type>()
-            .values()
-            .iter()
-            .map(|&v| v as f64)
-            .collect(),
-        DataType::Int64 => values
-            .as_primitive::<Int64Type>()
-            .values()
-            .iter()
-            .map(|&v| v as f64)
-            .collect(),
-        DataType::Int32 => values
-            .as_primitive::<Int32Type>()
-            .values()
-            .iter()
-            .map(|&v| v as f64)
-            .collect(),
+        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
+        DataType::Int64 => values.as_primitive::<Int64Type>().values().iter().map(|&v| v as f64).collect(),
+        DataType::Int32 => values.as_primitive::<Int32Type>().values().iter().map(|&v| v as f64).collect(),
         _ => return None,
     };
-    let scalar_nulls = if dim == 1 && valid.is_none() {
-        values.nulls()
-    } else {
-        valid
-    };
+    let scalar_nulls = if dim == 1 && valid.is_none() { values.nulls() } else { valid };
     let rows = flat.len() / dim.max(1);
     let keep = |r: &usize| scalar_nulls.is_none_or(|n| n.is_valid(*r));
-    Some(
-        (0..dim)
-            .map(|d| Moments::of((0..rows).filter(keep).map(|r| flat[r * dim + d])))
-            .collect(),
-    )
+    Some((0..dim).map(|d| Moments::of((0..rows).filter(keep).map(|r| flat[r * dim + d]))).collect())
 }
 
 /// Final-step success of each episode: the last achieved goal against the last desired goal
@@ -261,28 +206,14 @@ struct SuccessCounter {
 
 impl SuccessCounter {
     fn new(task: crate::task::Task) -> Self {
-        SuccessCounter {
-            task,
-            episodes: 0,
-            successes: 0,
-            last_goal: Vec::new(),
-        }
+        SuccessCounter { task, episodes: 0, successes: 0, last_goal: Vec::new() }
     }
 
     fn add(&mut self, batch: &RecordBatch) -> Result<()> {
         let t = self.task.t as i32;
-        let step = batch
-            .column_by_name("step")
-            .context("no step column")?
-            .as_primitive::<Int32Type>();
-        let ag = vectors(
-            batch
-                .column_by_name("achieved_goal")
-                .context("no achieved_goal column")?,
-        )?;
-        let g_col = batch
-            .column_by_name("desired_goal")
-            .context("no desired_goal column")?;
+        let step = batch.column_by_name("step").context("no step column")?.as_primitive::<Int32Type>();
+        let ag = vectors(batch.column_by_name("achieved_goal").context("no achieved_goal column")?)?;
+        let g_col = batch.column_by_name("desired_goal").context("no desired_goal column")?;
         let g = vectors(g_col)?;
         let dim = self.task.goal_dim;
         for r in 0..batch.num_rows() {
@@ -291,10 +222,7 @@ impl SuccessCounter {
             }
             if step.value(r) == t - 1 {
                 self.episodes += 1;
-                if self
-                    .task
-                    .success(&ag[r * dim..(r + 1) * dim], &self.last_goal)
-                {
+                if self.task.success(&ag[r * dim..(r + 1) * dim], &self.last_goal) {
                     self.successes += 1;
                 }
             }
@@ -307,12 +235,7 @@ fn vectors(col: &ArrayRef) -> Result<Vec<f64>> {
     let values = col.as_fixed_size_list().values().clone();
     Ok(match values.data_type() {
         DataType::Float64 => values.as_primitive::<Float64Type>().values().to_vec(),
-        DataType::Float32 => values
-            .as_primitive::<Float32Type>()
-            .values()
-            .iter()
-            .map(|&v| v as f64)
-            .collect(),
+        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
         other => anyhow::bail!("vector column of {other}"),
     })
 }
@@ -351,11 +274,7 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
             "episodes: {e}  T: {}  dims: obs {} goal {} act {}  task: {}",
             f["T"], f["obs_dim"], f["goal_dim"], f["act_dim"], f["task"]
         );
-        let _ = writeln!(
-            o,
-            "final-step success rate: {rate:.4} ({ok}/{e}, threshold {})",
-            f["success_threshold"]
-        );
+        let _ = writeln!(o, "final-step success rate: {rate:.4} ({ok}/{e}, threshold {})", f["success_threshold"]);
     }
     let _ = writeln!(
         o,

@@ -17,19 +17,13 @@ pub struct AtomicFile {
 
 impl AtomicFile {
     pub fn create(dest: &Path) -> Result<Self> {
-        let name = dest
-            .file_name()
-            .with_context(|| format!("{}: output path has no file name", dest.display()))?;
+        let name = dest.file_name().with_context(|| format!("{}: output path has no file name", dest.display()))?;
         let dir = match dest.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
         if !dir.is_dir() {
-            bail!(
-                "{}: output folder {} does not exist",
-                dest.display(),
-                dir.display()
-            );
+            bail!("{}: output folder {} does not exist", dest.display(), dir.display());
         }
         if dest.is_dir() {
             bail!("{}: output path is a folder", dest.display());
@@ -38,25 +32,13 @@ impl AtomicFile {
             .prefix(&format!(".{}.", name.to_string_lossy()))
             .suffix(".tmp")
             .tempfile_in(&dir)
-            .with_context(|| {
-                format!(
-                    "{}: cannot create a temporary file in {}",
-                    dest.display(),
-                    dir.display()
-                )
-            })?;
-        Ok(Self {
-            tmp,
-            dest: dest.to_path_buf(),
-        })
+            .with_context(|| format!("{}: cannot create a temporary file in {}", dest.display(), dir.display()))?;
+        Ok(Self { tmp, dest: dest.to_path_buf() })
     }
 
     /// A second handle on the temporary file, for writers that want to own theirs.
     pub fn handle(&self) -> Result<File> {
-        self.tmp
-            .as_file()
-            .try_clone()
-            .with_context(|| format!("{}: cannot reopen temporary file", self.dest.display()))
+        self.tmp.as_file().try_clone().with_context(|| format!("{}: cannot reopen temporary file", self.dest.display()))
     }
 
     pub fn dest(&self) -> &Path {
@@ -66,19 +48,11 @@ impl AtomicFile {
     /// Flush to disk and move into place.
     pub fn commit(self) -> Result<()> {
         let dest = self.dest.clone();
-        self.tmp
-            .as_file()
-            .sync_all()
-            .with_context(|| format!("{}: fsync failed", dest.display()))?;
+        self.tmp.as_file().sync_all().with_context(|| format!("{}: fsync failed", dest.display()))?;
         self.tmp
             .persist(&dest)
             .map_err(|e| e.error)
-            .with_context(|| {
-                format!(
-                    "{}: cannot move the finished file into place",
-                    dest.display()
-                )
-            })?;
+            .with_context(|| format!("{}: cannot move the finished file into place", dest.display()))?;
         Ok(())
     }
 }
@@ -88,11 +62,7 @@ pub fn check_not_an_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
     let out = canonical_maybe_missing(output);
     for input in inputs {
         if std::fs::canonicalize(input).ok().as_deref() == Some(out.as_path()) {
-            bail!(
-                "{}: output would overwrite input {}",
-                output.display(),
-                input.display()
-            );
+            bail!("{}: output would overwrite input {}", output.display(), input.display());
         }
     }
     Ok(())
@@ -104,14 +74,8 @@ fn canonical_maybe_missing(p: &Path) -> PathBuf {
     }
     match (p.parent(), p.file_name()) {
         (Some(dir), Some(name)) => {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            std::fs::canonicalize(dir)
-                .map(|d| d.join(name))
-                .unwrap_or_else(|_| p.to_path_buf())
+            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+            std::fs::canonicalize(dir).map(|d| d.join(name)).unwrap_or_else(|_| p.to_path_buf())
         }
         _ => p.to_path_buf(),
     }
@@ -140,9 +104,7 @@ mod tests {
 
     #[test]
     fn missing_folder_is_named() {
-        let e = AtomicFile::create(Path::new("/nonexistent-dir/x.parquet"))
-            .err()
-            .unwrap();
+        let e = AtomicFile::create(Path::new("/nonexistent-dir/x.parquet")).err().unwrap();
         assert!(e.to_string().contains("does not exist"));
     }
 }

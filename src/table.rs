@@ -2,23 +2,28 @@
 //! encoding, and the `pgser` footer.
 //!
 //! Row groups are encoded in parallel (every column of every row group in a window is its own
-//! rayon task) and appended strictly in order, so the bytes of a file never depend on the
-//! thread count.
+//! rayon task) and handed, in order, to one writer thread through a bounded channel. Encoding
+//! the next window overlaps writing the last one; the order of appends, and so the bytes of the
+//! file, never depend on the thread count; at most two windows are in flight, so memory is
+//! bounded by the window size, not the input.
 
 use std::fs::File;
 use std::io::BufWriter;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{SyncSender, sync_channel};
+use std::thread::JoinHandle;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, anyhow};
 use arrow_array::RecordBatch;
-use arrow_schema::SchemaRef;
+use arrow_schema::{DataType, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
 use parquet::arrow::arrow_writer::{ArrowColumnChunk, ArrowRowGroupWriterFactory, compute_leaves};
-use parquet::basic::{Compression, ZstdLevel};
+use parquet::basic::{Compression, Encoding, ZstdLevel};
 use parquet::file::metadata::KeyValue;
 use parquet::file::properties::{EnabledStatistics, WriterProperties};
 use parquet::file::reader::{FileReader, SerializedFileReader};
 use parquet::file::writer::SerializedFileWriter;
+use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
 
 use crate::output::AtomicFile;
@@ -28,67 +33,68 @@ pub const FOOTER_KEY: &str = "pgser";
 /// Bumped when a table's columns or footer change meaning.
 pub const SCHEMA_VERSION: u32 = 1;
 
-/// zstd level 1 (fast, and what pyarrow uses by default for zstd), no dictionaries (float
-/// columns never profit and pay for the attempt), chunk-level statistics only.
-fn writer_properties() -> WriterProperties {
-    WriterProperties::builder()
-        .set_compression(Compression::ZSTD(
-            ZstdLevel::try_new(1).expect("valid level"),
-        ))
+/// zstd level 1 (pyarrow's default level for zstd too), no dictionaries (float columns never
+/// profit and pay for the attempt), chunk statistics on scalar columns (episode/step ranges let
+/// readers skip row groups). Vector leaves get no statistics (min/max of an observation
+/// component prunes nothing) and BYTE_STREAM_SPLIT, which groups the bytes of each float by
+/// significance: files ~9% smaller for the same time (measured on FetchPush data, BENCHMARKS.md).
+fn writer_properties(schema: &Schema) -> WriterProperties {
+    let zstd = ZstdLevel::try_new(1).expect("valid level");
+    let mut b = WriterProperties::builder()
+        .set_compression(Compression::ZSTD(zstd))
         .set_dictionary_enabled(false)
         .set_statistics_enabled(EnabledStatistics::Chunk)
-        .set_created_by(format!("pgser {}", env!("CARGO_PKG_VERSION")))
-        .build()
+        .set_created_by(format!("pgser {}", env!("CARGO_PKG_VERSION")));
+    for f in schema.fields() {
+        if let DataType::FixedSizeList(item, _) = f.data_type() {
+            let leaf = ColumnPath::new(vec![f.name().clone(), "list".into(), item.name().clone()]);
+            b = b
+                .set_column_encoding(leaf.clone(), Encoding::BYTE_STREAM_SPLIT)
+                .set_column_statistics_enabled(leaf, EnabledStatistics::None);
+        }
+    }
+    b.build()
 }
+
+type FileWriter = SerializedFileWriter<BufWriter<File>>;
 
 pub struct TableWriter {
     out: AtomicFile,
-    writer: SerializedFileWriter<BufWriter<File>>,
     factory: ArrowRowGroupWriterFactory,
     schema: SchemaRef,
     row_groups: usize,
+    /// Encoded row groups, in order, to the writer thread.
+    tx: Option<SyncSender<Vec<ArrowColumnChunk>>>,
+    thread: Option<JoinHandle<Result<FileWriter>>>,
 }
 
 impl TableWriter {
     pub fn create(dest: &Path, schema: SchemaRef) -> Result<Self> {
         let out = AtomicFile::create(dest)?;
         let buf = BufWriter::with_capacity(8 << 20, out.handle()?);
+        let props = writer_properties(&schema);
         // ArrowWriter embeds the Arrow schema (so readers get FixedSizeList back); we then take
         // its lower-level halves to encode columns on our own threads.
-        let (writer, factory) =
-            ArrowWriter::try_new(buf, schema.clone(), Some(writer_properties()))
-                .and_then(|w| w.into_serialized_writer())
-                .with_context(|| format!("{}: cannot start the Parquet writer", dest.display()))?;
-        Ok(Self {
-            out,
-            writer,
-            factory,
-            schema,
-            row_groups: 0,
-        })
+        let (writer, factory) = ArrowWriter::try_new(buf, schema.clone(), Some(props))
+            .and_then(|w| w.into_serialized_writer())
+            .with_context(|| format!("{}: cannot start the Parquet writer", dest.display()))?;
+        let (tx, rx) = sync_channel::<Vec<ArrowColumnChunk>>(1);
+        let at = dest.to_path_buf();
+        let thread = std::thread::spawn(move || append_all(writer, rx, &at));
+        Ok(Self { out, factory, schema, row_groups: 0, tx: Some(tx), thread: Some(thread) })
     }
 
-    /// Encode `batches` (one row group each) in parallel and append them in order.
+    /// Encode `batches` (one row group each) in parallel and queue them, in order, for writing.
     pub fn write_row_groups(&mut self, batches: &[RecordBatch]) -> Result<()> {
         let first = self.row_groups;
-        let encoded: Vec<Vec<ArrowColumnChunk>> = batches
-            .par_iter()
-            .enumerate()
-            .map(|(i, batch)| self.encode(first + i, batch))
-            .collect::<Result<_>>()?;
-        let dest = self.out.dest().display().to_string();
+        let encoded: Vec<Vec<ArrowColumnChunk>> =
+            batches.par_iter().enumerate().map(|(i, batch)| self.encode(first + i, batch)).collect::<Result<_>>()?;
         for chunks in encoded {
-            let mut rg = self
-                .writer
-                .next_row_group()
-                .with_context(|| format!("{dest}: write failed"))?;
-            for chunk in chunks {
-                chunk
-                    .append_to_row_group(&mut rg)
-                    .with_context(|| format!("{dest}: write failed"))?;
+            let tx = self.tx.as_ref().expect("writer open");
+            if tx.send(chunks).is_err() {
+                // The writer thread stopped early: its error says why.
+                return Err(self.join().err().unwrap_or_else(|| anyhow!("writer thread stopped")));
             }
-            rg.close()
-                .with_context(|| format!("{dest}: write failed"))?;
             self.row_groups += 1;
         }
         Ok(())
@@ -111,42 +117,50 @@ impl TableWriter {
             .collect()
     }
 
+    fn join(&mut self) -> Result<FileWriter> {
+        self.tx.take();
+        let thread = self.thread.take().expect("joined once");
+        thread.join().map_err(|_| anyhow!("{}: writer thread panicked", self.out.dest().display()))?
+    }
+
     /// Write the footer and move the finished file into place. Returns its size in bytes.
     pub fn finish(mut self, footer: &serde_json::Value) -> Result<u64> {
-        let dest = self.out.dest().to_path_buf();
-        self.writer
-            .append_key_value_metadata(KeyValue::new(FOOTER_KEY.to_string(), footer.to_string()));
-        let buf = self
-            .writer
-            .into_inner()
-            .with_context(|| format!("{}: cannot finish the file", dest.display()))?;
-        buf.into_inner()
-            .map_err(|e| e.into_error())
-            .with_context(|| format!("{}: write failed", dest.display()))?;
+        let dest: PathBuf = self.out.dest().to_path_buf();
+        let mut writer = self.join()?;
+        writer.append_key_value_metadata(KeyValue::new(FOOTER_KEY.to_string(), footer.to_string()));
+        let buf = writer.into_inner().with_context(|| format!("{}: cannot finish the file", dest.display()))?;
+        buf.into_inner().map_err(|e| e.into_error()).with_context(|| format!("{}: write failed", dest.display()))?;
         self.out.commit()?;
         Ok(std::fs::metadata(&dest)?.len())
     }
 }
 
+/// The writer thread: append row groups in the order they arrive.
+fn append_all(
+    mut writer: FileWriter,
+    rx: std::sync::mpsc::Receiver<Vec<ArrowColumnChunk>>,
+    at: &Path,
+) -> Result<FileWriter> {
+    let fail = || format!("{}: write failed", at.display());
+    for chunks in rx {
+        let mut rg = writer.next_row_group().with_context(fail)?;
+        for chunk in chunks {
+            chunk.append_to_row_group(&mut rg).with_context(fail)?;
+        }
+        rg.close().with_context(fail)?;
+    }
+    Ok(writer)
+}
+
 /// The `pgser` footer of a Parquet file, parsed.
 pub fn read_footer(path: &Path) -> Result<serde_json::Value> {
     let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-    let reader = SerializedFileReader::new(file)
-        .with_context(|| format!("{}: not a Parquet file", path.display()))?;
+    let reader = SerializedFileReader::new(file).with_context(|| format!("{}: not a Parquet file", path.display()))?;
     let kv = reader.metadata().file_metadata().key_value_metadata();
     let text = kv
         .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
         .and_then(|e| e.value.clone())
-        .with_context(|| {
-            format!(
-                "{}: no `{FOOTER_KEY}` footer: not written by pgser",
-                path.display()
-            )
-        })?;
-    serde_json::from_str(&text).with_context(|| {
-        format!(
-            "{}: the `{FOOTER_KEY}` footer is not valid JSON",
-            path.display()
-        )
-    })
+        .with_context(|| format!("{}: no `{FOOTER_KEY}` footer: not written by pgser", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{}: the `{FOOTER_KEY}` footer is not valid JSON", path.display()))
 }

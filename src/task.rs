@@ -37,34 +37,10 @@ pub struct Task {
 const KNOWN: &[(&str, usize, usize, usize, usize, f64, GoalMetric)] = &[
     ("FetchReach", 50, 10, 3, 4, 0.05, GoalMetric::Euclidean),
     ("FetchPush", 50, 25, 3, 4, 0.05, GoalMetric::Euclidean),
-    (
-        "FetchPickAndPlace",
-        50,
-        25,
-        3,
-        4,
-        0.05,
-        GoalMetric::Euclidean,
-    ),
+    ("FetchPickAndPlace", 50, 25, 3, 4, 0.05, GoalMetric::Euclidean),
     ("FetchSlide", 50, 25, 3, 4, 0.05, GoalMetric::Euclidean),
-    (
-        "HandManipulateBlockRotateZ",
-        100,
-        61,
-        7,
-        20,
-        0.1,
-        GoalMetric::QuatAngle,
-    ),
-    (
-        "HandManipulateEggRotate",
-        100,
-        61,
-        7,
-        20,
-        0.1,
-        GoalMetric::QuatAngle,
-    ),
+    ("HandManipulateBlockRotateZ", 100, 61, 7, 20, 0.1, GoalMetric::QuatAngle),
+    ("HandManipulateEggRotate", 100, 61, 7, 20, 0.1, GoalMetric::QuatAngle),
 ];
 
 impl Task {
@@ -98,14 +74,7 @@ impl Task {
     }
 
     /// A user-defined task: dimensions from the data, Euclidean goals.
-    pub fn custom(
-        name: &str,
-        t: usize,
-        obs: usize,
-        goal: usize,
-        act: usize,
-        threshold: f64,
-    ) -> Task {
+    pub fn custom(name: &str, t: usize, obs: usize, goal: usize, act: usize, threshold: f64) -> Task {
         Task {
             name: name.to_string(),
             t,
@@ -130,11 +99,7 @@ impl Task {
                 .sum::<f64>()
                 .sqrt(),
             GoalMetric::QuatAngle => {
-                let dot: f64 = ag[3..7]
-                    .iter()
-                    .zip(&g[3..7])
-                    .map(|(&a, &b)| a.into() * b.into())
-                    .sum();
+                let dot: f64 = ag[3..7].iter().zip(&g[3..7]).map(|(&a, &b)| a.into() * b.into()).sum();
                 2.0 * dot.clamp(-1.0, 1.0).acos()
             }
         }

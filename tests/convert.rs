@@ -3,7 +3,6 @@
 
 mod common;
 
-
 use common::*;
 
 fn task_args(e: &serde_json::Value) -> Vec<String> {

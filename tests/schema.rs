@@ -36,7 +36,9 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
         assert_eq!(field.is_nullable(), col["nullable"].as_bool().unwrap(), "{name} nullability");
         match col["type"].as_str().unwrap() {
             "fixed_size_list" => {
-                let DataType::FixedSizeList(item, n) = field.data_type() else { panic!("{name} is {}", field.data_type()) };
+                let DataType::FixedSizeList(item, n) = field.data_type() else {
+                    panic!("{name} is {}", field.data_type())
+                };
                 let size_key = col["size"].as_str().unwrap();
                 assert_eq!(*n as u64, footer[size_key].as_u64().unwrap(), "{name} size vs footer {size_key}");
                 let want_item = match col["item"].as_str().unwrap() {
@@ -55,7 +57,8 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
     for (key, ty) in f["required"].as_object().unwrap() {
         assert!(json_type_ok(&footer[key], ty.as_str().unwrap()), "footer {key} missing or not {ty}");
     }
-    let known: Vec<&String> = f["required"].as_object().unwrap().keys().chain(f["optional"].as_object().unwrap().keys()).collect();
+    let known: Vec<&String> =
+        f["required"].as_object().unwrap().keys().chain(f["optional"].as_object().unwrap().keys()).collect();
     for key in footer.as_object().unwrap().keys() {
         assert!(known.contains(&key), "footer key {key} is not in {}", schema_file.display());
     }

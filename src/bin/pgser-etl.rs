@@ -21,11 +21,9 @@ struct Args {
 #[derive(Subcommand)]
 enum Command {
     /// Convert WGCSL-style pickles into a Parquet trajectory table, without executing them.
-    #[command(
-        after_help = "Examples:\n  pgser-etl convert expert.pkl -o traj.parquet --task FetchPush\n  \
+    #[command(after_help = "Examples:\n  pgser-etl convert expert.pkl -o traj.parquet --task FetchPush\n  \
         pgser-etl convert expert.pkl random.pkl --episodes 500,2000 -o mix.parquet --task FetchPush\n  \
-        pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05"
-    )]
+        pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05")]
     Convert {
         /// Input pickles: dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal].
         #[arg(required = true)]
@@ -68,16 +66,7 @@ enum Command {
 fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-etl", || match args.command {
-        Command::Convert {
-            inputs,
-            output,
-            task,
-            threshold,
-            episodes,
-            float32,
-            allow_nonfinite,
-            row_group_rows,
-        } => {
+        Command::Convert { inputs, output, task, threshold, episodes, float32, allow_nonfinite, row_group_rows } => {
             let opts = trajectory::ConvertOptions {
                 inputs,
                 output,
@@ -106,11 +95,7 @@ fn main() -> ExitCode {
             );
             Ok(())
         }
-        Command::Inspect {
-            file,
-            per_dim,
-            json,
-        } => {
+        Command::Inspect { file, per_dim, json } => {
             let s = inspect::inspect(&file)?;
             if json {
                 println!("{}", serde_json::to_string(&s)?);

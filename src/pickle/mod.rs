@@ -137,6 +137,27 @@ impl MappedFile {
     pub fn bytes(&self) -> &[u8] {
         self.map.as_deref().unwrap_or(&[])
     }
+
+    /// Drop the pages under `part` (a slice of this file's bytes) from our resident set once a
+    /// job has consumed them, so peak memory follows the work in flight, not the file size.
+    /// Reading them again later is still correct: the pages fault back in from the page cache.
+    /// Only whole pages inside `part` are released; a slice that is not ours is ignored.
+    pub fn release(&self, part: &[u8]) {
+        let Some(map) = &self.map else { return };
+        let base = map.as_ptr() as usize;
+        let start = part.as_ptr() as usize;
+        if start < base || start + part.len() > base + map.len() {
+            return;
+        }
+        let page = 4096;
+        let from = (start - base).div_ceil(page) * page;
+        let to = (start - base + part.len()) / page * page;
+        if to > from {
+            // SAFETY: a read-only file mapping; DONTNEED only unmaps pages, which are re-read
+            // from the file on the next access, so no borrowed slice ever sees other bytes.
+            let _ = unsafe { map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, from, to - from) };
+        }
+    }
 }
 
 impl fmt::Debug for MappedFile {

@@ -28,9 +28,7 @@ pub enum Global {
 
 impl Global {
     pub fn resolve(module: &str, name: &str) -> Option<Global> {
-        let core = |m: &str, sub: &str| {
-            m == format!("numpy.core.{sub}") || m == format!("numpy._core.{sub}")
-        };
+        let core = |m: &str, sub: &str| m == format!("numpy.core.{sub}") || m == format!("numpy._core.{sub}");
         Some(match (module, name) {
             (m, "_reconstruct") if core(m, "multiarray") => Global::Reconstruct,
             (m, "_frombuffer") if core(m, "numeric") => Global::FromBuffer,
@@ -70,12 +68,7 @@ pub struct DType {
 
 impl DType {
     pub fn float(size: usize) -> Self {
-        DType {
-            kind: DTypeKind::Float,
-            size,
-            big_endian: false,
-            unsupported: None,
-        }
+        DType { kind: DTypeKind::Float, size, big_endian: false, unsupported: None }
     }
 
     /// Parse numpy's type string (`f8`, `<i4`, `b1`, …). Kinds numpy has but we don't read
@@ -88,13 +81,8 @@ impl DType {
             _ => (false, s),
         };
         let mut chars = rest.chars();
-        let kind_char = chars
-            .next()
-            .ok_or_else(|| format!("empty dtype string {s:?}"))?;
-        let size: usize = chars
-            .as_str()
-            .parse()
-            .map_err(|_| format!("bad dtype string {s:?}"))?;
+        let kind_char = chars.next().ok_or_else(|| format!("empty dtype string {s:?}"))?;
+        let size: usize = chars.as_str().parse().map_err(|_| format!("bad dtype string {s:?}"))?;
         let kind = match (kind_char, size) {
             ('f', 2 | 4 | 8) => Some(DTypeKind::Float),
             ('i', 1 | 2 | 4 | 8) => Some(DTypeKind::Int),
@@ -153,12 +141,7 @@ pub struct NdArray<'a> {
 
 impl<'a> NdArray<'a> {
     /// Check sizes and convert to native C order. `data` is in memory order as pickled.
-    pub fn assemble(
-        dtype: DType,
-        shape: Vec<usize>,
-        fortran: bool,
-        data: Cow<'a, [u8]>,
-    ) -> Result<Self, String> {
+    pub fn assemble(dtype: DType, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> Result<Self, String> {
         if !dtype.is_supported() {
             return Err(format!(
                 "array dtype {} is not supported: only float, int, uint and bool arrays are read",
@@ -180,11 +163,7 @@ impl<'a> NdArray<'a> {
         let needs_swap = dtype.big_endian && dtype.size > 1 && cfg!(target_endian = "little");
         let needs_transpose = fortran && shape.iter().filter(|&&d| d > 1).count() > 1;
         let data = if needs_swap || needs_transpose {
-            let mut owned = if needs_transpose {
-                fortran_to_c(&data, &shape, dtype.size)
-            } else {
-                data.into_owned()
-            };
+            let mut owned = if needs_transpose { fortran_to_c(&data, &shape, dtype.size) } else { data.into_owned() };
             if needs_swap {
                 owned.chunks_exact_mut(dtype.size).for_each(|e| e.reverse());
             }
@@ -192,14 +171,7 @@ impl<'a> NdArray<'a> {
         } else {
             data
         };
-        Ok(NdArray {
-            dtype: DType {
-                big_endian: false,
-                ..dtype
-            },
-            shape,
-            data,
-        })
+        Ok(NdArray { dtype: DType { big_endian: false, ..dtype }, shape, data })
     }
 
     pub fn len(&self) -> usize {
@@ -219,14 +191,7 @@ impl<'a> NdArray<'a> {
 pub fn shape_text(shape: &[usize]) -> String {
     match shape {
         [one] => format!("({one},)"),
-        _ => format!(
-            "({})",
-            shape
-                .iter()
-                .map(|d| d.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+        _ => format!("({})", shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")),
     }
 }
 
@@ -287,10 +252,7 @@ mod tests {
         let be = DType::from_typestr(">i4").unwrap();
         assert!(be.big_endian && be.kind == DTypeKind::Int && be.size == 4);
         assert!(!DType::from_typestr("O8").unwrap().is_supported());
-        assert_eq!(
-            DType::from_typestr("U5").unwrap().name(),
-            "unicode string (U5)"
-        );
+        assert_eq!(DType::from_typestr("U5").unwrap().name(), "unicode string (U5)");
         assert!(DType::from_typestr("f").is_err());
     }
 

@@ -55,30 +55,16 @@ pub(super) fn run(data: &[u8]) -> R<Pickle<'_>> {
 
 /// Recognise common non-pickle inputs before running, so the error says what the file is.
 fn sniff(data: &[u8]) -> R<()> {
-    let fail = |what: &str| {
-        Err(PickleError {
-            offset: 0,
-            message: format!("not a pickle: {what}"),
-        })
-    };
+    let fail = |what: &str| Err(PickleError { offset: 0, message: format!("not a pickle: {what}") });
     match data {
-        [] => Err(PickleError {
-            offset: 0,
-            message: "empty file".into(),
-        }),
+        [] => Err(PickleError { offset: 0, message: "empty file".into() }),
         [0x80, ..] => Ok(()),
         [0x1f, 0x8b, ..] => fail("the file is gzip-compressed; decompress it first (gunzip)"),
         [b'P', b'K', 3, 4, ..] => fail("the file is a zip archive (an .npz?); extract it first"),
         [0x93, b'N', b'U', b'M', b'P', b'Y', ..] => fail("the file is a .npy array file"),
         [b'P', b'A', b'R', b'1', ..] => fail("the file is a Parquet file"),
-        [
-            b'(' | b']' | b'}' | b')' | b'N' | b'I' | b'L' | b'F' | b'S' | b'V' | b'c' | b'G',
-            ..,
-        ]
-        | [
-            b'J' | b'K' | b'M' | b'T' | b'U' | b'X' | b'B' | b'C' | b'.',
-            ..,
-        ] => Ok(()),
+        [b'(' | b']' | b'}' | b')' | b'N' | b'I' | b'L' | b'F' | b'S' | b'V' | b'c' | b'G', ..]
+        | [b'J' | b'K' | b'M' | b'T' | b'U' | b'X' | b'B' | b'C' | b'.', ..] => Ok(()),
         [b, ..] => fail(&format!(
             "it starts with byte 0x{b:02x} ({:?}), which no pickle starts with",
             String::from_utf8_lossy(&data[..data.len().min(8)])
@@ -106,17 +92,11 @@ fn opcode_name(op: u8) -> &'static str {
 
 impl<'a> Machine<'a> {
     fn err<T>(&self, message: impl Into<String>) -> R<T> {
-        Err(PickleError {
-            offset: self.op_pos,
-            message: message.into(),
-        })
+        Err(PickleError { offset: self.op_pos, message: message.into() })
     }
 
     fn malformed<T>(&self, what: &str) -> R<T> {
-        self.err(format!(
-            "malformed pickle: {what} (opcode 0x{:02x})",
-            self.op
-        ))
+        self.err(format!("malformed pickle: {what} (opcode 0x{:02x})", self.op))
     }
 
     /// Borrow `n` bytes, refusing before any allocation if the file does not have them.
@@ -215,9 +195,7 @@ impl<'a> Machine<'a> {
                 self.stack.push(id);
                 Ok(())
             }
-            None => self.err(format!(
-                "malformed pickle: memo key {key} read before it was set"
-            )),
+            None => self.err(format!("malformed pickle: memo key {key} read before it was set")),
         }
     }
 
@@ -229,9 +207,7 @@ impl<'a> Machine<'a> {
 
     fn text_int(&mut self) -> R<u64> {
         let l = self.line_str()?;
-        l.trim()
-            .parse()
-            .or_else(|_| self.malformed("memo index is not a number"))
+        l.trim().parse().or_else(|_| self.malformed("memo index is not a number"))
     }
 
     fn int_obj(v: i128) -> Obj<'a> {
@@ -244,11 +220,7 @@ impl<'a> Machine<'a> {
     /// LONG1/LONG4 payload: little-endian two's complement of any length.
     fn long_bytes(b: &[u8]) -> Obj<'a> {
         if b.len() <= 8 {
-            let mut buf = [if b.last().is_some_and(|&x| x & 0x80 != 0) {
-                0xff
-            } else {
-                0
-            }; 8];
+            let mut buf = [if b.last().is_some_and(|&x| x & 0x80 != 0) { 0xff } else { 0 }; 8];
             buf[..b.len()].copy_from_slice(b);
             Obj::Int(i64::from_le_bytes(buf))
         } else {
@@ -272,16 +244,10 @@ impl<'a> Machine<'a> {
         for (kv, key) in items.chunks(2).zip(keys) {
             // Python dict semantics: a repeated key replaces the earlier value.
             let existing = key.as_ref().and_then(|k| {
-                let Obj::Dict(entries) = &self.objs[dict] else {
-                    unreachable!()
-                };
-                entries
-                    .iter()
-                    .position(|(ek, _)| self.key_bytes(*ek).as_ref() == Some(k))
+                let Obj::Dict(entries) = &self.objs[dict] else { unreachable!() };
+                entries.iter().position(|(ek, _)| self.key_bytes(*ek).as_ref() == Some(k))
             });
-            let Obj::Dict(entries) = self.container_mut(dict) else {
-                unreachable!()
-            };
+            let Obj::Dict(entries) = self.container_mut(dict) else { unreachable!() };
             match existing {
                 Some(i) => entries[i] = (kv[0], kv[1]),
                 None => entries.push((kv[0], kv[1])),
@@ -313,9 +279,7 @@ impl<'a> Machine<'a> {
             0x80 => {
                 let v = self.u8()?;
                 if v > 5 {
-                    return self.err(format!(
-                        "unsupported pickle protocol {v} (this reader knows 0-5)"
-                    ));
+                    return self.err(format!("unsupported pickle protocol {v} (this reader knows 0-5)"));
                 }
             }
             0x95 => {
@@ -465,11 +429,7 @@ impl<'a> Machine<'a> {
                 self.set_items(d, items)?;
             }
             b'a' | b'e' | 0x90 => {
-                let items = if self.op == b'a' {
-                    vec![self.pop()?]
-                } else {
-                    self.pop_mark()?
-                };
+                let items = if self.op == b'a' { vec![self.pop()?] } else { self.pop_mark()? };
                 let target = self.top()?;
                 let want_set = self.op == 0x90;
                 match self.container_mut(target) {
@@ -584,8 +544,7 @@ impl<'a> Machine<'a> {
                 return self.err("refused global from the copyreg extension registry (EXT opcode)");
             }
             b'P' | b'Q' => {
-                return self
-                    .err("refused persistent id: the pickle refers to objects outside the file");
+                return self.err("refused persistent id: the pickle refers to objects outside the file");
             }
             b'R' => {
                 let args = self.pop()?;
@@ -605,9 +564,7 @@ impl<'a> Machine<'a> {
                 self.build(target, state)?;
             }
             op => {
-                return self.err(format!(
-                    "unknown opcode 0x{op:02x}: corrupt pickle or not a pickle"
-                ));
+                return self.err(format!("unknown opcode 0x{op:02x}: corrupt pickle or not a pickle"));
             }
         }
         Ok(())
@@ -632,9 +589,7 @@ impl<'a> Machine<'a> {
             Global::DTypeCtor => match args.first().map(|&a| &self.objs[a]) {
                 Some(Obj::Str(s)) => {
                     let s = s.to_string();
-                    DType::from_typestr(&s)
-                        .map(Obj::DType)
-                        .or_else(|e| self.malformed(&e))
+                    DType::from_typestr(&s).map(Obj::DType).or_else(|e| self.malformed(&e))
                 }
                 _ => bad(self, "dtype needs a type string"),
             },
@@ -657,14 +612,11 @@ impl<'a> Machine<'a> {
                 self.array(dtype, Vec::new(), false, data)
             }
             Global::CodecsEncode => match args {
-                [s, enc] if matches!(&self.objs[*enc], Obj::Str(e) if e == "latin1" || e == "latin-1") =>
-                {
+                [s, enc] if matches!(&self.objs[*enc], Obj::Str(e) if e == "latin1" || e == "latin-1") => {
                     let Obj::Str(s) = &self.objs[*s] else {
                         return bad(self, "encode needs a str");
                     };
-                    latin1(s)
-                        .map(|b| Obj::Bytes(Cow::Owned(b)))
-                        .or_else(|e| self.malformed(&e))
+                    latin1(s).map(|b| Obj::Bytes(Cow::Owned(b))).or_else(|e| self.malformed(&e))
                 }
                 _ => bad(self, "only str.encode('latin1') is allowed"),
             },
@@ -683,9 +635,7 @@ impl<'a> Machine<'a> {
                 [] => Ok(Obj::Dict(Vec::new())),
                 _ => bad(self, "OrderedDict is only rebuilt from ()"),
             },
-            Global::NdArrayType => {
-                self.err("refused call of numpy.ndarray: not a reconstruction path")
-            }
+            Global::NdArrayType => self.err("refused call of numpy.ndarray: not a reconstruction path"),
         }
     }
 
@@ -728,31 +678,19 @@ impl<'a> Machine<'a> {
                     },
                     _ => return self.malformed("dtype state is not a tuple"),
                 };
-                let Obj::DType(d) = &mut self.objs[target] else {
-                    unreachable!()
-                };
+                let Obj::DType(d) = &mut self.objs[target] else { unreachable!() };
                 d.big_endian = endian == ">";
                 Ok(())
             }
             other => {
                 let t = other.type_name();
-                self.err(format!(
-                    "refused BUILD on a {t}: only numpy arrays and dtypes are rebuilt"
-                ))
+                self.err(format!("refused BUILD on a {t}: only numpy arrays and dtypes are rebuilt"))
             }
         }
     }
 
-    fn array(
-        &self,
-        dtype: DType,
-        shape: Vec<usize>,
-        fortran: bool,
-        data: Cow<'a, [u8]>,
-    ) -> R<Obj<'a>> {
-        NdArray::assemble(dtype, shape, fortran, data)
-            .map(Obj::Array)
-            .or_else(|e| self.err(e))
+    fn array(&self, dtype: DType, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> R<Obj<'a>> {
+        NdArray::assemble(dtype, shape, fortran, data).map(Obj::Array).or_else(|e| self.err(e))
     }
 
     fn bytes_of(&self, id: Id) -> R<Cow<'a, [u8]>> {
@@ -767,10 +705,7 @@ impl<'a> Machine<'a> {
     fn dtype_of(&self, id: Id) -> R<DType> {
         match &self.objs[id] {
             Obj::DType(d) => Ok(d.clone()),
-            o => self.malformed(&format!(
-                "expected a numpy dtype, found a {}",
-                o.type_name()
-            )),
+            o => self.malformed(&format!("expected a numpy dtype, found a {}", o.type_name())),
         }
     }
 
@@ -789,11 +724,7 @@ impl<'a> Machine<'a> {
 
 /// `str.encode('latin1')`: every char must be below 256.
 fn latin1(s: &str) -> Result<Vec<u8>, String> {
-    s.chars()
-        .map(|c| {
-            u8::try_from(c as u32).map_err(|_| format!("char U+{:04X} is not latin-1", c as u32))
-        })
-        .collect()
+    s.chars().map(|c| u8::try_from(c as u32).map_err(|_| format!("char U+{:04X} is not latin-1", c as u32))).collect()
 }
 
 /// Protocol 0 UNICODE: raw-unicode-escape (latin-1 bytes plus `\uXXXX` / `\UXXXXXXXX`).

@@ -11,8 +11,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use arrow_array::types::{Float32Type, Float64Type};
 use arrow_array::{
-    ArrayRef, ArrowPrimitiveType, FixedSizeListArray, Int32Array, Int64Array, PrimitiveArray,
-    RecordBatch,
+    ArrayRef, ArrowPrimitiveType, FixedSizeListArray, Int32Array, Int64Array, PrimitiveArray, RecordBatch,
 };
 use arrow_buffer::{BooleanBuffer, NullBuffer, ScalarBuffer};
 use arrow_schema::{DataType, Field, SchemaRef};
@@ -82,11 +81,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     if let Some(ks) = &opts.episodes
         && ks.len() != opts.inputs.len()
     {
-        bail!(
-            "--episodes has {} values for {} input files: give one count per input",
-            ks.len(),
-            opts.inputs.len()
-        );
+        bail!("--episodes has {} values for {} input files: give one count per input", ks.len(), opts.inputs.len());
     }
 
     let maps: Vec<MappedFile> = opts
@@ -96,20 +91,12 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
         .collect::<Result<_>>()?;
     // Hash the inputs on a thread of their own while we parse, validate and write.
     std::thread::scope(|scope| {
-        let hashes = scope.spawn(|| {
-            maps.iter()
-                .map(|m| hex(&Sha256::digest(m.bytes())))
-                .collect::<Vec<_>>()
-        });
+        let hashes = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
         let mut skipped_keys = Vec::new();
         let mut sources = Vec::with_capacity(maps.len());
         for (i, (path, map)) in opts.inputs.iter().zip(&maps).enumerate() {
             let (mut src, skipped) = read_wgcsl(path, map.bytes())?;
-            skipped_keys.extend(
-                skipped
-                    .into_iter()
-                    .map(|k| format!("{}: {k}", path.display())),
-            );
+            skipped_keys.extend(skipped.into_iter().map(|k| format!("{}: {k}", path.display())));
             if let Some(ks) = &opts.episodes {
                 if ks[i] > src.episodes {
                     bail!(
@@ -127,10 +114,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
         let task = resolve_task(&sources, opts.task.as_deref(), opts.threshold)?;
         let total: usize = sources.iter().map(|s| s.take).sum();
         if total == 0 {
-            bail!(
-                "{}: no episodes to write (every input was empty or took 0)",
-                opts.inputs[0].display()
-            );
+            bail!("{}: no episodes to write (every input was empty or took 0)", opts.inputs[0].display());
         }
 
         bar.set_length((total * task.t) as u64);
@@ -141,18 +125,17 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
         for chunk in units.chunks(window) {
             let batches: Vec<RecordBatch> = chunk
                 .par_iter()
-                .map(|u| {
-                    build_batch(
-                        &sources[u.source],
-                        u,
-                        &schema,
-                        float_type,
-                        opts.allow_nonfinite,
-                    )
-                })
+                .map(|u| build_batch(&sources[u.source], u, &schema, float_type, opts.allow_nonfinite))
                 .collect::<Result<_>>()?;
             writer.write_row_groups(&batches)?;
             bar.inc(batches.iter().map(|b| b.num_rows() as u64).sum());
+            for u in chunk {
+                let src = &sources[u.source];
+                for a in &src.arrays {
+                    let per_episode = a.data.len() / src.episodes;
+                    maps[u.source].release(&a.data[u.start * per_episode..u.end * per_episode]);
+                }
+            }
         }
 
         let hashes = hashes.join().expect("hashing thread panicked");
@@ -169,15 +152,18 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
             })
             .collect();
         let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
-        Ok(ConvertSummary {
-            task,
-            float_type,
-            episodes: total,
-            rows: total * footer.t,
-            bytes,
-            skipped_keys,
-        })
+        Ok(ConvertSummary { task, float_type, episodes: total, rows: total * footer.t, bytes, skipped_keys })
     })
+}
+
+/// SHA-256 of a mapped file, releasing each part from memory once hashed.
+fn sha256_releasing(map: &MappedFile) -> String {
+    let mut h = Sha256::new();
+    for part in map.bytes().chunks(16 << 20) {
+        h.update(part);
+        map.release(part);
+    }
+    hex(&h.finalize())
 }
 
 pub(crate) fn hex(bytes: &[u8]) -> String {
@@ -199,10 +185,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
     let mut skipped = Vec::new();
     for (k, v) in entries {
         let Some(name) = pickle.as_text(k).map(|s| s.into_owned()) else {
-            skipped.push(format!(
-                "non-string key of type {}",
-                pickle.get(k).type_name()
-            ));
+            skipped.push(format!("non-string key of type {}", pickle.get(k).type_name()));
             continue;
         };
         let Some(slot) = KEYS.iter().position(|&key| key == name) else {
@@ -211,48 +194,25 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
         };
         match pickle.take(v) {
             Obj::Array(a) => found[slot] = Some(a),
-            other => bail!(
-                "{at}: key '{name}' is a {}, not a numpy array",
-                other.type_name()
-            ),
+            other => bail!("{at}: key '{name}' is a {}, not a numpy array", other.type_name()),
         }
     }
-    let missing: Vec<&str> = KEYS
-        .iter()
-        .zip(&found)
-        .filter(|(_, a)| a.is_none())
-        .map(|(k, _)| *k)
-        .collect();
+    let missing: Vec<&str> = KEYS.iter().zip(&found).filter(|(_, a)| a.is_none()).map(|(k, _)| *k).collect();
     if !missing.is_empty() {
-        bail!(
-            "{at}: missing key '{}' (a WGCSL buffer has o, ag, u, g)",
-            missing.join("', '")
-        );
+        bail!("{at}: missing key '{}' (a WGCSL buffer has o, ag, u, g)", missing.join("', '"));
     }
     let arrays = found.map(|a| a.expect("checked above"));
     for (key, a) in KEYS.iter().zip(&arrays) {
         if a.dtype.kind != DTypeKind::Float || a.dtype.size < 4 {
-            bail!(
-                "{at}: key '{key}' holds {} values; WGCSL arrays must be float32 or float64",
-                a.dtype.name()
-            );
+            bail!("{at}: key '{key}' holds {} values; WGCSL arrays must be float32 or float64", a.dtype.name());
         }
         if a.shape.len() != 3 {
-            bail!(
-                "{at}: key '{key}' has shape {}; expected 3 dimensions (episodes, steps, values)",
-                a.shape_text()
-            );
+            bail!("{at}: key '{key}' has shape {}; expected 3 dimensions (episodes, steps, values)", a.shape_text());
         }
     }
     let n: Vec<usize> = arrays.iter().map(|a| a.shape[0]).collect();
     if n.iter().any(|&x| x != n[0]) {
-        bail!(
-            "{at}: episode count differs across keys: o has {}, ag {}, u {}, g {}",
-            n[0],
-            n[1],
-            n[2],
-            n[3]
-        );
+        bail!("{at}: episode count differs across keys: o has {}, ag {}, u {}, g {}", n[0], n[1], n[2], n[3]);
     }
     if n[0] == 0 {
         bail!("{at}: the file has no episodes (N = 0)");
@@ -260,10 +220,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
     let steps: Vec<usize> = arrays.iter().map(|a| a.shape[1]).collect();
     let t = steps[0];
     if steps[1] != t {
-        bail!(
-            "{at}: steps differ: o has {t} steps per episode, ag has {}",
-            steps[1]
-        );
+        bail!("{at}: steps differ: o has {t} steps per episode, ag has {}", steps[1]);
     }
     if t < 2 {
         bail!("{at}: episodes have {t} steps; at least 2 observations are needed for a transition");
@@ -283,15 +240,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
         bail!("{at}: goal dimension differs: ag has {ag_dim} values per step, g has {g_dim}");
     }
     let episodes = n[0];
-    Ok((
-        Source {
-            path,
-            arrays,
-            episodes,
-            take: episodes,
-        },
-        skipped,
-    ))
+    Ok((Source { path, arrays, episodes, take: episodes }, skipped))
 }
 
 fn output_float(sources: &[Source], float32: bool) -> Result<FloatType> {
@@ -312,11 +261,7 @@ fn output_float(sources: &[Source], float32: bool) -> Result<FloatType> {
             }
         }
     }
-    Ok(if size == 4 {
-        FloatType::Float32
-    } else {
-        FloatType::Float64
-    })
+    Ok(if size == 4 { FloatType::Float32 } else { FloatType::Float64 })
 }
 
 /// Pick the task: the named one (dimensions must match), a custom one (`--threshold`), or the
@@ -357,11 +302,7 @@ fn resolve_task(sources: &[Source], name: Option<&str>, threshold: Option<f64>) 
                     }
                 }
                 if t != task.t {
-                    bail!(
-                        "{at}: episodes have {t} steps but {} has T = {}",
-                        task.name,
-                        task.t
-                    );
+                    bail!("{at}: episodes have {t} steps but {} has T = {}", task.name, task.t);
                 }
                 task
             }
@@ -382,10 +323,7 @@ fn resolve_task(sources: &[Source], name: Option<&str>, threshold: Option<f64>) 
                 ),
                 many => bail!(
                     "{at}: the dimensions fit {}; pass --task to choose",
-                    many.iter()
-                        .map(|t| t.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    many.iter().map(|t| t.name.as_str()).collect::<Vec<_>>().join(", ")
                 ),
             }
         }
@@ -411,12 +349,7 @@ fn row_group_units(sources: &[Source], t: usize, row_group_rows: usize) -> Vec<U
     for (i, s) in sources.iter().enumerate() {
         for start in (0..s.take).step_by(per_group) {
             let end = (start + per_group).min(s.take);
-            units.push(Unit {
-                source: i,
-                start,
-                end,
-                first_episode: next + start,
-            });
+            units.push(Unit { source: i, start, end, first_episode: next + start });
         }
         next += s.take;
     }
@@ -439,16 +372,7 @@ fn build_batch(
     // Table column order: obs (o), achieved_goal (ag), desired_goal (g), action (u).
     for key_index in [0, 1, 3, 2] {
         let padded = key_index >= 2;
-        let col = vector_column(
-            src,
-            key_index,
-            u.start,
-            u.end,
-            t,
-            padded,
-            out,
-            allow_nonfinite,
-        )?;
+        let col = vector_column(src, key_index, u.start, u.end, t, padded, out, allow_nonfinite)?;
         columns.push(col);
     }
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
@@ -472,31 +396,38 @@ fn vector_column(
     let size = a.dtype.size;
     let bytes = &a.data[e0 * steps * dim * size..e1 * steps * dim * size];
     let values: ArrayRef = match (size, out) {
-        (8, FloatType::Float64) => gather::<Float64Type>(bytes, 8, steps, dim, padded, |c| {
-            f64::from_le_bytes(c.try_into().unwrap())
-        }),
-        (4, FloatType::Float64) => gather::<Float64Type>(bytes, 4, steps, dim, padded, |c| {
-            f32::from_le_bytes(c.try_into().unwrap()) as f64
-        }),
-        (8, FloatType::Float32) => gather::<Float32Type>(bytes, 8, steps, dim, padded, |c| {
-            f64::from_le_bytes(c.try_into().unwrap()) as f32
-        }),
-        _ => gather::<Float32Type>(bytes, 4, steps, dim, padded, |c| {
-            f32::from_le_bytes(c.try_into().unwrap())
-        }),
+        (8, FloatType::Float64) => copy_episodes::<Float64Type>(bytes, steps * dim, padded, dim),
+        (4, FloatType::Float32) => copy_episodes::<Float32Type>(bytes, steps * dim, padded, dim),
+        (4, FloatType::Float64) => {
+            gather::<Float64Type>(bytes, 4, steps, dim, padded, |c| f32::from_le_bytes(c.try_into().unwrap()) as f64)
+        }
+        _ => gather::<Float32Type>(bytes, 8, steps, dim, padded, |c| f64::from_le_bytes(c.try_into().unwrap()) as f32),
     };
     if !allow_nonfinite {
         check_finite(src, key_index, e0, t, dim, out, &values)?;
     }
     let rows = (e1 - e0) * t;
-    let nulls =
-        padded.then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| r % t != t - 1)));
+    let nulls = padded.then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| r % t != t - 1)));
     let item = Arc::new(Field::new("item", out.arrow(), false));
-    Ok(Arc::new(FixedSizeListArray::try_new(
-        item, dim as i32, values, nulls,
-    )?))
+    Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, values, nulls)?))
 }
 
+/// Same float type in and out: copy whole episodes as bytes (the source is native-endian but
+/// may be unaligned, so it cannot be reinterpreted in place).
+fn copy_episodes<T: ArrowPrimitiveType>(bytes: &[u8], per_episode: usize, padded: bool, dim: usize) -> ArrayRef {
+    let size = std::mem::size_of::<T::Native>();
+    let episodes = bytes.len() / (per_episode * size).max(1);
+    let pad = if padded { dim } else { 0 };
+    let mut buf = arrow_buffer::MutableBuffer::with_capacity(episodes * (per_episode + pad) * size);
+    for ep in bytes.chunks_exact(per_episode * size) {
+        buf.extend_from_slice(ep);
+        buf.extend_zeros(pad * size);
+    }
+    let values = ScalarBuffer::<T::Native>::from(arrow_buffer::Buffer::from(buf));
+    Arc::new(PrimitiveArray::<T>::new(values, None))
+}
+
+/// Different float types: convert element by element.
 fn gather<T: ArrowPrimitiveType>(
     bytes: &[u8],
     size: usize,
@@ -529,24 +460,14 @@ fn check_finite(
 ) -> Result<()> {
     let as_f64: Box<dyn Fn(usize) -> f64> = match values.data_type() {
         DataType::Float64 => {
-            let v = values
-                .as_any()
-                .downcast_ref::<PrimitiveArray<Float64Type>>()
-                .unwrap()
-                .values()
-                .clone();
+            let v = values.as_any().downcast_ref::<PrimitiveArray<Float64Type>>().unwrap().values().clone();
             if v.iter().all(|x| x.is_finite()) {
                 return Ok(());
             }
             Box::new(move |i| v[i])
         }
         _ => {
-            let v = values
-                .as_any()
-                .downcast_ref::<PrimitiveArray<Float32Type>>()
-                .unwrap()
-                .values()
-                .clone();
+            let v = values.as_any().downcast_ref::<PrimitiveArray<Float32Type>>().unwrap().values().clone();
             if v.iter().all(|x| x.is_finite()) {
                 return Ok(());
             }
@@ -554,9 +475,7 @@ fn check_finite(
         }
     };
     let len = values.len();
-    let i = (0..len)
-        .find(|&i| !as_f64(i).is_finite())
-        .expect("a non-finite value exists");
+    let i = (0..len).find(|&i| !as_f64(i).is_finite()).expect("a non-finite value exists");
     let row = i / dim;
     let (episode, step, index) = (e0 + row / t, row % t, i % dim);
     let a = &src.arrays[key_index];
