@@ -14,6 +14,8 @@
 //! Fortran→C transpose are converted once into an owned buffer.
 
 mod numpy;
+mod reduce;
+mod text;
 mod vm;
 
 use std::borrow::Cow;

@@ -5,22 +5,23 @@
 use std::borrow::Cow;
 use std::collections::HashMap;
 
-use super::numpy::{DType, Global, NdArray};
+use super::numpy::Global;
+use super::text::{decode_raw_unicode_escape, decode_repr_string};
 use super::{Id, Obj, Pickle, PickleError};
 
 type R<T> = Result<T, PickleError>;
 
-struct Machine<'a> {
-    data: &'a [u8],
-    pos: usize,
+pub(super) struct Machine<'a> {
+    pub(super) data: &'a [u8],
+    pub(super) pos: usize,
     /// Offset of the opcode being executed, for error messages.
-    op_pos: usize,
-    op: u8,
-    objs: Vec<Obj<'a>>,
-    stack: Vec<Id>,
+    pub(super) op_pos: usize,
+    pub(super) op: u8,
+    pub(super) objs: Vec<Obj<'a>>,
+    pub(super) stack: Vec<Id>,
     /// Stack heights at each MARK (CPython's metastack).
-    marks: Vec<usize>,
-    memo: HashMap<u64, Id>,
+    pub(super) marks: Vec<usize>,
+    pub(super) memo: HashMap<u64, Id>,
 }
 
 pub(super) fn run(data: &[u8]) -> R<Pickle<'_>> {
@@ -91,11 +92,11 @@ fn opcode_name(op: u8) -> &'static str {
 }
 
 impl<'a> Machine<'a> {
-    fn err<T>(&self, message: impl Into<String>) -> R<T> {
+    pub(super) fn err<T>(&self, message: impl Into<String>) -> R<T> {
         Err(PickleError { offset: self.op_pos, message: message.into() })
     }
 
-    fn malformed<T>(&self, what: &str) -> R<T> {
+    pub(super) fn malformed<T>(&self, what: &str) -> R<T> {
         self.err(format!("malformed pickle: {what} (opcode 0x{:02x})", self.op))
     }
 
@@ -576,226 +577,4 @@ impl<'a> Machine<'a> {
             o => format!("<{}>", o.type_name()),
         }
     }
-
-    // --- the allow-listed calls ---
-
-    fn call(&mut self, g: Global, args: &[Id]) -> R<Obj<'a>> {
-        let bad = |m: &Self, what: &str| m.err(format!("bad arguments to {g:?}: {what}"));
-        match g {
-            Global::Reconstruct => match args.first().map(|&a| &self.objs[a]) {
-                Some(Obj::Global(Global::NdArrayType)) => Ok(Obj::PendingArray),
-                _ => bad(self, "only numpy.ndarray can be reconstructed"),
-            },
-            Global::DTypeCtor => match args.first().map(|&a| &self.objs[a]) {
-                Some(Obj::Str(s)) => {
-                    let s = s.to_string();
-                    DType::from_typestr(&s).map(Obj::DType).or_else(|e| self.malformed(&e))
-                }
-                _ => bad(self, "dtype needs a type string"),
-            },
-            Global::FromBuffer => {
-                let [buf, dtype, shape, order] = args else {
-                    return bad(self, "expected (buffer, dtype, shape, order)");
-                };
-                let data = self.bytes_of(*buf)?;
-                let dtype = self.dtype_of(*dtype)?;
-                let shape = self.shape_of(*shape)?;
-                let fortran = matches!(&self.objs[*order], Obj::Str(s) if s == "F");
-                self.array(dtype, shape, fortran, data)
-            }
-            Global::Scalar => {
-                let [dtype, data] = args else {
-                    return bad(self, "expected (dtype, bytes)");
-                };
-                let dtype = self.dtype_of(*dtype)?;
-                let data = self.bytes_of(*data)?;
-                self.array(dtype, Vec::new(), false, data)
-            }
-            Global::CodecsEncode => match args {
-                [s, enc] if matches!(&self.objs[*enc], Obj::Str(e) if e == "latin1" || e == "latin-1") => {
-                    let Obj::Str(s) = &self.objs[*s] else {
-                        return bad(self, "encode needs a str");
-                    };
-                    latin1(s).map(|b| Obj::Bytes(Cow::Owned(b))).or_else(|e| self.malformed(&e))
-                }
-                _ => bad(self, "only str.encode('latin1') is allowed"),
-            },
-            Global::ByteArray => match args {
-                [] => Ok(Obj::Bytes(Cow::Owned(Vec::new()))),
-                // bytearray(int) would allocate an attacker-chosen size: refused.
-                [b] | [b, _] => self.bytes_of(*b).map(Obj::Bytes),
-                _ => bad(self, "expected bytes"),
-            },
-            Global::Set | Global::FrozenSet => match args.first().map(|&a| &self.objs[a]) {
-                None => Ok(Obj::Set(Vec::new())),
-                Some(Obj::List(v) | Obj::Tuple(v) | Obj::Set(v)) => Ok(Obj::Set(v.clone())),
-                _ => bad(self, "expected a list"),
-            },
-            Global::OrderedDict => match args {
-                [] => Ok(Obj::Dict(Vec::new())),
-                _ => bad(self, "OrderedDict is only rebuilt from ()"),
-            },
-            Global::NdArrayType => self.err("refused call of numpy.ndarray: not a reconstruction path"),
-        }
-    }
-
-    /// BUILD: the second half of numpy's array and dtype reconstruction. BUILD on anything
-    /// else would mean calling `__setstate__` of an arbitrary object, so it is refused.
-    fn build(&mut self, target: Id, state: Id) -> R<()> {
-        match &self.objs[target] {
-            Obj::PendingArray => {
-                let Obj::Tuple(st) = self.objs[state].clone() else {
-                    return self.malformed("array state is not a tuple");
-                };
-                // (version, shape, dtype, is_fortran, data) or, from old numpy, without version.
-                let st = match st.len() {
-                    5 => &st[1..],
-                    4 => &st[..],
-                    _ => return self.malformed("array state has the wrong length"),
-                };
-                let shape = self.shape_of(st[0])?;
-                let dtype = self.dtype_of(st[1])?;
-                let fortran = match self.objs[st[2]] {
-                    Obj::Bool(b) => b,
-                    Obj::Int(i) => i != 0,
-                    _ => return self.malformed("array is_fortran flag is not a bool"),
-                };
-                if let Obj::List(_) = self.objs[st[3]] {
-                    return self.err(format!(
-                        "array dtype {} is not supported: object arrays hold Python objects",
-                        dtype.name()
-                    ));
-                }
-                let data = self.bytes_of(st[3])?;
-                self.objs[target] = self.array(dtype, shape, fortran, data)?;
-                Ok(())
-            }
-            Obj::DType(_) => {
-                let endian = match &self.objs[state] {
-                    Obj::Tuple(st) if st.len() >= 2 => match &self.objs[st[1]] {
-                        Obj::Str(e) => e.to_string(),
-                        _ => return self.malformed("dtype byte order is not a str"),
-                    },
-                    _ => return self.malformed("dtype state is not a tuple"),
-                };
-                let Obj::DType(d) = &mut self.objs[target] else { unreachable!() };
-                d.big_endian = endian == ">";
-                Ok(())
-            }
-            other => {
-                let t = other.type_name();
-                self.err(format!("refused BUILD on a {t}: only numpy arrays and dtypes are rebuilt"))
-            }
-        }
-    }
-
-    fn array(&self, dtype: DType, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> R<Obj<'a>> {
-        NdArray::assemble(dtype, shape, fortran, data).map(Obj::Array).or_else(|e| self.err(e))
-    }
-
-    fn bytes_of(&self, id: Id) -> R<Cow<'a, [u8]>> {
-        match &self.objs[id] {
-            Obj::Bytes(b) => Ok(b.clone()),
-            // Python 2 pickles loaded with encoding='latin1' carry array data as str.
-            Obj::Str(s) => latin1(s).map(Cow::Owned).or_else(|e| self.malformed(&e)),
-            o => self.malformed(&format!("expected bytes, found a {}", o.type_name())),
-        }
-    }
-
-    fn dtype_of(&self, id: Id) -> R<DType> {
-        match &self.objs[id] {
-            Obj::DType(d) => Ok(d.clone()),
-            o => self.malformed(&format!("expected a numpy dtype, found a {}", o.type_name())),
-        }
-    }
-
-    fn shape_of(&self, id: Id) -> R<Vec<usize>> {
-        let Obj::Tuple(dims) = &self.objs[id] else {
-            return self.malformed("array shape is not a tuple");
-        };
-        dims.iter()
-            .map(|&d| match self.objs[d] {
-                Obj::Int(i) if i >= 0 => Ok(i as usize),
-                _ => self.malformed("array shape holds something other than a non-negative int"),
-            })
-            .collect()
-    }
-}
-
-/// `str.encode('latin1')`: every char must be below 256.
-fn latin1(s: &str) -> Result<Vec<u8>, String> {
-    s.chars().map(|c| u8::try_from(c as u32).map_err(|_| format!("char U+{:04X} is not latin-1", c as u32))).collect()
-}
-
-/// Protocol 0 UNICODE: raw-unicode-escape (latin-1 bytes plus `\uXXXX` / `\UXXXXXXXX`).
-fn decode_raw_unicode_escape(b: &[u8]) -> Result<String, String> {
-    let mut out = String::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        let width = match (b[i], b.get(i + 1)) {
-            (b'\\', Some(b'u')) => 4,
-            (b'\\', Some(b'U')) => 8,
-            _ => {
-                out.push(b[i] as char);
-                i += 1;
-                continue;
-            }
-        };
-        let hex = b.get(i + 2..i + 2 + width).ok_or("truncated \\u escape")?;
-        let hex = std::str::from_utf8(hex).map_err(|_| "bad \\u escape")?;
-        let cp = u32::from_str_radix(hex, 16).map_err(|_| "bad \\u escape")?;
-        out.push(char::from_u32(cp).ok_or("\\u escape is not a valid char")?);
-        i += 2 + width;
-    }
-    Ok(out)
-}
-
-/// Protocol 0 STRING: a Python 2 `repr` of a byte string, quotes included.
-fn decode_repr_string(line: &[u8]) -> Result<Vec<u8>, String> {
-    let q = *line.first().ok_or("empty STRING")?;
-    if line.len() < 2 || (q != b'\'' && q != b'"') || line[line.len() - 1] != q {
-        return Err("STRING argument is not quoted".into());
-    }
-    let body = &line[1..line.len() - 1];
-    let mut out = Vec::with_capacity(body.len());
-    let mut i = 0;
-    while i < body.len() {
-        if body[i] != b'\\' {
-            out.push(body[i]);
-            i += 1;
-            continue;
-        }
-        let e = *body.get(i + 1).ok_or("dangling backslash in STRING")?;
-        i += 2;
-        match e {
-            b'n' => out.push(b'\n'),
-            b'r' => out.push(b'\r'),
-            b't' => out.push(b'\t'),
-            b'a' => out.push(7),
-            b'b' => out.push(8),
-            b'f' => out.push(12),
-            b'v' => out.push(11),
-            b'x' => {
-                let h = body.get(i..i + 2).ok_or("truncated \\x escape")?;
-                let h = std::str::from_utf8(h).map_err(|_| "bad \\x escape")?;
-                out.push(u8::from_str_radix(h, 16).map_err(|_| "bad \\x escape")?);
-                i += 2;
-            }
-            b'0'..=b'7' => {
-                let mut v = (e - b'0') as u32;
-                for _ in 0..2 {
-                    match body.get(i) {
-                        Some(&d @ b'0'..=b'7') => {
-                            v = v * 8 + (d - b'0') as u32;
-                            i += 1;
-                        }
-                        _ => break,
-                    }
-                }
-                out.push(v as u8);
-            }
-            other => out.push(other),
-        }
-    }
-    Ok(out)
 }
