@@ -272,7 +272,11 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
         let _ = writeln!(
             o,
             "episodes: {e}  T: {}  dims: obs {} goal {} act {}  task: {}",
-            f["T"], f["obs_dim"], f["goal_dim"], f["act_dim"], f["task"]
+            f["T"],
+            f["obs_dim"],
+            f["goal_dim"],
+            f["act_dim"],
+            f["task"].as_str().unwrap_or("?")
         );
         let _ = writeln!(o, "final-step success rate: {rate:.4} ({ok}/{e}, threshold {})", f["success_threshold"]);
     }

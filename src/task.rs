@@ -109,9 +109,11 @@ impl Task {
         self.distance(ag, g) < self.threshold
     }
 
-    /// The paper's eq. 2 sparse reward: 0 when the goal is reached, −1 otherwise.
+    /// The paper's eq. 2 sparse reward: 0 when the goal is reached, −1 otherwise. Written as
+    /// gymnasium-robotics' `compute_reward` does, `−(d > threshold)`: at exactly d = threshold
+    /// the reward is 0 although `success` (d < threshold) is false, as in the Python envs.
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
-        if self.success(ag, g) { 0.0 } else { -1.0 }
+        if self.distance(ag, g) > self.threshold { -1.0 } else { 0.0 }
     }
 }
 
@@ -132,6 +134,9 @@ mod tests {
         let t = Task::known("FetchReach").unwrap();
         assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.03, 0.03, 0.0]), 0.0); // 0.0424 < 0.05
         assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.04, 0.04, 0.0]), -1.0); // 0.0566
+        // Exactly on the threshold: reward 0 (−(d > thr)) yet not a success (d < thr).
+        assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.05, 0.0, 0.0]), 0.0);
+        assert!(!t.success(&[0.0, 0.0, 0.0], &[0.05, 0.0, 0.0]));
     }
 
     #[test]
