@@ -1,6 +1,7 @@
 # pgser set-up: `make demo` runs the main job on data/, `make test` runs every test.
 # Each target installs what it needs: MuJoCo's shared library from the mujoco==3.17.0 wheel
-# (SPEC §4.2) and a Python venv for cross-checks. Nothing outside the repo is touched.
+# (SPEC §4.2), the Fetch model assets from the gymnasium-robotics==1.4.2 wheel, and a Python venv
+# for cross-checks. Nothing outside the repo is touched.
 
 PYTHON ?= python3
 VENV := .venv
@@ -8,12 +9,16 @@ PY := $(VENV)/bin/python
 DEPS := .deps
 MUJOCO_DIR := $(DEPS)/mujoco
 MUJOCO_LIB := $(MUJOCO_DIR)/libmujoco.so
+# Fetch XML/mesh/texture assets from the gymnasium-robotics wheel, in the wheel's own layout
+# (the XML names meshdir ../stls/fetch and texturedir ../textures). build.rs points binaries here.
+ASSETS_DIR := $(DEPS)/gymnasium_robotics/assets
+ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 CARGO ?= cargo
 
 .PHONY: all build test demo bench deps venv fuzz clean
 all: build
 
-deps: $(MUJOCO_LIB)
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP)
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -23,6 +28,16 @@ $(MUJOCO_LIB):
 	  z=zipfile.ZipFile(w); f=z.open('mujoco/libmujoco.so.3.17.0'); \
 	  shutil.copyfileobj(f, open('$(MUJOCO_DIR)/libmujoco.so.3.17.0','wb'))"
 	ln -sf libmujoco.so.3.17.0 $(MUJOCO_LIB)
+
+# Only gymnasium_robotics/envs/assets/ is taken from the wheel; no Python code is installed.
+# Extracted beside the target and moved into place, so an interrupted run leaves no partial tree.
+$(ASSETS_STAMP):
+	@mkdir -p $(DEPS)/wheels
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: gymnasium-robotics==1.4.2 -d $(DEPS)/wheels
+	$(PYTHON) -c "import zipfile,shutil; p='gymnasium_robotics/envs/assets'; t='$(DEPS)/assets.tmp'; \
+	  z=zipfile.ZipFile('$(DEPS)/wheels/gymnasium_robotics-1.4.2-py3-none-any.whl'); \
+	  shutil.rmtree(t, ignore_errors=True); z.extractall(t, [n for n in z.namelist() if n.startswith(p+'/')]); \
+	  shutil.rmtree('$(ASSETS_DIR)', ignore_errors=True); shutil.move(t+'/'+p, '$(ASSETS_DIR)'); shutil.rmtree(t)"
 
 venv: $(VENV)/.stamp
 $(VENV)/.stamp: tests/requirements.txt

@@ -1,5 +1,7 @@
 //! Give binaries and tests an rpath to MuJoCo's shared library, so `target/release/pgser-*`
 //! run with no LD_LIBRARY_PATH. The folder comes from `.cargo/config.toml` (`make deps`).
+//! Also bakes in where `make deps` puts the gymnasium-robotics assets, so the Fetch
+//! environments (`pgser::env`) find their XML with no environment variable either.
 
 fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
@@ -9,4 +11,9 @@ fn main() {
         panic!("{dir}/libmujoco.so is missing: run `make deps` to fetch MuJoCo 3.17.0 from its wheel");
     }
     println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
+
+    // Not checked here: a build without assets is fine; `pgser::env` names the path at run time.
+    let root = std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
+    let assets = std::path::Path::new(&root).join(".deps/gymnasium_robotics/assets");
+    println!("cargo::rustc-env=PGSER_FETCH_ASSETS={}", assets.display());
 }

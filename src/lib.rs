@@ -6,6 +6,7 @@
 //! every writer shares (parallel row-group encoding, the footer, atomic files).
 
 pub mod cli;
+pub mod env;
 pub mod inspect;
 pub mod output;
 pub mod pickle;

@@ -1,0 +1,104 @@
+//! Goal-conditioned simulation environments: the gymnasium-robotics 1.4.2 Fetch v4 tasks on
+//! MuJoCo 3.17.0 (SPEC §4.2).
+//!
+//! They exist so pgser can collect trajectories and evaluate policies without Python. Being a
+//! port and not a look-alike is the point: with the same MuJoCo library, the same seed and the
+//! same actions, an episode here equals the Python one (positions bit for bit;
+//! `tests/env_parity.rs` checks it), so data and scores from either side are interchangeable.
+
+pub mod fetch;
+pub mod rng;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, bail};
+
+use crate::task::Task;
+
+/// One observation, split as gymnasium's goal environments split it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Obs {
+    pub observation: Vec<f64>,
+    pub achieved_goal: Vec<f64>,
+    pub desired_goal: Vec<f64>,
+}
+
+/// What `step` returns. Fetch tasks never terminate on their own; episodes end by length
+/// ([`Task::t`]), so there is no `terminated`/`truncated`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    pub obs: Obs,
+    /// [`Task::reward`]: 0 when the goal is reached, −1 otherwise.
+    pub reward: f64,
+    /// [`Task::success`] of the new achieved goal (gymnasium's `info["is_success"]`).
+    pub success: bool,
+}
+
+/// A goal-conditioned environment, shaped like gymnasium's `GoalEnv`.
+pub trait GoalEnv {
+    fn task(&self) -> &Task;
+    /// Start an episode. `Some(seed)` re-seeds the generator as `env.reset(seed=seed)` does;
+    /// `None` continues its stream, as `env.reset()` does, so N episodes after one seeded reset
+    /// match Python's. An environment never seeded behaves as if seeded with 0 (gymnasium would
+    /// use OS entropy; pgser runs are meant to be reproducible).
+    fn reset(&mut self, seed: Option<u64>) -> Obs;
+    /// Apply one action (`task().act_dim` values, clipped to [−1, 1]). Values are first rounded
+    /// to f32, the action space's dtype, because gymnasium computes with a float32 action as a
+    /// policy hands it over. Panics if the action has the wrong length, as gymnasium raises.
+    fn step(&mut self, action: &[f64]) -> Step;
+}
+
+/// The environment for a task name or gymnasium id (`FetchPush`, `FetchPush-v4`).
+/// Other versions are refused: v1–v3 reset differently, so their data would not match.
+pub fn make(task_name: &str) -> Result<Box<dyn GoalEnv + Send>> {
+    if let Some((_, version)) = task_name.split_once("-v")
+        && version != "4"
+    {
+        bail!("{task_name}: pgser simulates the v4 Fetch environments only (use -v4 or no suffix)");
+    }
+    let Some(task) = Task::known(task_name) else {
+        bail!("{task_name}: no environment for this task (pgser simulates {})", fetch::TASKS.join(", "));
+    };
+    Ok(Box::new(fetch::FetchEnv::new(&task.name, &assets_dir())?))
+}
+
+/// Where the gymnasium-robotics assets are: `$PGSER_ASSETS` if set, else the folder
+/// `make deps` fills (baked in by build.rs, so binaries need no environment variable).
+pub fn assets_dir() -> PathBuf {
+    match std::env::var_os("PGSER_ASSETS") {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => PathBuf::from(env!("PGSER_FETCH_ASSETS")),
+    }
+}
+
+/// A model file under the assets folder, or an error that says how to get it.
+pub(crate) fn asset(dir: &Path, rel: &str) -> Result<PathBuf> {
+    let p = dir.join(rel);
+    if !p.is_file() {
+        bail!(
+            "{} is missing: run `make deps` (it unpacks the gymnasium-robotics 1.4.2 wheel's assets into \
+             .deps/gymnasium_robotics/assets), or point PGSER_ASSETS at a gymnasium_robotics/envs/assets folder",
+            p.display()
+        );
+    }
+    Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn make_refuses_what_it_cannot_simulate() {
+        let err = |n: &str| make(n).err().unwrap().to_string();
+        assert!(err("FetchPush-v1").contains("v4"));
+        assert!(err("HandManipulateEggRotate").contains("FetchPickAndPlace"));
+        assert!(err("PointReach").contains("no environment"));
+    }
+
+    #[test]
+    fn missing_assets_name_the_path_and_the_fix() {
+        let e = asset(Path::new("/nonexistent/assets"), "fetch/push.xml").unwrap_err().to_string();
+        assert!(e.contains("/nonexistent/assets/fetch/push.xml") && e.contains("make deps"), "{e}");
+    }
+}

@@ -1,0 +1,122 @@
+//! The Rust Fetch environments against gymnasium-robotics 1.4.2 on the same MuJoCo 3.17.0, and
+//! the Rust numpy generator against numpy. Python writes reference runs
+//! (`tests/py/env_parity.py`, floats as IEEE bits); Rust replays the same seeds and actions.
+//! Positions (and goals, object placement, sim time, rewards) must be equal bit for bit; the
+//! rest (Euler angles, Jacobian velocities, where numpy's libm/BLAS may round differently) within
+//! 1e-6. Run with `--nocapture` to see the largest differences per task.
+
+mod common;
+
+use pgser::env::fetch::{FetchEnv, TASKS};
+use pgser::env::rng::NpRandom;
+use pgser::env::{GoalEnv, Obs, assets_dir};
+use serde_json::Value;
+
+const SEEDS: [u64; 3] = [0, 1, 7];
+const STEPS: usize = 50;
+const TOLERANCE: f64 = 1e-6;
+
+/// A list of u64 IEEE bit patterns, as the Python side writes floats.
+fn floats(v: &Value) -> Vec<f64> {
+    v.as_array().unwrap().iter().map(|b| f64::from_bits(b.as_u64().unwrap())).collect()
+}
+
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits() || (*x == 0.0 && *y == 0.0))
+}
+
+#[test]
+fn numpy_generator_is_reproduced() {
+    let seeds: [u64; 5] = [0, 1, 42, (1 << 32) + 5, 1 << 63];
+    let list = seeds.map(|s| s.to_string()).join(",");
+    let out = common::py_ok("env_parity.py", &["rng", "--seeds", &list, "--n", "1000"]);
+    let py: Value = serde_json::from_slice(&out.stdout).unwrap();
+    for s in seeds {
+        let want = &py[s.to_string()];
+        let mut g = NpRandom::new(s);
+        let random: Vec<f64> = (0..1000).map(|_| g.random()).collect();
+        assert!(same_bits(&random, &floats(&want["random"])), "random() differs for seed {s}");
+        let mut u = NpRandom::new(s);
+        let mut uniform: Vec<f64> = (0..1000).map(|_| u.uniform(-0.3, 0.7)).collect();
+        uniform.push(u.uniform(0.0, 0.45));
+        assert!(same_bits(&uniform, &floats(&want["uniform"])), "uniform() differs for seed {s}");
+    }
+}
+
+/// Largest |difference| seen per part of the observation, and whether positions stayed exact.
+#[derive(Default)]
+struct Diffs {
+    positions: f64,
+    euler: f64,
+    velocities: f64,
+    compared: usize,
+}
+
+impl Diffs {
+    /// Compare one observation; `what` names it in failure messages.
+    fn check(&mut self, task: &str, what: &str, got: &Obs, want: &Value) {
+        let (obs, ag, g) =
+            (floats(&want["observation"]), floats(&want["achieved_goal"]), floats(&want["desired_goal"]));
+        assert_eq!(got.observation.len(), obs.len(), "{task} {what}: observation length");
+        assert!(same_bits(&got.achieved_goal, &ag), "{task} {what}: achieved goal {:?} != {ag:?}", got.achieved_goal);
+        assert!(same_bits(&got.desired_goal, &g), "{task} {what}: desired goal {:?} != {g:?}", got.desired_goal);
+        // Positions: grip, object, object − grip, fingers (Reach: grip, fingers).
+        let (npos, euler) = if obs.len() == 10 { (5, 5..5) } else { (11, 11..14) };
+        let diff = |r: std::ops::Range<usize>| r.map(|i| (got.observation[i] - obs[i]).abs()).fold(0.0f64, f64::max);
+        let n = obs.len();
+        let (p, e, v) = (diff(0..npos), diff(euler.clone()), diff(euler.end..n));
+        self.positions = self.positions.max(p);
+        self.euler = self.euler.max(e);
+        self.velocities = self.velocities.max(v);
+        self.compared += 1;
+        assert!(
+            same_bits(&got.observation[..npos], &obs[..npos]),
+            "{task} {what}: positions differ\nrust   {:?}\npython {:?}",
+            &got.observation[..npos],
+            &obs[..npos]
+        );
+        assert!(
+            e.max(v) <= TOLERANCE,
+            "{task} {what}: observation differs by {}\nrust   {:?}\npython {obs:?}",
+            e.max(v),
+            got.observation
+        );
+    }
+}
+
+#[test]
+fn fetch_envs_match_python() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("runs.json");
+    let seeds = SEEDS.map(|s| s.to_string()).join(",");
+    let steps = STEPS.to_string();
+    let args = ["env", "--tasks", &TASKS.join(","), "--seeds", &seeds, "--steps", &steps];
+    common::py_ok("env_parity.py", &[&args[..], &["--out", path.to_str().unwrap()]].concat());
+    let runs: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+
+    for task in TASKS {
+        let mut env = FetchEnv::new(task, &assets_dir()).unwrap();
+        let mut d = Diffs::default();
+        for seed in SEEDS {
+            let run = &runs[task][seed.to_string()];
+            // _env_setup: where the gripper ends up and the table height, bit for bit.
+            assert!(same_bits(&env.initial_gripper_xpos(), &floats(&run["initial_gripper_xpos"])), "{task} setup");
+            assert_eq!(env.height_offset().to_bits(), floats(&run["height_offset"])[0].to_bits(), "{task} height");
+            let obs = env.reset(Some(seed));
+            d.check(task, &format!("seed {seed} reset"), &obs, &run["reset"]);
+            for (t, want) in run["steps"].as_array().unwrap().iter().enumerate() {
+                let action = floats(&want["action"]);
+                let step = env.step(&action);
+                let what = format!("seed {seed} step {t}");
+                d.check(task, &what, &step.obs, want);
+                assert_eq!(step.reward, want["reward"].as_f64().unwrap(), "{task} {what}: reward");
+                assert_eq!(step.success, want["success"].as_bool().unwrap(), "{task} {what}: success");
+                assert_eq!(env.time().to_bits(), floats(&want["time"])[0].to_bits(), "{task} {what}: time");
+            }
+        }
+        println!(
+            "{task:<18} {} observations: positions exact (max diff {:e}), euler max diff {:e}, velocities max diff {:e}",
+            d.compared, d.positions, d.euler, d.velocities
+        );
+    }
+}
