@@ -54,7 +54,8 @@ test: deps venv
 
 demo: build
 	@mkdir -p out
-	./target/release/pgser-etl convert data/fetch_reach_sample.pkl -o out/demo_traj.parquet --task FetchReach
+	./target/release/pgser-etl convert data/fetch_reach_expert_50.pkl data/fetch_reach_random_200.pkl \
+	  -o out/demo_traj.parquet --task FetchReach
 	./target/release/pgser-etl inspect out/demo_traj.parquet
 
 bench: build venv

@@ -1,11 +1,13 @@
 //! pgser: Prioritized Offline Goal-Swapping Experience Replay as batch jobs over Parquet.
 //!
 //! Data flows one way: files → record batches → tensors. Each pipeline stage is one module:
-//! [`pickle`] reads WGCSL buffers without executing them, [`trajectory`] writes and reads the
-//! trajectory table, [`inspect`] summarises any pgser table. [`table`] and [`output`] hold what
+//! [`pickle`] reads WGCSL buffers without executing them (and writes them), [`trajectory`]
+//! writes and reads the trajectory table, [`collect`] simulates episodes in [`env`](mod@env) and writes
+//! them as either, [`inspect`] summarises any pgser table. [`table`] and [`output`] hold what
 //! every writer shares (parallel row-group encoding, the footer, atomic files).
 
 pub mod cli;
+pub mod collect;
 pub mod env;
 pub mod inspect;
 pub mod output;

@@ -115,6 +115,27 @@ impl Task {
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
         if self.distance(ag, g) > self.threshold { -1.0 } else { 0.0 }
     }
+
+    /// [`Task::reward`] for many rows at once: `achieved` and `goals` hold rows of `goal_dim`
+    /// values, `out` gets one reward per row. This is what goal swapping calls on whole batches
+    /// of relabelled transitions (float32 from tables, float64 from the simulator), so it is one
+    /// tight loop rather than a call per row; the result equals `reward` row by row.
+    ///
+    /// Panics if the lengths disagree (a caller bug, not a data fault).
+    pub fn rewards<F: Copy + Into<f64>>(&self, achieved: &[F], goals: &[F], out: &mut [f32]) {
+        let dim = self.goal_dim;
+        assert!(dim > 0, "{}: goal_dim is 0", self.name);
+        assert!(
+            achieved.len() == goals.len() && achieved.len() == out.len() * dim,
+            "rewards: {} achieved and {} goal values for {} rows of {dim}",
+            achieved.len(),
+            goals.len(),
+            out.len()
+        );
+        for ((r, ag), g) in out.iter_mut().zip(achieved.chunks_exact(dim)).zip(goals.chunks_exact(dim)) {
+            *r = self.reward(ag, g);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -137,6 +158,41 @@ mod tests {
         // Exactly on the threshold: reward 0 (−(d > thr)) yet not a success (d < thr).
         assert_eq!(t.reward(&[0.0, 0.0, 0.0], &[0.05, 0.0, 0.0]), 0.0);
         assert!(!t.success(&[0.0, 0.0, 0.0], &[0.05, 0.0, 0.0]));
+    }
+
+    #[test]
+    fn batched_rewards_equal_the_per_row_reward() {
+        // Rows straddling the threshold, including exactly on it, in both float widths.
+        let t = Task::known("FetchPush").unwrap();
+        let n = 257;
+        let ag: Vec<f64> = (0..n * 3).map(|i| (i as f64 * 0.37).sin() * 0.1).collect();
+        let g: Vec<f64> = (0..n * 3).map(|i| (i as f64 * 0.11).cos() * 0.1).collect();
+        let mut out = vec![9.0f32; n];
+        t.rewards(&ag, &g, &mut out);
+        for (r, (a, b)) in out.iter().zip(ag.chunks(3).zip(g.chunks(3))) {
+            assert_eq!(*r, t.reward(a, b));
+        }
+        assert!(out.contains(&0.0) && out.contains(&-1.0));
+        let (ag32, g32): (Vec<f32>, Vec<f32>) =
+            (ag.iter().map(|&x| x as f32).collect(), g.iter().map(|&x| x as f32).collect());
+        t.rewards(&ag32, &g32, &mut out);
+        for (r, (a, b)) in out.iter().zip(ag32.chunks(3).zip(g32.chunks(3))) {
+            assert_eq!(*r, t.reward(a, b));
+        }
+        let mut edge = [1.0f32];
+        t.rewards(&[0.0, 0.0, 0.0], &[0.05, 0.0, 0.0], &mut edge);
+        assert_eq!(edge, [0.0]);
+        let hand = Task::known("HandManipulateEggRotate").unwrap();
+        let (a, b) = ([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+        let mut two = [0.0f32; 2];
+        hand.rewards(&[a, a].concat(), &[a, b].concat(), &mut two);
+        assert_eq!(two, [0.0, -1.0]);
+    }
+
+    #[test]
+    #[should_panic(expected = "rows of 3")]
+    fn batched_rewards_check_lengths() {
+        Task::known("FetchReach").unwrap().rewards(&[0.0f32; 6], &[0.0f32; 6], &mut [0.0; 3]);
     }
 
     #[test]

@@ -83,3 +83,16 @@ fn convert_writes_the_trajectory_schema() {
         check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
     }
 }
+
+#[test]
+fn collect_writes_the_trajectory_schema() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("c.parquet");
+    for extra in [&[][..], &["--float32"][..]] {
+        let args =
+            [&["--task", "FetchPush", "--policy", "random", "--episodes", "3", "-o", out.to_str().unwrap()][..], extra]
+                .concat();
+        collect_ok(&args, None);
+        check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
+    }
+}

@@ -6,7 +6,9 @@
 //! same actions, an episode here equals the Python one (positions bit for bit;
 //! `tests/env_parity.rs` checks it), so data and scores from either side are interchangeable.
 
+pub mod expert;
 pub mod fetch;
+pub mod policy;
 pub mod rng;
 
 use std::path::{Path, PathBuf};

@@ -43,7 +43,18 @@ fn entropy_words(seed: u64) -> Vec<u32> {
 
 /// `SeedSequence(seed).generate_state(4, np.uint64)`: the 256 bits PCG64 is seeded from.
 pub fn seed_sequence_state(seed: u64) -> [u64; 4] {
-    let entropy = entropy_words(seed);
+    seed_sequence_state_spawned(seed, &[])
+}
+
+/// `SeedSequence(seed, spawn_key=key).generate_state(4, np.uint64)`. numpy pads the seed's
+/// words to the pool size before appending the spawn key's, so a spawned stream's entropy is
+/// never that of a plain seed.
+pub fn seed_sequence_state_spawned(seed: u64, spawn_key: &[u64]) -> [u64; 4] {
+    let mut entropy = entropy_words(seed);
+    if !spawn_key.is_empty() {
+        entropy.resize(entropy.len().max(POOL_SIZE), 0);
+        entropy.extend(spawn_key.iter().flat_map(|&k| entropy_words(k)));
+    }
     // mix_entropy: hash the entropy into the pool, then mix every word into every other.
     let mut pool = [0u32; POOL_SIZE];
     let mut hc = INIT_A;
@@ -57,7 +68,12 @@ pub fn seed_sequence_state(seed: u64) -> [u64; 4] {
             }
         }
     }
-    // A u64 seed has at most two words, so numpy's "entropy longer than the pool" loop never runs.
+    // Entropy longer than the pool (a spawn key) is folded into every pool word.
+    for &word in entropy.iter().skip(POOL_SIZE) {
+        for p in pool.iter_mut() {
+            *p = mix(*p, hashmix(word, &mut hc));
+        }
+    }
     // generate_state: 8 u32 words cycling over the pool, paired little-endian into u64s.
     let mut hc = INIT_B;
     let mut words = [0u32; 2 * POOL_SIZE];
@@ -80,7 +96,16 @@ pub struct NpRandom {
 impl NpRandom {
     /// The generator gymnasium's `env.reset(seed=seed)` creates.
     pub fn new(seed: u64) -> NpRandom {
-        let s = seed_sequence_state(seed);
+        Self::from_state(seed_sequence_state(seed))
+    }
+
+    /// `default_rng(SeedSequence(seed, spawn_key=key))`, i.e. child `key` of
+    /// `SeedSequence(seed).spawn(...)`: numpy's way to give parallel workers independent streams.
+    pub fn spawned(seed: u64, spawn_key: &[u64]) -> NpRandom {
+        Self::from_state(seed_sequence_state_spawned(seed, spawn_key))
+    }
+
+    fn from_state(s: [u64; 4]) -> NpRandom {
         let initstate = (s[0] as u128) << 64 | s[1] as u128;
         let initseq = (s[2] as u128) << 64 | s[3] as u128;
         // pcg_setseq_128_srandom_r
@@ -118,6 +143,14 @@ impl NpRandom {
     pub fn uniform_n<const N: usize>(&mut self, low: f64, high: f64) -> [f64; N] {
         std::array::from_fn(|_| self.uniform(low, high))
     }
+
+    /// A standard normal by Box–Muller from two `random()` draws: `sqrt(-2 ln(1 − u1)) ·
+    /// cos(2π u2)`. Not numpy's ziggurat (whose tables we do not carry), but a fixed, documented
+    /// function of the numpy stream, so Python can recompute it from `rng.random(2)`.
+    pub fn standard_normal(&mut self) -> f64 {
+        let (u1, u2) = (self.random(), self.random());
+        (-2.0 * (1.0 - u1).ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
 }
 
 #[cfg(test)]
@@ -147,6 +180,33 @@ mod tests {
         let got = [r.random(), r.random(), r.random()];
         assert_eq!(got, [0.7742041803738812, 0.47072268318809307, 0.6958803443421149]);
         assert_eq!(NpRandom::new(0).next_u64(), 0xa30febcfd9c2825f);
+    }
+
+    // `SeedSequence(s, spawn_key=(k,))`, printed by numpy 2.4.
+    #[test]
+    fn spawned_streams_match_numpy() {
+        assert_eq!(
+            seed_sequence_state_spawned(5, &[3]),
+            [0xb79a6962ae8b0426, 0x257968387a6d6859, 0x8956311e2651165c, 0xcdefe6cef7f54a51]
+        );
+        assert_eq!(
+            seed_sequence_state_spawned((1 << 32) + 5, &[7]),
+            [0xd00c1e250913d159, 0x11ec8ce4cce92b3f, 0xd31152587460545a, 0x1f3d6f650104d3e2]
+        );
+        let mut r = NpRandom::spawned(123, &[1 << 40]);
+        assert_eq!([r.random(), r.random()], [0.1807057134257054, 0.8260375535779318]);
+        let mut r = NpRandom::spawned(0, &[0]);
+        assert_eq!([r.random(), r.random()], [0.9429375528828794, 0.3163371523854981]);
+        assert_ne!(NpRandom::spawned(0, &[0]), NpRandom::new(0));
+    }
+
+    #[test]
+    fn normals_have_unit_variance() {
+        let mut r = NpRandom::new(3);
+        let x: Vec<f64> = (0..20_000).map(|_| r.standard_normal()).collect();
+        let mean = x.iter().sum::<f64>() / x.len() as f64;
+        let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / x.len() as f64;
+        assert!(mean.abs() < 0.03 && (var - 1.0).abs() < 0.03, "mean {mean}, var {var}");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! A pickle reader that executes nothing.
+//! A pickle reader that executes nothing (and, in [`write`](mod@write), the WGCSL pickle writer).
 //!
 //! Researchers hand us WGCSL replay buffers as Python pickles. `pickle.load` on such a file runs
 //! whatever callables the file names, so a downloaded dataset is a code-execution hazard. This
@@ -17,6 +17,7 @@ mod numpy;
 mod reduce;
 mod text;
 mod vm;
+pub mod write;
 
 use std::borrow::Cow;
 use std::fmt;

@@ -6,22 +6,14 @@
 //! copy of the inputs (the mapped pages) plus a few row groups.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use arrow_array::types::{Float32Type, Float64Type};
-use arrow_array::{
-    ArrayRef, ArrowPrimitiveType, FixedSizeListArray, Int32Array, Int64Array, PrimitiveArray, RecordBatch,
-};
-use arrow_buffer::{BooleanBuffer, NullBuffer, ScalarBuffer};
-use arrow_schema::{DataType, Field, SchemaRef};
 use indicatif::ProgressBar;
-use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-use super::{FloatType, Footer, SourceFile, schema};
+use super::batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
+use super::{FloatType, Footer, SourceFile};
 use crate::pickle::{DTypeKind, MappedFile, NdArray, Obj, Pickle};
-use crate::table::TableWriter;
 use crate::task::Task;
 
 #[derive(Debug, Clone)]
@@ -53,8 +45,6 @@ pub struct ConvertSummary {
     pub skipped_keys: Vec<String>,
 }
 
-const KEYS: [&str; 4] = ["o", "ag", "u", "g"];
-
 /// One input's four arrays, validated.
 struct Source<'a> {
     path: &'a Path,
@@ -70,6 +60,15 @@ impl Source<'_> {
     }
     fn dim(&self, k: usize) -> usize {
         self.arrays[k].shape[2]
+    }
+
+    /// The arrays as the table writer takes them.
+    fn view(&self) -> EpisodeArrays<'_> {
+        let arrays = std::array::from_fn(|k| {
+            let a = &self.arrays[k];
+            FloatArray { data: &a.data, size: a.dtype.size, steps: a.shape[1], dim: a.shape[2] }
+        });
+        EpisodeArrays { origin: self.path.display().to_string(), arrays, episodes: self.episodes }
     }
 }
 
@@ -118,22 +117,20 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
         }
 
         bar.set_length((total * task.t) as u64);
-        let schema = schema(float_type, &task);
-        let mut writer = TableWriter::create(&opts.output, schema.clone())?;
-        let units = row_group_units(&sources, task.t, opts.row_group_rows);
-        let window = rayon::current_num_threads().max(1) * 2;
-        for chunk in units.chunks(window) {
-            let batches: Vec<RecordBatch> = chunk
-                .par_iter()
-                .map(|u| build_batch(&sources[u.source], u, &schema, float_type, opts.allow_nonfinite))
-                .collect::<Result<_>>()?;
-            writer.write_row_groups(&batches)?;
-            bar.inc(batches.iter().map(|b| b.num_rows() as u64).sum());
-            for u in chunk {
-                let src = &sources[u.source];
+        let mut writer =
+            TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
+        // A window of row groups per call keeps every thread busy; whole groups per window keep
+        // the row groups where they would be in one call.
+        let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
+        for (src, map) in sources.iter().zip(&maps) {
+            let view = src.view();
+            for start in (0..src.take).step_by(window) {
+                let end = (start + window).min(src.take);
+                writer.append(&view, start, end)?;
+                bar.inc(((end - start) * task.t) as u64);
                 for a in &src.arrays {
                     let per_episode = a.data.len() / src.episodes;
-                    maps[u.source].release(&a.data[u.start * per_episode..u.end * per_episode]);
+                    map.release(&a.data[start * per_episode..end * per_episode]);
                 }
             }
         }
@@ -151,7 +148,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
                 episodes_taken: s.take,
             })
             .collect();
-        let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
+        let bytes = writer.finish(&footer)?;
         Ok(ConvertSummary { task, float_type, episodes: total, rows: total * footer.t, bytes, skipped_keys })
     })
 }
@@ -332,169 +329,4 @@ fn resolve_task(sources: &[Source], name: Option<&str>, threshold: Option<f64>) 
         task.threshold = th;
     }
     Ok(task)
-}
-
-/// A row group: episodes [start, end) of one source, numbered from `first_episode` in the table.
-struct Unit {
-    source: usize,
-    start: usize,
-    end: usize,
-    first_episode: usize,
-}
-
-fn row_group_units(sources: &[Source], t: usize, row_group_rows: usize) -> Vec<Unit> {
-    let per_group = (row_group_rows / t).max(1);
-    let mut units = Vec::new();
-    let mut next = 0;
-    for (i, s) in sources.iter().enumerate() {
-        for start in (0..s.take).step_by(per_group) {
-            let end = (start + per_group).min(s.take);
-            units.push(Unit { source: i, start, end, first_episode: next + start });
-        }
-        next += s.take;
-    }
-    units
-}
-
-fn build_batch(
-    src: &Source,
-    u: &Unit,
-    schema: &SchemaRef,
-    out: FloatType,
-    allow_nonfinite: bool,
-) -> Result<RecordBatch> {
-    let t = src.o().shape[1];
-    let n = u.end - u.start;
-    let rows = n * t;
-    let episode = Int64Array::from_iter_values((0..rows).map(|r| (u.first_episode + r / t) as i64));
-    let step = Int32Array::from_iter_values((0..rows).map(|r| (r % t) as i32));
-    let mut columns: Vec<ArrayRef> = vec![Arc::new(episode), Arc::new(step)];
-    // Table column order: obs (o), achieved_goal (ag), desired_goal (g), action (u).
-    for key_index in [0, 1, 3, 2] {
-        let padded = key_index >= 2;
-        let col = vector_column(src, key_index, u.start, u.end, t, padded, out, allow_nonfinite)?;
-        columns.push(col);
-    }
-    Ok(RecordBatch::try_new(schema.clone(), columns)?)
-}
-
-/// Episodes [e0, e1) of one array as a FixedSizeList column. `padded` arrays (u, g) have T − 1
-/// steps per episode and get a null row on the last step.
-#[allow(clippy::too_many_arguments)]
-fn vector_column(
-    src: &Source,
-    key_index: usize,
-    e0: usize,
-    e1: usize,
-    t: usize,
-    padded: bool,
-    out: FloatType,
-    allow_nonfinite: bool,
-) -> Result<ArrayRef> {
-    let a = &src.arrays[key_index];
-    let (steps, dim) = (a.shape[1], a.shape[2]);
-    let size = a.dtype.size;
-    let bytes = &a.data[e0 * steps * dim * size..e1 * steps * dim * size];
-    let values: ArrayRef = match (size, out) {
-        (8, FloatType::Float64) => copy_episodes::<Float64Type>(bytes, steps * dim, padded, dim),
-        (4, FloatType::Float32) => copy_episodes::<Float32Type>(bytes, steps * dim, padded, dim),
-        (4, FloatType::Float64) => {
-            gather::<Float64Type>(bytes, 4, steps, dim, padded, |c| f32::from_le_bytes(c.try_into().unwrap()) as f64)
-        }
-        _ => gather::<Float32Type>(bytes, 8, steps, dim, padded, |c| f64::from_le_bytes(c.try_into().unwrap()) as f32),
-    };
-    if !allow_nonfinite {
-        check_finite(src, key_index, e0, t, dim, out, &values)?;
-    }
-    let rows = (e1 - e0) * t;
-    let nulls = padded.then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| r % t != t - 1)));
-    let item = Arc::new(Field::new("item", out.arrow(), false));
-    Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, values, nulls)?))
-}
-
-/// Same float type in and out: copy whole episodes as bytes (the source is native-endian but
-/// may be unaligned, so it cannot be reinterpreted in place).
-fn copy_episodes<T: ArrowPrimitiveType>(bytes: &[u8], per_episode: usize, padded: bool, dim: usize) -> ArrayRef {
-    let size = std::mem::size_of::<T::Native>();
-    let episodes = bytes.len() / (per_episode * size).max(1);
-    let pad = if padded { dim } else { 0 };
-    let mut buf = arrow_buffer::MutableBuffer::with_capacity(episodes * (per_episode + pad) * size);
-    for ep in bytes.chunks_exact(per_episode * size) {
-        buf.extend_from_slice(ep);
-        buf.extend_zeros(pad * size);
-    }
-    let values = ScalarBuffer::<T::Native>::from(arrow_buffer::Buffer::from(buf));
-    Arc::new(PrimitiveArray::<T>::new(values, None))
-}
-
-/// Different float types: convert element by element.
-fn gather<T: ArrowPrimitiveType>(
-    bytes: &[u8],
-    size: usize,
-    steps: usize,
-    dim: usize,
-    padded: bool,
-    conv: impl Fn(&[u8]) -> T::Native,
-) -> ArrayRef {
-    let per_episode = steps * dim * size;
-    let episodes = bytes.len() / per_episode.max(1);
-    let mut v: Vec<T::Native> = Vec::with_capacity(episodes * (steps + padded as usize) * dim);
-    for ep in bytes.chunks_exact(per_episode) {
-        v.extend(ep.chunks_exact(size).map(&conv));
-        if padded {
-            v.extend(std::iter::repeat_n(T::Native::default(), dim));
-        }
-    }
-    Arc::new(PrimitiveArray::<T>::new(ScalarBuffer::from(v), None))
-}
-
-#[allow(clippy::too_many_arguments)]
-fn check_finite(
-    src: &Source,
-    key_index: usize,
-    e0: usize,
-    t: usize,
-    dim: usize,
-    out: FloatType,
-    values: &ArrayRef,
-) -> Result<()> {
-    let as_f64: Box<dyn Fn(usize) -> f64> = match values.data_type() {
-        DataType::Float64 => {
-            let v = values.as_any().downcast_ref::<PrimitiveArray<Float64Type>>().unwrap().values().clone();
-            if v.iter().all(|x| x.is_finite()) {
-                return Ok(());
-            }
-            Box::new(move |i| v[i])
-        }
-        _ => {
-            let v = values.as_any().downcast_ref::<PrimitiveArray<Float32Type>>().unwrap().values().clone();
-            if v.iter().all(|x| x.is_finite()) {
-                return Ok(());
-            }
-            Box::new(move |i| v[i] as f64)
-        }
-    };
-    let len = values.len();
-    let i = (0..len).find(|&i| !as_f64(i).is_finite()).expect("a non-finite value exists");
-    let row = i / dim;
-    let (episode, step, index) = (e0 + row / t, row % t, i % dim);
-    let a = &src.arrays[key_index];
-    // Report the source value: a finite float64 that overflowed float32 says so.
-    let size = a.dtype.size;
-    let src_index = ((episode * a.shape[1] + step) * dim + index) * size;
-    let original = if size == 8 {
-        f64::from_le_bytes(a.data[src_index..src_index + 8].try_into().unwrap())
-    } else {
-        f32::from_le_bytes(a.data[src_index..src_index + 4].try_into().unwrap()) as f64
-    };
-    let what = if original.is_finite() {
-        format!("value {original:e} overflows {}", out.name())
-    } else {
-        format!("non-finite value {original}")
-    };
-    bail!(
-        "{}: {what} in key '{}' at episode {episode}, step {step}, index {index}; pass --allow-nonfinite to keep it",
-        src.path.display(),
-        KEYS[key_index]
-    )
 }

@@ -2,6 +2,7 @@
 //! by (episode, step). `desired_goal` and `action` are null on the last step, where WGCSL's
 //! `g` and `u` (T − 1 entries per episode) have nothing.
 
+mod batch;
 mod convert;
 
 use std::sync::Arc;
@@ -12,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::table::SCHEMA_VERSION;
 use crate::task::{GoalMetric, Task};
 
+pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
 pub use convert::{ConvertOptions, ConvertSummary, convert};
 
 /// The float type of a table's vector columns.

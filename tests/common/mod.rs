@@ -58,3 +58,37 @@ pub fn check_roundtrip(parquet: &Path, inputs: &[&Path], extra: &[String]) {
     let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
     py_ok("check_roundtrip.py", &args);
 }
+
+/// `pgser-etl collect` with the given arguments (threads as given, or rayon's default).
+pub fn collect(args: &[&str], threads: Option<usize>) -> Output {
+    let mut c = etl();
+    c.arg("collect").args(args);
+    if let Some(n) = threads {
+        c.env("RAYON_NUM_THREADS", n.to_string());
+    }
+    c.output().unwrap()
+}
+
+/// Collect and require success; returns stderr (the summary line).
+pub fn collect_ok(args: &[&str], threads: Option<usize>) -> String {
+    let o = collect(args, threads);
+    assert!(o.status.success(), "collect {args:?} failed: {}", text(&o.stderr));
+    text(&o.stderr)
+}
+
+/// `pgser-etl inspect --json` of a table.
+pub fn inspect_json(path: &Path) -> serde_json::Value {
+    let o = etl().args(["inspect", "--json"]).arg(path).output().unwrap();
+    assert!(o.status.success(), "inspect {} failed: {}", path.display(), text(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// A whole Parquet file as one record batch, and its row-group count.
+pub fn read_table(path: &Path) -> (arrow_array::RecordBatch, usize) {
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(path).unwrap()).unwrap();
+    let groups = builder.metadata().num_row_groups();
+    let schema = builder.schema().clone();
+    let batches: Vec<_> = builder.build().unwrap().map(|b| b.unwrap()).collect();
+    (arrow_select::concat::concat_batches(&schema, &batches).unwrap(), groups)
+}

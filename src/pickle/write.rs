@@ -1,0 +1,285 @@
+//! Writing WGCSL buffers as pickles: a dict of float64 C-order numpy arrays, protocol 3,
+//! opcode for opcode what numpy 1.x's `pickle.dump(d, f, protocol=3)` writes.
+//!
+//! Spelled as numpy 1.x spells it (`numpy.core.multiarray._reconstruct`, `numpy.ndarray`,
+//! `numpy.dtype`) because that is the one spelling both numpy 1.x and 2.x load (numpy 2 keeps
+//! `numpy.core` as an alias; numpy 1 has no `numpy._core`), and protocol 3 because it is what
+//! the WGCSL and GoFAR code bases write and read. Matching numpy byte for byte, memo numbering
+//! included, makes the writer checkable against files numpy wrote (`tests.rs`).
+//!
+//! Array bytes are streamed from a callback, so a caller can write buffers larger than memory
+//! (`collect` spools its arrays to temporary files and copies them in).
+
+use std::io::{self, Write};
+
+/// Writes an array's little-endian C-order values into the pickle when called.
+pub type ArraySource<'a> = Box<dyn FnMut(&mut dyn Write) -> io::Result<()> + 'a>;
+
+/// One float64 array of the dict: its key, shape, and the source of its values (exactly
+/// `shape.product() × 8` bytes, which is checked).
+pub struct ArrayOut<'a> {
+    pub key: &'a str,
+    pub shape: Vec<usize>,
+    pub data: ArraySource<'a>,
+}
+
+impl<'a> ArrayOut<'a> {
+    /// An array whose bytes are in memory.
+    pub fn from_bytes(key: &'a str, shape: Vec<usize>, bytes: &'a [u8]) -> Self {
+        ArrayOut { key, shape, data: Box::new(move |w| w.write_all(bytes)) }
+    }
+}
+
+/// Opcodes used (see CPython's `Lib/pickle.py`).
+mod op {
+    pub const PROTO: u8 = 0x80;
+    pub const STOP: u8 = b'.';
+    pub const EMPTY_DICT: u8 = b'}';
+    pub const MARK: u8 = b'(';
+    pub const SETITEM: u8 = b's';
+    pub const SETITEMS: u8 = b'u';
+    pub const BINUNICODE: u8 = b'X';
+    pub const BINPUT: u8 = b'q';
+    pub const LONG_BINPUT: u8 = b'r';
+    pub const BINGET: u8 = b'h';
+    pub const LONG_BINGET: u8 = b'j';
+    pub const GLOBAL: u8 = b'c';
+    pub const BININT1: u8 = b'K';
+    pub const BININT2: u8 = b'M';
+    pub const BININT: u8 = b'J';
+    pub const EMPTY_TUPLE: u8 = b')';
+    pub const TUPLE: u8 = b't';
+    pub const TUPLE1: u8 = 0x85;
+    pub const TUPLE2: u8 = 0x86;
+    pub const TUPLE3: u8 = 0x87;
+    pub const SHORT_BINBYTES: u8 = b'C';
+    pub const BINBYTES: u8 = b'B';
+    pub const REDUCE: u8 = b'R';
+    pub const BUILD: u8 = b'b';
+    pub const NEWTRUE: u8 = 0x88;
+    pub const NEWFALSE: u8 = 0x89;
+    pub const NONE: u8 = b'N';
+}
+
+/// The pickler's state: the output and the memo counter (every PUT numbers the next object).
+struct Pickler<'w> {
+    out: &'w mut dyn Write,
+    memo: u32,
+}
+
+impl Pickler<'_> {
+    fn raw(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.out.write_all(bytes)
+    }
+
+    /// Memoize the object just written; returns its memo index.
+    fn put(&mut self) -> io::Result<u32> {
+        let id = self.memo;
+        self.memo += 1;
+        match u8::try_from(id) {
+            Ok(b) => self.raw(&[op::BINPUT, b])?,
+            Err(_) => {
+                self.raw(&[op::LONG_BINPUT])?;
+                self.raw(&id.to_le_bytes())?;
+            }
+        }
+        Ok(id)
+    }
+
+    fn get(&mut self, id: u32) -> io::Result<()> {
+        match u8::try_from(id) {
+            Ok(b) => self.raw(&[op::BINGET, b]),
+            Err(_) => {
+                self.raw(&[op::LONG_BINGET])?;
+                self.raw(&id.to_le_bytes())
+            }
+        }
+    }
+
+    fn str(&mut self, s: &str) -> io::Result<u32> {
+        self.raw(&[op::BINUNICODE])?;
+        self.raw(&(s.len() as u32).to_le_bytes())?;
+        self.raw(s.as_bytes())?;
+        self.put()
+    }
+
+    fn global(&mut self, module: &str, name: &str) -> io::Result<u32> {
+        self.raw(&[op::GLOBAL])?;
+        self.raw(format!("{module}\n{name}\n").as_bytes())?;
+        self.put()
+    }
+
+    /// An int as `save_long` writes it for protocols ≥ 2, for the range shapes need.
+    fn int(&mut self, v: i64) -> io::Result<()> {
+        if (0..=0xff).contains(&v) {
+            self.raw(&[op::BININT1, v as u8])
+        } else if (0..=0xffff).contains(&v) {
+            self.raw(&[op::BININT2])?;
+            self.raw(&(v as u16).to_le_bytes())
+        } else if let Ok(v) = i32::try_from(v) {
+            self.raw(&[op::BININT])?;
+            self.raw(&v.to_le_bytes())
+        } else {
+            Err(io::Error::new(io::ErrorKind::InvalidInput, format!("integer {v} is too large for this writer")))
+        }
+    }
+
+    /// A tuple of ints (a shape), memoized as Python memoizes every tuple it saves.
+    fn int_tuple(&mut self, items: &[usize]) -> io::Result<u32> {
+        let big = items.len() > 3;
+        if big {
+            self.raw(&[op::MARK])?;
+        }
+        for &v in items {
+            let v = i64::try_from(v).map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "shape too large"))?;
+            self.int(v)?;
+        }
+        let close = match items.len() {
+            0 => op::EMPTY_TUPLE,
+            1 => op::TUPLE1,
+            2 => op::TUPLE2,
+            3 => op::TUPLE3,
+            _ => op::TUPLE,
+        };
+        self.raw(&[close])?;
+        self.put()
+    }
+}
+
+/// The memo indices numpy's first array leaves behind and later arrays refer back to.
+struct Shared {
+    reconstruct: u32,
+    ndarray: u32,
+    b: u32,
+    dtype: u32,
+}
+
+/// Write `{key: float64 array, …}` (keys in the given order) as a protocol-3 pickle.
+pub fn write_f64_dict(out: &mut dyn Write, arrays: &mut [ArrayOut]) -> io::Result<()> {
+    let mut p = Pickler { out, memo: 0 };
+    p.raw(&[op::PROTO, 3, op::EMPTY_DICT])?;
+    p.put()?;
+    // `_batch_setitems`: MARK … SETITEMS for more than one item, plain SETITEM for one.
+    let batched = arrays.len() > 1;
+    if batched {
+        p.raw(&[op::MARK])?;
+    }
+    let mut shared: Option<Shared> = None;
+    for a in arrays.iter_mut() {
+        p.str(a.key)?;
+        write_array(&mut p, a, &mut shared)?;
+        if !batched {
+            p.raw(&[op::SETITEM])?;
+        }
+    }
+    if batched {
+        p.raw(&[op::SETITEMS])?;
+    }
+    p.raw(&[op::STOP])
+}
+
+/// `ndarray.__reduce__`: `_reconstruct(ndarray, (0,), b'b')`, then BUILD with
+/// `(1, shape, dtype('f8'), False, raw bytes)`.
+fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -> io::Result<()> {
+    let len = a
+        .shape
+        .iter()
+        .try_fold(8u64, |n, &d| n.checked_mul(d as u64))
+        .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "array size overflows"))?;
+    let Ok(len32) = u32::try_from(len) else {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("array '{}' has {len} bytes; a protocol-3 pickle holds at most 4 GiB per array", a.key),
+        ));
+    };
+    // numpy's first array defines the globals, b'b' and the dtype; later ones refer back.
+    let ids = match shared {
+        Some(s) => {
+            p.get(s.reconstruct)?;
+            p.get(s.ndarray)?;
+            p.int_tuple(&[0])?;
+            p.get(s.b)?;
+            None
+        }
+        None => {
+            let reconstruct = p.global("numpy.core.multiarray", "_reconstruct")?;
+            let ndarray = p.global("numpy", "ndarray")?;
+            p.int_tuple(&[0])?;
+            p.raw(&[op::SHORT_BINBYTES, 1, b'b'])?;
+            Some((reconstruct, ndarray, p.put()?))
+        }
+    };
+    p.raw(&[op::TUPLE3])?;
+    p.put()?;
+    p.raw(&[op::REDUCE])?;
+    p.put()?;
+    p.raw(&[op::MARK])?;
+    p.int(1)?;
+    p.int_tuple(&a.shape)?;
+    match (ids, shared.as_ref()) {
+        (Some((reconstruct, ndarray, b)), _) => {
+            let dtype = write_dtype(p)?;
+            *shared = Some(Shared { reconstruct, ndarray, b, dtype });
+        }
+        (None, Some(s)) => p.get(s.dtype)?,
+        (None, None) => unreachable!("later arrays always have the shared ids"),
+    }
+    p.raw(&[op::NEWFALSE])?;
+    if len32 < 256 {
+        p.raw(&[op::SHORT_BINBYTES, len32 as u8])?;
+    } else {
+        p.raw(&[op::BINBYTES])?;
+        p.raw(&len32.to_le_bytes())?;
+    }
+    let mut counted = Counted { inner: &mut *p.out, n: 0 };
+    (a.data)(&mut counted)?;
+    if counted.n != len {
+        return Err(io::Error::other(format!(
+            "array '{}' of shape {:?} needs {len} bytes but its source gave {}",
+            a.key, a.shape, counted.n
+        )));
+    }
+    p.put()?;
+    p.raw(&[op::TUPLE])?;
+    p.put()?;
+    p.raw(&[op::BUILD])
+}
+
+/// `dtype('f8', False, True)` then BUILD with `(3, '<', None, None, None, -1, -1, 0)`.
+fn write_dtype(p: &mut Pickler) -> io::Result<u32> {
+    p.global("numpy", "dtype")?;
+    p.str("f8")?;
+    p.raw(&[op::NEWFALSE, op::NEWTRUE, op::TUPLE3])?;
+    p.put()?;
+    p.raw(&[op::REDUCE])?;
+    let dtype = p.put()?;
+    p.raw(&[op::MARK])?;
+    p.int(3)?;
+    p.str("<")?;
+    p.raw(&[op::NONE, op::NONE, op::NONE])?;
+    p.int(-1)?;
+    p.int(-1)?;
+    p.int(0)?;
+    p.raw(&[op::TUPLE])?;
+    p.put()?;
+    p.raw(&[op::BUILD])?;
+    Ok(dtype)
+}
+
+/// Counts what passes through, to hold array sources to their declared length.
+struct Counted<'a> {
+    inner: &'a mut dyn Write,
+    n: u64,
+}
+
+impl Write for Counted<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        let k = self.inner.write(buf)?;
+        self.n += k as u64;
+        Ok(k)
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
+}

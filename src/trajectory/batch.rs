@@ -1,0 +1,336 @@
+//! Row groups of the trajectory table, built from the four WGCSL arrays.
+//!
+//! `convert` (arrays parsed from pickles) and `collect` (arrays simulated a chunk at a time)
+//! both hand their episodes to [`TrajectoryWriter`] as an [`EpisodeArrays`], so one code path
+//! decides a table's bytes: the same episodes make the same table whichever command wrote it.
+//! Row groups hold whole episodes; a window of them is built and encoded in parallel and
+//! appended in order, so the bytes never depend on the thread count.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Result, bail};
+use arrow_array::types::{Float32Type, Float64Type};
+use arrow_array::{
+    ArrayRef, ArrowPrimitiveType, FixedSizeListArray, Int32Array, Int64Array, PrimitiveArray, RecordBatch,
+};
+use arrow_buffer::{BooleanBuffer, NullBuffer, ScalarBuffer};
+use arrow_schema::{DataType, Field, SchemaRef};
+use rayon::prelude::*;
+
+use super::{FloatType, Footer, schema};
+use crate::table::TableWriter;
+use crate::task::Task;
+
+/// The WGCSL keys, in the order [`EpisodeArrays::arrays`] holds them.
+pub const KEYS: [&str; 4] = ["o", "ag", "u", "g"];
+
+/// One WGCSL array `[episodes, steps, dim]`: little-endian, C-order float32 or float64 bytes
+/// (borrowed from a mapped file, hence possibly unaligned: read with `from_le_bytes`).
+#[derive(Debug, Clone, Copy)]
+pub struct FloatArray<'a> {
+    pub data: &'a [u8],
+    /// Bytes per value: 4 or 8.
+    pub size: usize,
+    pub steps: usize,
+    pub dim: usize,
+}
+
+/// The four arrays of N episodes: o `[N,T,obs]`, ag `[N,T,goal]`, u `[N,T−1,act]`, g `[N,T−1,goal]`.
+#[derive(Debug, Clone)]
+pub struct EpisodeArrays<'a> {
+    /// Names the data in error messages: a file path, or what was simulated.
+    pub origin: String,
+    /// o, ag, u, g.
+    pub arrays: [FloatArray<'a>; 4],
+    pub episodes: usize,
+}
+
+impl EpisodeArrays<'_> {
+    /// Observations per episode.
+    pub fn t(&self) -> usize {
+        self.arrays[0].steps
+    }
+}
+
+/// Streams episodes into a trajectory table file (written atomically on `finish`).
+pub struct TrajectoryWriter {
+    table: TableWriter,
+    schema: SchemaRef,
+    task: Task,
+    float: FloatType,
+    allow_nonfinite: bool,
+    per_group: usize,
+    episodes: usize,
+}
+
+impl TrajectoryWriter {
+    /// Row groups get `row_group_rows / T` whole episodes (at least one).
+    pub fn create(
+        dest: &Path,
+        task: &Task,
+        float: FloatType,
+        row_group_rows: usize,
+        allow_nonfinite: bool,
+    ) -> Result<Self> {
+        let schema = schema(float, task);
+        let table = TableWriter::create(dest, schema.clone())?;
+        let per_group = (row_group_rows / task.t).max(1);
+        Ok(Self { table, schema, task: task.clone(), float, allow_nonfinite, per_group, episodes: 0 })
+    }
+
+    /// Episodes per row group.
+    pub fn episodes_per_group(&self) -> usize {
+        self.per_group
+    }
+
+    /// Episodes appended so far.
+    pub fn episodes(&self) -> usize {
+        self.episodes
+    }
+
+    /// Append episodes [start, end) of `src`, numbered on from those already written, in row
+    /// groups of [`episodes_per_group`](Self::episodes_per_group) counted from `start` (the
+    /// last may be shorter). Callers that append a large source piecewise pass multiples of
+    /// the group size as `start`, so the file does not depend on how they cut it.
+    pub fn append(&mut self, src: &EpisodeArrays, start: usize, end: usize) -> Result<()> {
+        self.check_shape(src)?;
+        assert!(start <= end && end <= src.episodes, "append: episodes {start}..{end} of {}", src.episodes);
+        let groups: Vec<(usize, usize)> =
+            (start..end).step_by(self.per_group).map(|s| (s, (s + self.per_group).min(end))).collect();
+        let next = self.episodes;
+        let batches: Vec<RecordBatch> = groups
+            .par_iter()
+            .map(|&(e0, e1)| {
+                build_batch(src, e0, e1, next + (e0 - start), &self.schema, self.float, self.allow_nonfinite)
+            })
+            .collect::<Result<_>>()?;
+        self.table.write_row_groups(&batches)?;
+        self.episodes += end - start;
+        Ok(())
+    }
+
+    fn check_shape(&self, src: &EpisodeArrays) -> Result<()> {
+        let t = &self.task;
+        let want = [(t.t, t.obs_dim), (t.t, t.goal_dim), (t.t - 1, t.act_dim), (t.t - 1, t.goal_dim)];
+        for ((key, a), (steps, dim)) in KEYS.iter().zip(&src.arrays).zip(want) {
+            let bytes = src.episodes * steps * dim * a.size;
+            if (a.steps, a.dim) != (steps, dim) || !matches!(a.size, 4 | 8) || a.data.len() != bytes {
+                bail!(
+                    "{}: key '{key}' is {} episodes × {} × {} of {} bytes in {} bytes; {} needs {steps} × {dim}",
+                    src.origin,
+                    src.episodes,
+                    a.steps,
+                    a.dim,
+                    a.size,
+                    a.data.len(),
+                    t.name
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Write the footer and move the file into place. Returns its size in bytes.
+    pub fn finish(self, footer: &Footer) -> Result<u64> {
+        debug_assert_eq!(footer.episodes, self.episodes);
+        self.table.finish(&serde_json::to_value(footer)?)
+    }
+}
+
+/// Episodes [e0, e1) of `src` as one record batch, numbered from `first_episode`.
+fn build_batch(
+    src: &EpisodeArrays,
+    e0: usize,
+    e1: usize,
+    first_episode: usize,
+    schema: &SchemaRef,
+    out: FloatType,
+    allow_nonfinite: bool,
+) -> Result<RecordBatch> {
+    let t = src.t();
+    let rows = (e1 - e0) * t;
+    let episode = Int64Array::from_iter_values((0..rows).map(|r| (first_episode + r / t) as i64));
+    let step = Int32Array::from_iter_values((0..rows).map(|r| (r % t) as i32));
+    let mut columns: Vec<ArrayRef> = vec![Arc::new(episode), Arc::new(step)];
+    // Table column order: obs (o), achieved_goal (ag), desired_goal (g), action (u).
+    for key_index in [0, 1, 3, 2] {
+        columns.push(vector_column(src, key_index, e0, e1, out, allow_nonfinite)?);
+    }
+    Ok(RecordBatch::try_new(schema.clone(), columns)?)
+}
+
+/// Episodes [e0, e1) of one array as a FixedSizeList column. u and g have T − 1 steps per
+/// episode and get a null row on the last step.
+fn vector_column(
+    src: &EpisodeArrays,
+    key_index: usize,
+    e0: usize,
+    e1: usize,
+    out: FloatType,
+    allow_nonfinite: bool,
+) -> Result<ArrayRef> {
+    let a = &src.arrays[key_index];
+    let (t, steps, dim, size) = (src.t(), a.steps, a.dim, a.size);
+    let padded = steps < t;
+    let bytes = &a.data[e0 * steps * dim * size..e1 * steps * dim * size];
+    let values: ArrayRef = match (size, out) {
+        (8, FloatType::Float64) => copy_episodes::<Float64Type>(bytes, steps * dim, padded, dim),
+        (4, FloatType::Float32) => copy_episodes::<Float32Type>(bytes, steps * dim, padded, dim),
+        (4, FloatType::Float64) => {
+            gather::<Float64Type>(bytes, 4, steps, dim, padded, |c| f32::from_le_bytes(c.try_into().unwrap()) as f64)
+        }
+        _ => gather::<Float32Type>(bytes, 8, steps, dim, padded, |c| f64::from_le_bytes(c.try_into().unwrap()) as f32),
+    };
+    if !allow_nonfinite {
+        check_finite(src, key_index, e0, out, &values)?;
+    }
+    let rows = (e1 - e0) * t;
+    let nulls = padded.then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| r % t != t - 1)));
+    let item = Arc::new(Field::new("item", out.arrow(), false));
+    Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, values, nulls)?))
+}
+
+/// Same float type in and out: copy whole episodes as bytes (the source may be unaligned, so
+/// it cannot be reinterpreted in place).
+fn copy_episodes<T: ArrowPrimitiveType>(bytes: &[u8], per_episode: usize, padded: bool, dim: usize) -> ArrayRef {
+    let size = std::mem::size_of::<T::Native>();
+    let episodes = bytes.len() / (per_episode * size).max(1);
+    let pad = if padded { dim } else { 0 };
+    let mut buf = arrow_buffer::MutableBuffer::with_capacity(episodes * (per_episode + pad) * size);
+    for ep in bytes.chunks_exact(per_episode * size) {
+        buf.extend_from_slice(ep);
+        buf.extend_zeros(pad * size);
+    }
+    let values = ScalarBuffer::<T::Native>::from(arrow_buffer::Buffer::from(buf));
+    Arc::new(PrimitiveArray::<T>::new(values, None))
+}
+
+/// Different float types: convert element by element.
+fn gather<T: ArrowPrimitiveType>(
+    bytes: &[u8],
+    size: usize,
+    steps: usize,
+    dim: usize,
+    padded: bool,
+    conv: impl Fn(&[u8]) -> T::Native,
+) -> ArrayRef {
+    let per_episode = steps * dim * size;
+    let episodes = bytes.len() / per_episode.max(1);
+    let mut v: Vec<T::Native> = Vec::with_capacity(episodes * (steps + padded as usize) * dim);
+    for ep in bytes.chunks_exact(per_episode) {
+        v.extend(ep.chunks_exact(size).map(&conv));
+        if padded {
+            v.extend(std::iter::repeat_n(T::Native::default(), dim));
+        }
+    }
+    Arc::new(PrimitiveArray::<T>::new(ScalarBuffer::from(v), None))
+}
+
+/// Refuse NaN/±Inf (and float64 values that overflow float32), naming where the first is.
+fn check_finite(src: &EpisodeArrays, key_index: usize, e0: usize, out: FloatType, values: &ArrayRef) -> Result<()> {
+    let as_f64: Box<dyn Fn(usize) -> f64> = match values.data_type() {
+        DataType::Float64 => {
+            let v = values.as_any().downcast_ref::<PrimitiveArray<Float64Type>>().unwrap().values().clone();
+            if v.iter().all(|x| x.is_finite()) {
+                return Ok(());
+            }
+            Box::new(move |i| v[i])
+        }
+        _ => {
+            let v = values.as_any().downcast_ref::<PrimitiveArray<Float32Type>>().unwrap().values().clone();
+            if v.iter().all(|x| x.is_finite()) {
+                return Ok(());
+            }
+            Box::new(move |i| v[i] as f64)
+        }
+    };
+    let (t, a) = (src.t(), &src.arrays[key_index]);
+    let dim = a.dim;
+    let i = (0..values.len()).find(|&i| !as_f64(i).is_finite()).expect("a non-finite value exists");
+    let row = i / dim;
+    let (episode, step, index) = (e0 + row / t, row % t, i % dim);
+    // Report the source value: a finite float64 that overflowed float32 says so.
+    let at = ((episode * a.steps + step) * dim + index) * a.size;
+    let original = if a.size == 8 {
+        f64::from_le_bytes(a.data[at..at + 8].try_into().unwrap())
+    } else {
+        f32::from_le_bytes(a.data[at..at + 4].try_into().unwrap()) as f64
+    };
+    let what = if original.is_finite() {
+        format!("value {original:e} overflows {}", out.name())
+    } else {
+        format!("non-finite value {original}")
+    };
+    bail!(
+        "{}: {what} in key '{}' at episode {episode}, step {step}, index {index}; pass --allow-nonfinite to keep it",
+        src.origin,
+        KEYS[key_index]
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use arrow_array::Array;
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+
+    /// Five 3-step episodes of a 1-d task; every value is episode·100 + step·10 + index.
+    fn arrays() -> (Task, [Vec<u8>; 4]) {
+        let task = Task::custom("Tiny", 3, 2, 1, 1, 0.1);
+        let make = |steps: usize, dim: usize| -> Vec<u8> {
+            (0..5)
+                .flat_map(|e| (0..steps).flat_map(move |s| (0..dim).map(move |i| (e * 100 + s * 10 + i) as f64)))
+                .flat_map(|v| v.to_le_bytes())
+                .collect()
+        };
+        (task, [make(3, 2), make(3, 1), make(2, 1), make(2, 1)])
+    }
+
+    fn view<'a>(data: &'a [Vec<u8>; 4], task: &Task) -> EpisodeArrays<'a> {
+        let dims = [(task.t, 2), (task.t, 1), (task.t - 1, 1), (task.t - 1, 1)];
+        let arrays = std::array::from_fn(|k| FloatArray { data: &data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
+        EpisodeArrays { origin: "tiny.pkl".into(), arrays, episodes: 5 }
+    }
+
+    #[test]
+    fn appends_number_episodes_in_the_order_written() {
+        let (task, data) = arrays();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let mut w = TrajectoryWriter::create(&path, &task, FloatType::Float32, 6, false).unwrap();
+        assert_eq!(w.episodes_per_group(), 2);
+        w.append(&view(&data, &task), 3, 5).unwrap();
+        w.append(&view(&data, &task), 0, 3).unwrap();
+        assert_eq!(w.episodes(), 5);
+        w.finish(&Footer::new(&task, FloatType::Float32, 5, "test".into())).unwrap();
+        let reader = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(&path).unwrap()).unwrap();
+        assert_eq!(reader.metadata().num_row_groups(), 3); // [3,4], [0,1], [2]
+        let (mut episodes, mut first_obs) = (Vec::new(), Vec::new());
+        for b in reader.build().unwrap() {
+            let b = b.unwrap();
+            let ep = b.column(0).as_any().downcast_ref::<Int64Array>().unwrap();
+            let obs = b.column(2).as_any().downcast_ref::<FixedSizeListArray>().unwrap();
+            let vals = obs.values().as_any().downcast_ref::<PrimitiveArray<Float32Type>>().unwrap();
+            for r in (0..b.num_rows()).step_by(3) {
+                episodes.push(ep.value(r));
+                first_obs.push(vals.value(r * 2));
+            }
+            let action = b.column(5);
+            assert!((0..b.num_rows()).all(|r| action.is_null(r) == (r % 3 == 2)));
+        }
+        assert_eq!(episodes, [0, 1, 2, 3, 4]);
+        assert_eq!(first_obs, [300.0, 400.0, 0.0, 100.0, 200.0]);
+    }
+
+    #[test]
+    fn arrays_of_the_wrong_shape_are_refused_by_name() {
+        let (task, mut data) = arrays();
+        data[2].truncate(8);
+        let dir = tempfile::tempdir().unwrap();
+        let mut w =
+            TrajectoryWriter::create(&dir.path().join("t.parquet"), &task, FloatType::Float64, 64, false).unwrap();
+        let e = w.append(&view(&data, &task), 0, 5).unwrap_err().to_string();
+        assert!(e.contains("tiny.pkl") && e.contains("key 'u'"), "{e}");
+    }
+}
