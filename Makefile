@@ -60,6 +60,7 @@ demo: build
 
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
+	$(PY) bench/bench_env.py --pgser target/release/pgser-etl --tasks FetchReach,FetchPush --episodes 400 --json bench-out/env.json
 
 # Needs cargo-fuzz (cargo install cargo-fuzz); stable Rust works with RUSTC_BOOTSTRAP=1.
 fuzz: deps
