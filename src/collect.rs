@@ -30,7 +30,7 @@ use crate::env::{self, GoalEnv};
 use crate::output::AtomicFile;
 use crate::pickle::write::{ArrayOut, write_f64_dict};
 use crate::task::Task;
-use crate::trajectory::{EpisodeArrays, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
+use crate::trajectory::{self, EpisodeArrays, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
 
 #[derive(Debug, Clone)]
 pub struct CollectOptions {
@@ -97,7 +97,7 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
         Sink::Table(TrajectoryWriter::create(&opts.output, &task, float, opts.row_group_rows, false)?)
     };
     // Whole row groups per chunk keep the table's row groups where `convert` puts them.
-    let per_group = (opts.row_group_rows / task.t).max(1);
+    let per_group = trajectory::episodes_per_group(opts.row_group_rows, task.t);
     let chunk = per_group * MIN_CHUNK.div_ceil(per_group);
     bar.set_length(opts.episodes as u64);
     let (mut successes, mut return_sum) = (0, 0.0);
@@ -226,7 +226,7 @@ fn run_episode(env: &mut dyn GoalEnv, policy: &mut EpisodePolicy, seed: u64, out
     for step in 0..t - 1 {
         policy.act(&obs, &mut action);
         for a in action.iter_mut() {
-            *a = (*a as f32).clamp(-1.0, 1.0) as f64;
+            *a = env::applied_action(*a) as f64;
         }
         put(u, step, &action);
         put(g, step, &obs.desired_goal);
@@ -258,13 +258,8 @@ struct PickleSink {
 impl PickleSink {
     fn create(dest: &Path) -> Result<Self> {
         let out = AtomicFile::create(dest)?;
-        let dir = match dest.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let spool =
-            || tempfile::tempfile_in(&dir).with_context(|| format!("{}: cannot create a spool file", dest.display()));
-        Ok(Self { out, spools: [spool()?, spool()?, spool()?, spool()?] })
+        let spools = [out.scratch()?, out.scratch()?, out.scratch()?, out.scratch()?];
+        Ok(Self { out, spools })
     }
 
     fn append(&mut self, c: &Chunk) -> Result<()> {

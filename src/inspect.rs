@@ -4,6 +4,7 @@
 //! statistics are merged per batch with Chan et al.'s parallel variance formula, which stays
 //! accurate where a running sum of squares would cancel.
 
+use std::borrow::Cow;
 use std::fs::File;
 use std::path::Path;
 
@@ -181,13 +182,7 @@ fn column_moments(col: &ArrayRef) -> Option<Vec<Moments>> {
         }
         _ => (col.clone(), 1, None),
     };
-    let flat: Vec<f64> = match values.data_type() {
-        DataType::Float64 => values.as_primitive::<Float64Type>().values().to_vec(),
-        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
-        DataType::Int64 => values.as_primitive::<Int64Type>().values().iter().map(|&v| v as f64).collect(),
-        DataType::Int32 => values.as_primitive::<Int32Type>().values().iter().map(|&v| v as f64).collect(),
-        _ => return None,
-    };
+    let flat = as_f64(&values)?;
     let scalar_nulls = if dim == 1 && valid.is_none() { values.nulls() } else { valid };
     let rows = flat.len() / dim.max(1);
     let keep = |r: &usize| scalar_nulls.is_none_or(|n| n.is_valid(*r));
@@ -231,12 +226,24 @@ impl SuccessCounter {
     }
 }
 
-fn vectors(col: &ArrayRef) -> Result<Vec<f64>> {
-    let values = col.as_fixed_size_list().values().clone();
-    Ok(match values.data_type() {
-        DataType::Float64 => values.as_primitive::<Float64Type>().values().to_vec(),
-        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
+/// The flat values of a FixedSizeList<float> column as f64.
+fn vectors(col: &ArrayRef) -> Result<Cow<'_, [f64]>> {
+    let values = col.as_fixed_size_list().values();
+    match values.data_type() {
+        DataType::Float64 | DataType::Float32 => Ok(as_f64(values).expect("numeric")),
         other => anyhow::bail!("vector column of {other}"),
+    }
+}
+
+/// Numeric values as f64: borrowed when they already are, converted otherwise; None for
+/// columns that are not numeric.
+fn as_f64(values: &ArrayRef) -> Option<Cow<'_, [f64]>> {
+    Some(match values.data_type() {
+        DataType::Float64 => Cow::Borrowed(values.as_primitive::<Float64Type>().values().as_ref()),
+        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
+        DataType::Int64 => values.as_primitive::<Int64Type>().values().iter().map(|&v| v as f64).collect(),
+        DataType::Int32 => values.as_primitive::<Int32Type>().values().iter().map(|&v| v as f64).collect(),
+        _ => return None,
     })
 }
 

@@ -18,10 +18,7 @@ pub struct AtomicFile {
 impl AtomicFile {
     pub fn create(dest: &Path) -> Result<Self> {
         let name = dest.file_name().with_context(|| format!("{}: output path has no file name", dest.display()))?;
-        let dir = match dest.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
+        let dir = folder_of(dest);
         if !dir.is_dir() {
             bail!("{}: output folder {} does not exist", dest.display(), dir.display());
         }
@@ -43,6 +40,13 @@ impl AtomicFile {
 
     pub fn dest(&self) -> &Path {
         &self.dest
+    }
+
+    /// An unnamed scratch file beside the output (same file system, gone when dropped), for
+    /// writers that must stage data before the final layout is known.
+    pub fn scratch(&self) -> Result<File> {
+        tempfile::tempfile_in(folder_of(&self.dest))
+            .with_context(|| format!("{}: cannot create a scratch file", self.dest.display()))
     }
 
     /// Flush to disk and move into place.
@@ -68,16 +72,21 @@ pub fn check_not_an_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
+/// The folder a file lives in; `.` for a bare file name.
+fn folder_of(p: &Path) -> PathBuf {
+    match p.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
 fn canonical_maybe_missing(p: &Path) -> PathBuf {
     if let Ok(c) = std::fs::canonicalize(p) {
         return c;
     }
-    match (p.parent(), p.file_name()) {
-        (Some(dir), Some(name)) => {
-            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
-            std::fs::canonicalize(dir).map(|d| d.join(name)).unwrap_or_else(|_| p.to_path_buf())
-        }
-        _ => p.to_path_buf(),
+    match p.file_name() {
+        Some(name) => std::fs::canonicalize(folder_of(p)).map(|d| d.join(name)).unwrap_or_else(|_| p.to_path_buf()),
+        None => p.to_path_buf(),
     }
 }
 

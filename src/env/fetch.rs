@@ -310,7 +310,7 @@ impl FetchEnv {
         // The action space is float32: gymnasium clips in float32 and scales the position part
         // in float32 (`pos_ctrl *= 0.05` on a float32 array); only then does `np.concatenate`
         // widen it to float64. A policy's actions are float32 in Python, so we round to them.
-        let a: [f32; 4] = std::array::from_fn(|i| (action[i] as f32).clamp(-1.0, 1.0));
+        let a: [f32; 4] = std::array::from_fn(|i| super::applied_action(action[i]));
         let pos_delta: [f64; 3] = std::array::from_fn(|i| (a[i] * 0.05f32) as f64);
         let gripper = if self.cfg.block_gripper { 0.0 } else { a[3] as f64 };
         // ctrl_set_action: the two gripper values go to the first actuators (PickAndPlace only).

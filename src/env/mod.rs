@@ -50,6 +50,13 @@ pub trait GoalEnv {
     fn step(&mut self, action: &[f64]) -> Step;
 }
 
+/// One action value as the environments apply it: rounded to f32, the action space's dtype
+/// (gymnasium computes with a float32 action as a policy hands it over), then clipped to
+/// [−1, 1]. Collectors record exactly this, so replaying a stored action reproduces the step.
+pub fn applied_action(value: f64) -> f32 {
+    (value as f32).clamp(-1.0, 1.0)
+}
+
 /// The environment for a task name or gymnasium id (`FetchPush`, `FetchPush-v4`).
 /// Other versions are refused: v1–v3 reset differently, so their data would not match.
 pub fn make(task_name: &str) -> Result<Box<dyn GoalEnv + Send>> {

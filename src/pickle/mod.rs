@@ -14,6 +14,7 @@
 //! Fortran→C transpose are converted once into an owned buffer.
 
 mod numpy;
+mod op;
 mod reduce;
 mod text;
 mod vm;

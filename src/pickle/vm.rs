@@ -6,6 +6,7 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 
 use super::numpy::Global;
+use super::op;
 use super::text::{decode_raw_unicode_escape, decode_repr_string};
 use super::{Id, Obj, Pickle, PickleError};
 
@@ -46,7 +47,7 @@ pub(super) fn run(data: &[u8]) -> R<Pickle<'_>> {
         m.op_pos = m.pos;
         m.op = data[m.pos];
         m.pos += 1;
-        if m.op == b'.' {
+        if m.op == op::STOP {
             let root = m.pop()?;
             return Ok(Pickle { objs: m.objs, root });
         }
@@ -59,13 +60,38 @@ fn sniff(data: &[u8]) -> R<()> {
     let fail = |what: &str| Err(PickleError { offset: 0, message: format!("not a pickle: {what}") });
     match data {
         [] => Err(PickleError { offset: 0, message: "empty file".into() }),
-        [0x80, ..] => Ok(()),
+        [op::PROTO, ..] => Ok(()),
         [0x1f, 0x8b, ..] => fail("the file is gzip-compressed; decompress it first (gunzip)"),
         [b'P', b'K', 3, 4, ..] => fail("the file is a zip archive (an .npz?); extract it first"),
         [0x93, b'N', b'U', b'M', b'P', b'Y', ..] => fail("the file is a .npy array file"),
         [b'P', b'A', b'R', b'1', ..] => fail("the file is a Parquet file"),
-        [b'(' | b']' | b'}' | b')' | b'N' | b'I' | b'L' | b'F' | b'S' | b'V' | b'c' | b'G', ..]
-        | [b'J' | b'K' | b'M' | b'T' | b'U' | b'X' | b'B' | b'C' | b'.', ..] => Ok(()),
+        [
+            op::MARK
+            | op::EMPTY_LIST
+            | op::EMPTY_DICT
+            | op::EMPTY_TUPLE
+            | op::NONE
+            | op::INT
+            | op::LONG
+            | op::FLOAT
+            | op::STRING
+            | op::UNICODE
+            | op::GLOBAL
+            | op::BINFLOAT,
+            ..,
+        ]
+        | [
+            op::BININT
+            | op::BININT1
+            | op::BININT2
+            | op::BINSTRING
+            | op::SHORT_BINSTRING
+            | op::BINUNICODE
+            | op::BINBYTES
+            | op::SHORT_BINBYTES
+            | op::STOP,
+            ..,
+        ] => Ok(()),
         [b, ..] => fail(&format!(
             "it starts with byte 0x{b:02x} ({:?}), which no pickle starts with",
             String::from_utf8_lossy(&data[..data.len().min(8)])
@@ -74,21 +100,7 @@ fn sniff(data: &[u8]) -> R<()> {
 }
 
 fn opcode_name(op: u8) -> &'static str {
-    match op {
-        b'B' => "BINBYTES",
-        b'C' => "SHORT_BINBYTES",
-        0x8e => "BINBYTES8",
-        b'X' => "BINUNICODE",
-        0x8c => "SHORT_BINUNICODE",
-        0x8d => "BINUNICODE8",
-        0x96 => "BYTEARRAY8",
-        b'T' => "BINSTRING",
-        b'U' => "SHORT_BINSTRING",
-        0x8a => "LONG1",
-        0x8b => "LONG4",
-        0x95 => "FRAME",
-        _ => "opcode",
-    }
+    op::name(op)
 }
 
 impl<'a> Machine<'a> {
@@ -277,13 +289,13 @@ impl<'a> Machine<'a> {
     fn step(&mut self) -> R<()> {
         match self.op {
             // --- framing and protocol ---
-            0x80 => {
+            op::PROTO => {
                 let v = self.u8()?;
                 if v > 5 {
                     return self.err(format!("unsupported pickle protocol {v} (this reader knows 0-5)"));
                 }
             }
-            0x95 => {
+            op::FRAME => {
                 // FRAME: only a hint for buffered readers; just check it is inside the file.
                 let n = self.u64()?;
                 let left = (self.data.len() - self.pos) as u64;
@@ -292,10 +304,10 @@ impl<'a> Machine<'a> {
                 }
             }
             // --- constants and numbers ---
-            b'N' => self.push(Obj::None),
-            0x88 => self.push(Obj::Bool(true)),
-            0x89 => self.push(Obj::Bool(false)),
-            b'I' => {
+            op::NONE => self.push(Obj::None),
+            op::NEWTRUE => self.push(Obj::Bool(true)),
+            op::NEWFALSE => self.push(Obj::Bool(false)),
+            op::INT => {
                 let l = self.line_str()?.trim();
                 let o = match l {
                     "00" => Obj::Bool(false),
@@ -307,31 +319,31 @@ impl<'a> Machine<'a> {
                 };
                 self.push(o);
             }
-            b'L' => {
+            op::LONG => {
                 let l = self.line_str()?.trim().trim_end_matches('L');
                 match l.parse::<i128>() {
                     Ok(v) => self.push(Self::int_obj(v)),
                     Err(_) => self.push(Obj::BigInt(l.as_bytes().to_vec())),
                 }
             }
-            b'J' => {
+            op::BININT => {
                 let v = i32::from_le_bytes(self.fixed()?);
                 self.push(Obj::Int(v as i64));
             }
-            b'K' => {
+            op::BININT1 => {
                 let v = self.u8()?;
                 self.push(Obj::Int(v as i64));
             }
-            b'M' => {
+            op::BININT2 => {
                 let v = u16::from_le_bytes(self.fixed()?);
                 self.push(Obj::Int(v as i64));
             }
-            0x8a => {
+            op::LONG1 => {
                 let n = self.u8()?;
                 let b = self.take(n)?;
                 self.push(Self::long_bytes(b));
             }
-            0x8b => {
+            op::LONG4 => {
                 let n = i32::from_le_bytes(self.fixed()?);
                 if n < 0 {
                     return self.malformed("LONG4 with a negative length");
@@ -339,83 +351,88 @@ impl<'a> Machine<'a> {
                 let b = self.take(n as u64)?;
                 self.push(Self::long_bytes(b));
             }
-            b'F' => {
+            op::FLOAT => {
                 let l = self.line_str()?.trim();
                 match l.parse::<f64>() {
                     Ok(v) => self.push(Obj::Float(v)),
                     Err(_) => return self.malformed("FLOAT argument is not a number"),
                 }
             }
-            b'G' => {
+            op::BINFLOAT => {
                 let v = f64::from_be_bytes(self.fixed()?);
                 self.push(Obj::Float(v));
             }
             // --- strings and bytes ---
-            b'S' => {
+            op::STRING => {
                 let l = self.line()?;
                 let b = decode_repr_string(l).or_else(|e| self.malformed(&e))?;
                 self.push(Obj::Bytes(Cow::Owned(b)));
             }
-            b'T' | b'U' | b'B' | b'C' | 0x8e | 0x96 => {
+            op::BINSTRING
+            | op::SHORT_BINSTRING
+            | op::BINBYTES
+            | op::SHORT_BINBYTES
+            | op::BINBYTES8
+            | op::BYTEARRAY8 => {
                 let n = match self.op {
-                    b'U' | b'C' => self.u8()?,
-                    b'T' => {
+                    op::SHORT_BINSTRING | op::SHORT_BINBYTES => self.u8()?,
+                    op::BINSTRING => {
                         let n = i32::from_le_bytes(self.fixed()?);
                         if n < 0 {
                             return self.malformed("BINSTRING with a negative length");
                         }
                         n as u64
                     }
-                    b'B' => self.u32()?,
+                    op::BINBYTES => self.u32()?,
                     _ => self.u64()?,
                 };
                 let b = self.take(n)?;
                 self.push(Obj::Bytes(Cow::Borrowed(b)));
             }
-            b'V' => {
+            op::UNICODE => {
                 let l = self.line()?;
                 let s = decode_raw_unicode_escape(l).or_else(|e| self.malformed(&e))?;
                 self.push(Obj::Str(Cow::Owned(s)));
             }
-            b'X' | 0x8c | 0x8d => {
+            op::BINUNICODE | op::SHORT_BINUNICODE | op::BINUNICODE8 => {
                 let n = match self.op {
-                    0x8c => self.u8()?,
-                    b'X' => self.u32()?,
+                    op::SHORT_BINUNICODE => self.u8()?,
+                    op::BINUNICODE => self.u32()?,
                     _ => self.u64()?,
                 };
                 let b = self.take(n)?;
                 let s = self.utf8(b)?;
                 self.push(s);
             }
-            0x97 => {
+            op::NEXT_BUFFER => {
                 return self.err(
                     "NEXT_BUFFER: the pickle refers to an out-of-band buffer (protocol 5 with \
                      buffer_callback), whose bytes are not in the file",
                 );
             }
-            0x98 => {
+            op::READONLY_BUFFER => {
                 self.top()?;
             }
             // --- containers ---
-            b']' => self.push(Obj::List(Vec::new())),
-            b'}' => self.push(Obj::Dict(Vec::new())),
-            b')' => self.push(Obj::Tuple(Vec::new())),
-            0x8f => self.push(Obj::Set(Vec::new())),
-            b'(' => self.marks.push(self.stack.len()),
-            b'l' => {
+            op::EMPTY_LIST => self.push(Obj::List(Vec::new())),
+            op::EMPTY_DICT => self.push(Obj::Dict(Vec::new())),
+            op::EMPTY_TUPLE => self.push(Obj::Tuple(Vec::new())),
+            op::EMPTY_SET => self.push(Obj::Set(Vec::new())),
+            op::MARK => self.marks.push(self.stack.len()),
+            op::LIST => {
                 let items = self.pop_mark()?;
                 self.push(Obj::List(items));
             }
-            b't' => {
+            op::TUPLE => {
                 let items = self.pop_mark()?;
                 self.push(Obj::Tuple(items));
             }
-            0x91 => {
+            op::FROZENSET => {
                 let items = self.pop_mark()?;
                 self.push(Obj::Set(items));
             }
-            0x85..=0x87 => {
-                let n = (self.op - 0x84) as usize;
+            op::TUPLE1..=op::TUPLE3 => {
+                let n = (self.op - op::TUPLE1 + 1) as usize;
                 let mut items = Vec::with_capacity(n);
                 for _ in 0..n {
                     items.push(self.pop()?);
@@ -423,16 +440,16 @@ impl<'a> Machine<'a> {
                 items.reverse();
                 self.push(Obj::Tuple(items));
             }
-            b'd' => {
+            op::DICT => {
                 let items = self.pop_mark()?;
                 self.push(Obj::Dict(Vec::new()));
                 let d = self.top()?;
                 self.set_items(d, items)?;
             }
-            b'a' | b'e' | 0x90 => {
-                let items = if self.op == b'a' { vec![self.pop()?] } else { self.pop_mark()? };
+            op::APPEND | op::APPENDS | op::ADDITEMS => {
+                let items = if self.op == op::APPEND { vec![self.pop()?] } else { self.pop_mark()? };
                 let target = self.top()?;
-                let want_set = self.op == 0x90;
+                let want_set = self.op == op::ADDITEMS;
                 match self.container_mut(target) {
                     Obj::List(v) if !want_set => v.extend(items),
                     Obj::Set(v) if want_set => v.extend(items),
@@ -442,62 +459,62 @@ impl<'a> Machine<'a> {
                     }
                 }
             }
-            b's' => {
+            op::SETITEM => {
                 let v = self.pop()?;
                 let k = self.pop()?;
                 let d = self.top()?;
                 self.set_items(d, vec![k, v])?;
             }
-            b'u' => {
+            op::SETITEMS => {
                 let items = self.pop_mark()?;
                 let d = self.top()?;
                 self.set_items(d, items)?;
             }
             // --- stack and memo ---
-            b'0' => {
+            op::POP => {
                 if self.stack.len() > self.floor() {
                     self.stack.pop();
                 } else {
                     self.pop_mark()?;
                 }
             }
-            b'1' => {
+            op::POP_MARK => {
                 self.pop_mark()?;
             }
-            b'2' => {
+            op::DUP => {
                 let t = self.top()?;
                 self.stack.push(t);
             }
-            b'g' => {
+            op::GET => {
                 let k = self.text_int()?;
                 self.get(k)?;
             }
-            b'h' => {
+            op::BINGET => {
                 let k = self.u8()?;
                 self.get(k)?;
             }
-            b'j' => {
+            op::LONG_BINGET => {
                 let k = self.u32()?;
                 self.get(k)?;
             }
-            b'p' => {
+            op::PUT => {
                 let k = self.text_int()?;
                 self.put(k)?;
             }
-            b'q' => {
+            op::BINPUT => {
                 let k = self.u8()?;
                 self.put(k)?;
             }
-            b'r' => {
+            op::LONG_BINPUT => {
                 let k = self.u32()?;
                 self.put(k)?;
             }
-            0x94 => {
+            op::MEMOIZE => {
                 let k = self.memo.len() as u64;
                 self.put(k)?;
             }
             // --- globals and calls: the allow-list lives here ---
-            b'c' => {
+            op::GLOBAL => {
                 let module = self.line_str()?;
                 let name = self.line_str()?;
                 match Global::resolve(module, name) {
@@ -505,7 +522,7 @@ impl<'a> Machine<'a> {
                     None => return self.refuse_global("GLOBAL", module, name),
                 }
             }
-            0x93 => {
+            op::STACK_GLOBAL => {
                 let name = self.pop()?;
                 let module = self.pop()?;
                 let (Obj::Str(m), Obj::Str(n)) = (&self.objs[module], &self.objs[name]) else {
@@ -517,12 +534,12 @@ impl<'a> Machine<'a> {
                     None => return self.refuse_global("STACK_GLOBAL", &m, &n),
                 }
             }
-            b'i' => {
+            op::INST => {
                 let module = self.line_str()?;
                 let name = self.line_str()?;
                 return self.refuse_global("INST", module, name);
             }
-            b'o' => {
+            op::OBJ => {
                 let items = self.pop_mark()?;
                 let what = items.first().map(|&c| self.describe_callable(c));
                 return self.err(format!(
@@ -530,8 +547,8 @@ impl<'a> Machine<'a> {
                     what.unwrap_or_else(|| "<none>".into())
                 ));
             }
-            0x81 | 0x92 => {
-                if self.op == 0x92 {
+            op::NEWOBJ | op::NEWOBJ_EX => {
+                if self.op == op::NEWOBJ_EX {
                     self.pop()?; // kwargs
                 }
                 self.pop()?; // args
@@ -541,13 +558,13 @@ impl<'a> Machine<'a> {
                     "refused global {what} (NEWOBJ): pgser never instantiates classes named by a pickle"
                 ));
             }
-            0x82..=0x84 => {
+            op::EXT1..=op::EXT4 => {
                 return self.err("refused global from the copyreg extension registry (EXT opcode)");
             }
-            b'P' | b'Q' => {
+            op::PERSID | op::BINPERSID => {
                 return self.err("refused persistent id: the pickle refers to objects outside the file");
             }
-            b'R' => {
+            op::REDUCE => {
                 let args = self.pop()?;
                 let func = self.pop()?;
                 let Obj::Global(g) = self.objs[func] else {
@@ -559,7 +576,7 @@ impl<'a> Machine<'a> {
                 let o = self.call(g, &args)?;
                 self.push(o);
             }
-            b'b' => {
+            op::BUILD => {
                 let state = self.pop()?;
                 let target = self.top()?;
                 self.build(target, state)?;

@@ -12,6 +12,8 @@
 
 use std::io::{self, Write};
 
+use super::op;
+
 /// Writes an array's little-endian C-order values into the pickle when called.
 pub type ArraySource<'a> = Box<dyn FnMut(&mut dyn Write) -> io::Result<()> + 'a>;
 
@@ -28,37 +30,6 @@ impl<'a> ArrayOut<'a> {
     pub fn from_bytes(key: &'a str, shape: Vec<usize>, bytes: &'a [u8]) -> Self {
         ArrayOut { key, shape, data: Box::new(move |w| w.write_all(bytes)) }
     }
-}
-
-/// Opcodes used (see CPython's `Lib/pickle.py`).
-mod op {
-    pub const PROTO: u8 = 0x80;
-    pub const STOP: u8 = b'.';
-    pub const EMPTY_DICT: u8 = b'}';
-    pub const MARK: u8 = b'(';
-    pub const SETITEM: u8 = b's';
-    pub const SETITEMS: u8 = b'u';
-    pub const BINUNICODE: u8 = b'X';
-    pub const BINPUT: u8 = b'q';
-    pub const LONG_BINPUT: u8 = b'r';
-    pub const BINGET: u8 = b'h';
-    pub const LONG_BINGET: u8 = b'j';
-    pub const GLOBAL: u8 = b'c';
-    pub const BININT1: u8 = b'K';
-    pub const BININT2: u8 = b'M';
-    pub const BININT: u8 = b'J';
-    pub const EMPTY_TUPLE: u8 = b')';
-    pub const TUPLE: u8 = b't';
-    pub const TUPLE1: u8 = 0x85;
-    pub const TUPLE2: u8 = 0x86;
-    pub const TUPLE3: u8 = 0x87;
-    pub const SHORT_BINBYTES: u8 = b'C';
-    pub const BINBYTES: u8 = b'B';
-    pub const REDUCE: u8 = b'R';
-    pub const BUILD: u8 = b'b';
-    pub const NEWTRUE: u8 = 0x88;
-    pub const NEWFALSE: u8 = 0x89;
-    pub const NONE: u8 = b'N';
 }
 
 /// The pickler's state: the output and the memo counter (every PUT numbers the next object).

@@ -53,6 +53,12 @@ impl EpisodeArrays<'_> {
     }
 }
 
+/// Whole episodes per row group for a target row count (at least one). `collect` cuts its
+/// chunks on this too, so its row groups fall where `convert`'s do for the same episodes.
+pub fn episodes_per_group(row_group_rows: usize, t: usize) -> usize {
+    (row_group_rows / t).max(1)
+}
+
 /// Streams episodes into a trajectory table file (written atomically on `finish`).
 pub struct TrajectoryWriter {
     table: TableWriter,
@@ -75,7 +81,7 @@ impl TrajectoryWriter {
     ) -> Result<Self> {
         let schema = schema(float, task);
         let table = TableWriter::create(dest, schema.clone())?;
-        let per_group = (row_group_rows / task.t).max(1);
+        let per_group = episodes_per_group(row_group_rows, task.t);
         Ok(Self { table, schema, task: task.clone(), float, allow_nonfinite, per_group, episodes: 0 })
     }
 

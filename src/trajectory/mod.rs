@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::table::SCHEMA_VERSION;
 use crate::task::{GoalMetric, Task};
 
-pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
+pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
 pub use convert::{ConvertOptions, ConvertSummary, convert};
 
 /// The float type of a table's vector columns.
