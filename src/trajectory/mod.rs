@@ -1,9 +1,10 @@
 //! The trajectory table (SPEC §3.1): one row per observation, episodes contiguous and ordered
 //! by (episode, step). `desired_goal` and `action` are null on the last step, where WGCSL's
-//! `g` and `u` (T − 1 entries per episode) have nothing.
+//! `g` and `u` (T − 1 entries per episode) have nothing. [`Episodes`] loads a table for training.
 
 mod batch;
 mod convert;
+pub mod read;
 
 use std::sync::Arc;
 
@@ -15,6 +16,7 @@ use crate::task::{GoalMetric, Task};
 
 pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
 pub use convert::{ConvertOptions, ConvertSummary, convert};
+pub use read::Episodes;
 
 /// The float type of a table's vector columns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,0 +1,310 @@
+//! Loading a trajectory table (SPEC §3.1) into memory for training.
+//!
+//! Training samples transitions uniformly and relabels goals from any later step of the same
+//! episode (HER "future"), so it needs random access to every episode: the whole table is held
+//! as float32 (the networks' type; WGCSL's float64 pickles carry no precision the networks use),
+//! episode-major. A 2500-episode FetchPush table is ≈ 17 MB that way.
+//!
+//! Row groups are streamed a few episodes at a time and every row is checked on the way in —
+//! dense episodes, ordered steps, nulls only where WGCSL has no entry, finite values — so a bad
+//! table fails here with the file, row, episode and step named, not as a NaN loss hours later.
+
+use std::fs::File;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type, Int32Type, Int64Type};
+use arrow_array::{Array, ArrayRef, RecordBatch};
+use arrow_schema::{DataType, Schema};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+
+use super::{FloatType, Footer, KIND};
+use crate::table::{FOOTER_KEY, SCHEMA_VERSION};
+use crate::task::Task;
+
+/// Episodes per record batch read: big enough to amortise decoding, small enough that the
+/// Arrow copy next to the f32 arrays stays a few MB.
+const BATCH_EPISODES: usize = 64;
+/// The most floats reserved up front per array (256 MiB): the footer's counts are checked
+/// against the Parquet metadata, but both can lie, so beyond this the Vecs grow as data arrives.
+const MAX_RESERVE: usize = 1 << 26;
+/// The vector columns in the order `Episodes` holds them; the last two have T − 1 rows per
+/// episode (null on step T − 1).
+const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "action"];
+const EXPECTED: &str = "a trajectory table from `pgser-etl convert` or `pgser-etl collect` is expected";
+
+/// A trajectory table in memory, as float32, episode-major.
+pub struct Episodes {
+    /// The table's `pgser` footer (kind "trajectory").
+    pub footer: Footer,
+    /// `footer.task()`: dimensions, T, goal metric and threshold.
+    pub task: Task,
+    /// Episodes.
+    pub n: usize,
+    /// Observations per episode (T); actions per episode T − 1.
+    pub t: usize,
+    /// `[n, t, obs_dim]`
+    pub obs: Vec<f32>,
+    /// `[n, t, goal_dim]` achieved goals.
+    pub ag: Vec<f32>,
+    /// `[n, t − 1, goal_dim]` desired goals (the rows with step < T − 1).
+    pub g: Vec<f32>,
+    /// `[n, t − 1, act_dim]` actions.
+    pub u: Vec<f32>,
+}
+
+impl std::fmt::Debug for Episodes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Episodes {{ task: {}, n: {}, t: {} }}", self.task.name, self.n, self.t)
+    }
+}
+
+impl Episodes {
+    /// Read and check a whole trajectory table; errors are one line naming the file and where.
+    pub fn load(path: &Path) -> Result<Episodes> {
+        let at = path.display().to_string();
+        let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+        let builder =
+            ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+        let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
+        let (n, t) = (footer.episodes, footer.t);
+        let file_rows = builder.metadata().file_metadata().num_rows();
+        if usize::try_from(file_rows).ok() != Some(footer.rows) {
+            bail!("{at}: the file holds {file_rows} rows but its footer says {} ({n} episodes × T = {t})", footer.rows);
+        }
+        let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
+        let indices = check_schema(&at, builder.schema(), &footer, dims)?;
+        let mask = ProjectionMask::roots(builder.parquet_schema(), indices);
+        let reader = builder
+            .with_projection(mask)
+            .with_batch_size(BATCH_EPISODES.saturating_mul(t))
+            .build()
+            .with_context(|| format!("{at}: cannot read"))?;
+
+        let steps = [t, t, t - 1, t - 1];
+        let mut out: [Vec<f32>; 4] = std::array::from_fn(|k| {
+            Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE))
+        });
+        let mut row = 0;
+        for batch in reader {
+            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+            check_keys(&at, &batch, row, &footer)?;
+            for (k, v) in out.iter_mut().enumerate() {
+                let col = batch.column_by_name(VECTORS[k]).expect("projected");
+                append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+            }
+            row += batch.num_rows();
+        }
+        if row != footer.rows {
+            bail!("{at}: {row} rows read but the footer says {} ({n} episodes × T = {t})", footer.rows);
+        }
+        let [obs, ag, g, u] = out;
+        Ok(Episodes { task: footer.task(), footer, n, t, obs, ag, g, u })
+    }
+
+    /// o[ep, step], step < T.
+    pub fn obs(&self, ep: usize, step: usize) -> &[f32] {
+        debug_assert!(step < self.t);
+        let d = self.footer.obs_dim;
+        &self.obs[(ep * self.t + step) * d..][..d]
+    }
+
+    /// ag[ep, step], step < T.
+    pub fn ag(&self, ep: usize, step: usize) -> &[f32] {
+        debug_assert!(step < self.t);
+        let d = self.footer.goal_dim;
+        &self.ag[(ep * self.t + step) * d..][..d]
+    }
+
+    /// g[ep, step], step < T − 1.
+    pub fn goal(&self, ep: usize, step: usize) -> &[f32] {
+        debug_assert!(step < self.t - 1);
+        let d = self.footer.goal_dim;
+        &self.g[(ep * (self.t - 1) + step) * d..][..d]
+    }
+
+    /// u[ep, step], step < T − 1.
+    pub fn action(&self, ep: usize, step: usize) -> &[f32] {
+        debug_assert!(step < self.t - 1);
+        let d = self.footer.act_dim;
+        &self.u[(ep * (self.t - 1) + step) * d..][..d]
+    }
+
+    /// Transitions (o, u, o′): T − 1 per episode.
+    pub fn transitions(&self) -> usize {
+        self.n * (self.t - 1)
+    }
+
+    /// (episode, step) of transition `i` in `0..transitions()`, for uniform sampling.
+    pub fn transition(&self, i: usize) -> (usize, usize) {
+        (i / (self.t - 1), i % (self.t - 1))
+    }
+}
+
+/// The `pgser` footer, required to be a trajectory footer that agrees with itself.
+fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
+    let text = kv
+        .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
+        .and_then(|e| e.value.as_deref())
+        .with_context(|| format!("{at}: no `{FOOTER_KEY}` footer, so not a pgser table; {EXPECTED}"))?;
+    let json: serde_json::Value =
+        serde_json::from_str(text).with_context(|| format!("{at}: the `{FOOTER_KEY}` footer is not valid JSON"))?;
+    match json.get("kind").and_then(|k| k.as_str()) {
+        Some(KIND) => {}
+        Some(kind) => bail!("{at}: a {kind} table, not a trajectory table; {EXPECTED}"),
+        None => bail!("{at}: the `{FOOTER_KEY}` footer names no table kind; {EXPECTED}"),
+    }
+    let f: Footer = serde_json::from_value(json).with_context(|| format!("{at}: malformed trajectory footer"))?;
+    if f.schema_version != SCHEMA_VERSION {
+        bail!("{at}: table schema version {}; this pgser reads version {SCHEMA_VERSION}", f.schema_version);
+    }
+    if f.t < 2 {
+        bail!("{at}: the footer says T = {}; an episode needs at least two observations", f.t);
+    }
+    if f.episodes == 0 {
+        bail!("{at}: the footer says the table holds no episodes");
+    }
+    if f.episodes.checked_mul(f.t) != Some(f.rows) {
+        bail!("{at}: the footer says {} rows, not {} episodes × T = {}", f.rows, f.episodes, f.t);
+    }
+    Ok(f)
+}
+
+/// Check the six columns' types against the footer; returns their root indices.
+fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Result<Vec<usize>> {
+    let index = |name: &str| {
+        schema.index_of(name).map_err(|_| {
+            anyhow::anyhow!(
+                "{at}: no `{name}` column (a trajectory table has episode, step, {}); {EXPECTED}",
+                VECTORS.join(", ")
+            )
+        })
+    };
+    let mut indices = Vec::with_capacity(6);
+    for (name, want) in [("episode", DataType::Int64), ("step", DataType::Int32)] {
+        let i = index(name)?;
+        let got = schema.field(i).data_type();
+        if *got != want {
+            bail!("{at}: `{name}` is {got}, not {want}");
+        }
+        indices.push(i);
+    }
+    let dim_names = ["obs_dim", "goal_dim", "goal_dim", "act_dim"];
+    for ((name, dim), dim_name) in VECTORS.into_iter().zip(dims).zip(dim_names) {
+        let i = index(name)?;
+        let DataType::FixedSizeList(item, size) = schema.field(i).data_type() else {
+            bail!("{at}: `{name}` is {}, not a fixed-size list of floats", schema.field(i).data_type());
+        };
+        let float = match item.data_type() {
+            DataType::Float32 => FloatType::Float32,
+            DataType::Float64 => FloatType::Float64,
+            other => bail!("{at}: `{name}` holds {other}, not float32 or float64"),
+        };
+        if *size as usize != dim {
+            bail!("{at}: `{name}` holds lists of {size} values but the footer says {dim_name} = {dim}");
+        }
+        if float != f.float_type {
+            bail!("{at}: `{name}` holds {} but the footer says {}", float.name(), f.float_type.name());
+        }
+        indices.push(i);
+    }
+    Ok(indices)
+}
+
+/// Rows `first_row..` must be (episode, step) = (row / T, row % T), with no nulls.
+fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Footer) -> Result<()> {
+    let t = f.t;
+    let episode = batch.column_by_name("episode").expect("projected").as_primitive::<Int64Type>();
+    let step = batch.column_by_name("step").expect("projected").as_primitive::<Int32Type>();
+    for r in 0..batch.num_rows() {
+        let row = first_row + r;
+        if row >= f.rows {
+            bail!("{at}: more rows than the footer's {} ({} episodes × T = {t})", f.rows, f.episodes);
+        }
+        if episode.is_null(r) || step.is_null(r) {
+            bail!("{at}: row {row}: `episode` or `step` is null");
+        }
+        let (want_e, want_s) = (row / t, row % t);
+        let (e, s) = (episode.value(r), step.value(r));
+        if e == want_e as i64 + 1 && s == 0 && want_s > 0 {
+            bail!("{at}: row {row}: episode {want_e} ends after {want_s} steps; every episode has T = {t}");
+        }
+        if e != want_e as i64 {
+            bail!(
+                "{at}: row {row}: episode {e} (step {s}) where episode {want_e} was expected; episodes must be \
+                 numbered densely 0..n−1, each one's rows contiguous and in order"
+            );
+        }
+        if s != want_s as i32 {
+            bail!(
+                "{at}: row {row} (episode {e}): step {s} where {want_s} was expected; steps must run 0..T−1 = {} \
+                 in order",
+                t - 1
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Append the rows of one vector column to `out` as f32: every row, or with `padded` (goal,
+/// action) the rows with step < T − 1, whose last-step row may be null. Rows already passed
+/// [`check_keys`], so row r of the batch is table row `first_row + r`. Errors name the row,
+/// episode, step and column; the caller adds the file.
+fn append(
+    out: &mut Vec<f32>,
+    col: &ArrayRef,
+    name: &str,
+    dim: usize,
+    padded: bool,
+    first_row: usize,
+    t: usize,
+) -> Result<()> {
+    let list = col.as_fixed_size_list();
+    let values = list.values();
+    let place = |r: usize| {
+        let row = first_row + r;
+        format!("row {row} (episode {}, step {})", row / t, row % t)
+    };
+    let mut r = 0;
+    while r < list.len() {
+        let step = (first_row + r) % t;
+        if padded && step == t - 1 {
+            r += 1;
+            continue;
+        }
+        // A run of rows to take: to the end of the batch, or of the episode's steps < T − 1.
+        let end = if padded { (r + t - 1 - step).min(list.len()) } else { list.len() };
+        if let Some(bad) = (r..end).find(|&i| list.is_null(i)) {
+            let rule = if padded { "only the last step, T − 1, may be null" } else { "it is never null" };
+            bail!("{}: `{name}` is null; {rule}", place(bad));
+        }
+        let (a, b) = (r * dim, end * dim);
+        if values.null_count() > 0
+            && let Some(i) = (a..b).find(|&i| values.is_null(i))
+        {
+            bail!("{}: `{name}`[{}] is null", place(i / dim), i % dim);
+        }
+        let start = out.len();
+        match values.data_type() {
+            DataType::Float32 => out.extend_from_slice(&values.as_primitive::<Float32Type>().values()[a..b]),
+            _ => out.extend(values.as_primitive::<Float64Type>().values()[a..b].iter().map(|&v| v as f32)),
+        }
+        if let Some(j) = out[start..].iter().position(|v| !v.is_finite()) {
+            let i = a + j;
+            let source = match values.data_type() {
+                DataType::Float32 => values.as_primitive::<Float32Type>().value(i) as f64,
+                _ => values.as_primitive::<Float64Type>().value(i),
+            };
+            let what = if source.is_finite() {
+                format!("value {source:e} overflows float32")
+            } else {
+                format!("non-finite value {source}")
+            };
+            bail!("{}: {what} in `{name}`[{}]", place(i / dim), i % dim);
+        }
+        r = end;
+    }
+    Ok(())
+}
