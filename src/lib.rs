@@ -6,13 +6,18 @@
 //! them as either, [`inspect`] summarises any pgser table. [`table`] and [`output`] hold what
 //! every writer shares (parallel row-group encoding, the footer, atomic files).
 
+pub mod agent;
 pub mod cli;
 pub mod collect;
 pub mod env;
+pub mod eval;
 pub mod inspect;
 pub mod output;
 pub mod pickle;
 pub mod progress;
+pub mod sampler;
+pub mod swap;
 pub mod table;
 pub mod task;
+pub mod train;
 pub mod trajectory;

@@ -90,6 +90,28 @@ fn canonical_maybe_missing(p: &Path) -> PathBuf {
     }
 }
 
+/// The sha256 of a file, read in 1 MiB blocks (footers and checkpoints record their inputs').
+pub fn sha256_file(path: &Path) -> Result<String> {
+    use sha2::Digest;
+    use std::io::Read;
+    let mut f = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let mut hasher = sha2::Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let k = f.read(&mut buf).with_context(|| format!("{}: read failed", path.display()))?;
+        if k == 0 {
+            break;
+        }
+        hasher.update(&buf[..k]);
+    }
+    Ok(hex(&hasher.finalize()))
+}
+
+/// Lower-case hex, as `sha256sum` prints digests.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -116,6 +116,22 @@ impl NpRandom {
         rng
     }
 
+    /// The generator's full state, (state, increment) as four words, for checkpoints.
+    pub fn words(&self) -> [u64; 4] {
+        [(self.state >> 64) as u64, self.state as u64, (self.inc >> 64) as u64, self.inc as u64]
+    }
+
+    /// A generator continuing exactly where the one `words()` was taken from stopped.
+    pub fn from_words(w: [u64; 4]) -> NpRandom {
+        NpRandom { state: (w[0] as u128) << 64 | w[1] as u128, inc: (w[2] as u128) << 64 | w[3] as u128 }
+    }
+
+    /// An integer uniform in [0, n): the high word of a 64×64-bit product (Lemire), whose bias
+    /// (< n/2⁶⁴) is far below anything a batch of samples can detect.
+    pub fn below(&mut self, n: usize) -> usize {
+        ((self.next_u64() as u128 * n as u128) >> 64) as usize
+    }
+
     fn advance(&mut self) {
         self.state = self.state.wrapping_mul(PCG_MULT).wrapping_add(self.inc);
     }

@@ -8,7 +8,7 @@ fn parse(b: &[u8]) -> Pickle<'_> {
 }
 
 fn err(b: &[u8]) -> String {
-    Pickle::parse(b).err().expect("must fail").to_string()
+    Pickle::parse(b).expect_err("must fail").to_string()
 }
 
 #[test]

@@ -246,7 +246,7 @@ impl<'a> Machine<'a> {
     }
 
     fn set_items(&mut self, dict: Id, items: Vec<Id>) -> R<()> {
-        if items.len() % 2 != 0 {
+        if !items.len().is_multiple_of(2) {
             return self.malformed("odd number of items for a dict");
         }
         let keys: Vec<Option<Vec<u8>>> = items.chunks(2).map(|kv| self.key_bytes(kv[0])).collect();

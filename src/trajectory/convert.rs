@@ -13,6 +13,7 @@ use sha2::{Digest, Sha256};
 
 use super::batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
 use super::{FloatType, Footer, SourceFile};
+use crate::output::hex;
 use crate::pickle::{DTypeKind, MappedFile, NdArray, Obj, Pickle};
 use crate::task::Task;
 
@@ -161,10 +162,6 @@ fn sha256_releasing(map: &MappedFile) -> String {
         map.release(part);
     }
     hex(&h.finalize())
-}
-
-pub(crate) fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Parse one pickle and check it is a WGCSL buffer: a dict with `o`, `ag`, `u`, `g`.

@@ -1,0 +1,305 @@
+//! The agent: a goal-conditioned actor and twin critics (burn modules), their normalizer, and
+//! the TD3 / TD3+BC update (`td3.rs`), Adam (`adam.rs`) and the checkpoint file (`checkpoint.rs`).
+//!
+//! Parameters are kept as plain (non-autodiff) tensors. An update makes autodiff leaves of the
+//! networks it trains (`Mlp::tracked`), reads their gradients, and lets our own Adam write new
+//! plain tensors. That keeps every piece of training state (weights, targets, Adam moments,
+//! step counts) in structs we can name, save and restore exactly, which `--resume` needs.
+
+mod adam;
+pub mod checkpoint;
+mod td3;
+#[cfg(test)]
+mod tests;
+
+use burn::module::{Module, Param};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use clap::{Args, ValueEnum};
+use serde::{Deserialize, Serialize};
+
+pub use adam::Adam;
+pub use td3::{Agent, Batch, UpdateStats, td_target};
+
+use crate::env::rng::NpRandom;
+
+/// Which learner: TD3 (Fujimoto et al. 2018) or TD3+BC (Fujimoto & Gu 2021).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Algo {
+    Td3,
+    Td3bc,
+}
+
+/// Every hyper-parameter of the update, with the defaults of SPEC §4.3 (GoFAR's goal-conditioned
+/// offline settings, sfujim/TD3_BC's losses). Each field is a `pgser-train` flag.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
+pub struct AgentConfig {
+    /// Learner.
+    #[arg(long, value_enum, default_value = "td3bc")]
+    pub algo: Algo,
+    /// Discount factor γ.
+    #[arg(long, default_value_t = 0.98)]
+    pub gamma: f64,
+    /// Adam learning rate of actor and critics [default: 1e-3 for td3, 3e-4 for td3bc].
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// TD3+BC's α: the actor loss is −α/mean|Q| · mean Q + MSE(π(s), a).
+    #[arg(long, default_value_t = 2.5)]
+    pub alpha: f64,
+    /// Std of the Gaussian noise added to the target policy's action.
+    #[arg(long, default_value_t = 0.2)]
+    pub policy_noise: f64,
+    /// That noise is clipped to ±noise_clip.
+    #[arg(long, default_value_t = 0.5)]
+    pub noise_clip: f64,
+    /// The actor and the targets are updated every `policy_delay` critic updates.
+    #[arg(long, default_value_t = 2)]
+    pub policy_delay: u64,
+    /// Polyak rate of the target networks.
+    #[arg(long, default_value_t = 0.005)]
+    pub tau: f64,
+    /// Units per hidden layer.
+    #[arg(long, default_value_t = 256)]
+    pub hidden: usize,
+    /// Hidden layers per network.
+    #[arg(long, default_value_t = 3)]
+    pub layers: usize,
+    /// Normalized inputs are clipped to ±norm_clip.
+    #[arg(long, default_value_t = 5.0)]
+    pub norm_clip: f64,
+}
+
+impl Default for AgentConfig {
+    fn default() -> Self {
+        AgentConfig {
+            algo: Algo::Td3bc,
+            gamma: 0.98,
+            lr: None,
+            alpha: 2.5,
+            policy_noise: 0.2,
+            noise_clip: 0.5,
+            policy_delay: 2,
+            tau: 0.005,
+            hidden: 256,
+            layers: 3,
+            norm_clip: 5.0,
+        }
+    }
+}
+
+impl AgentConfig {
+    pub fn lr(&self) -> f64 {
+        self.lr.unwrap_or(match self.algo {
+            Algo::Td3 => 1e-3,
+            Algo::Td3bc => 3e-4,
+        })
+    }
+
+    /// Rewards are in {−1, 0}, so returns, and Q, lie in [−1/(1−γ), 0]; clipping the TD target
+    /// there keeps bootstrapping from drifting out of that range on unreachable goals.
+    pub fn target_range(&self) -> (f64, f64) {
+        (-1.0 / (1.0 - self.gamma), 0.0)
+    }
+}
+
+/// One fully connected layer. The weight is stored `[in, out]` so the forward pass is `x·W + b`.
+#[derive(Module, Debug)]
+pub struct Dense {
+    pub weight: Param<Tensor<2>>,
+    pub bias: Param<Tensor<1>>,
+}
+
+/// A ReLU multilayer perceptron with a linear last layer.
+#[derive(Module, Debug)]
+pub struct Mlp {
+    pub layers: Vec<Dense>,
+}
+
+impl Mlp {
+    /// PyTorch's default `nn.Linear` initialisation, U(±1/√fan_in) for weights and biases, drawn
+    /// from our own seeded stream so a seed fixes the initial weights on every backend.
+    pub fn init(sizes: &[usize], rng: &mut NpRandom, device: &Device) -> Mlp {
+        let layers = sizes
+            .windows(2)
+            .map(|io| {
+                let (fan_in, fan_out) = (io[0], io[1]);
+                let bound = 1.0 / (fan_in as f64).sqrt();
+                let mut draw = |n| (0..n).map(|_| rng.uniform(-bound, bound) as f32).collect::<Vec<f32>>();
+                // Drawn as PyTorch lays the weight out, [out, in], then transposed to ours.
+                let w = draw(fan_in * fan_out);
+                let b = draw(fan_out);
+                let w = Tensor::<2>::from_data(TensorData::new(w, [fan_out, fan_in]), device).transpose();
+                Dense {
+                    weight: Param::from_tensor(w),
+                    bias: Param::from_tensor(Tensor::from_data(TensorData::new(b, [fan_out]), device)),
+                }
+            })
+            .collect();
+        Mlp { layers }
+    }
+
+    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+        let last = self.layers.len() - 1;
+        for (i, layer) in self.layers.iter().enumerate() {
+            x = x.matmul(layer.weight.val()) + layer.bias.val().unsqueeze_dim(0);
+            if i < last {
+                x = relu(x);
+            }
+        }
+        x
+    }
+
+    /// A copy whose parameters are fresh autodiff leaves, for one backward pass.
+    pub fn tracked(&self) -> Mlp {
+        let leaf2 = |p: &Param<Tensor<2>>| Param::from_tensor(p.val().autodiff().require_grad());
+        let leaf1 = |p: &Param<Tensor<1>>| Param::from_tensor(p.val().autodiff().require_grad());
+        Mlp { layers: self.layers.iter().map(|l| Dense { weight: leaf2(&l.weight), bias: leaf1(&l.bias) }).collect() }
+    }
+
+    /// A detached copy (the tensors are shared, not copied: burn tensors are immutable handles).
+    pub fn copy(&self) -> Mlp {
+        let p2 = |p: &Param<Tensor<2>>| Param::from_tensor(p.val());
+        let p1 = |p: &Param<Tensor<1>>| Param::from_tensor(p.val());
+        Mlp { layers: self.layers.iter().map(|l| Dense { weight: p2(&l.weight), bias: p1(&l.bias) }).collect() }
+    }
+
+    /// Parameters in a fixed order (w0, b0, w1, b1, ...) as flat f32 with their `[in, out]` /
+    /// `[out]` shapes: what the checkpoint, Adam's state and the tests walk over.
+    pub fn tensors(&self) -> Vec<(Vec<usize>, Vec<f32>)> {
+        let mut out = Vec::with_capacity(2 * self.layers.len());
+        for l in &self.layers {
+            out.push(host(l.weight.val()));
+            out.push(host(l.bias.val()));
+        }
+        out
+    }
+
+    /// Replaces every parameter, in `tensors()` order.
+    pub fn set_tensors(&mut self, values: &[Vec<f32>], device: &Device) {
+        for (i, l) in self.layers.iter_mut().enumerate() {
+            let [fin, fout] = l.weight.val().dims();
+            l.weight =
+                Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i].clone(), [fin, fout]), device));
+            l.bias = Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i + 1].clone(), [fout]), device));
+        }
+    }
+
+    /// target ← (1 − τ)·target + τ·online, layer by layer.
+    pub fn soft_update(&mut self, online: &Mlp, tau: f64) {
+        for (t, o) in self.layers.iter_mut().zip(&online.layers) {
+            t.weight = Param::from_tensor(t.weight.val().mul_scalar(1.0 - tau) + o.weight.val().mul_scalar(tau));
+            t.bias = Param::from_tensor(t.bias.val().mul_scalar(1.0 - tau) + o.bias.val().mul_scalar(tau));
+        }
+    }
+}
+
+/// A tensor's shape and values on the host.
+pub fn host<const D: usize>(t: Tensor<D>) -> (Vec<usize>, Vec<f32>) {
+    let dims = t.dims().to_vec();
+    let data = t.into_data();
+    let values = data.as_slice::<f32>().expect("pgser networks are float32").to_vec();
+    (dims, values)
+}
+
+/// Mean and standard deviation per dimension of observations and goals, fitted once on the data.
+///
+/// Offline, the data never changes, so the running statistics GoFAR updates per batch converge
+/// to these; fitting them once makes the normalizer a fixed function that the checkpoint can
+/// carry and evaluation reuses bit for bit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Normalizer {
+    pub obs_mean: Vec<f32>,
+    pub obs_std: Vec<f32>,
+    pub goal_mean: Vec<f32>,
+    pub goal_std: Vec<f32>,
+    pub clip: f32,
+}
+
+/// GoFAR's normalizer floors the std at 0.01 so constant dimensions do not blow up.
+const MIN_STD: f64 = 1e-2;
+
+impl Normalizer {
+    /// Statistics of `obs` rows (dimension `obs_dim`) and of `goals` rows (dimension `goal_dim`);
+    /// each argument is a list of flat slices so callers can pass several arrays without copying.
+    pub fn fit(obs: &[&[f32]], obs_dim: usize, goals: &[&[f32]], goal_dim: usize, clip: f64) -> Normalizer {
+        let (obs_mean, obs_std) = mean_std(obs, obs_dim);
+        let (goal_mean, goal_std) = mean_std(goals, goal_dim);
+        Normalizer { obs_mean, obs_std, goal_mean, goal_std, clip: clip as f32 }
+    }
+
+    /// Writes the network input `[clip((o − μ)/σ), clip((g − μ)/σ)]` for `n` rows into `out`.
+    pub fn input(&self, obs: &[f32], goal: &[f32], n: usize, out: &mut Vec<f32>) {
+        let (od, gd) = (self.obs_mean.len(), self.goal_mean.len());
+        out.clear();
+        out.reserve(n * (od + gd));
+        let c = self.clip;
+        for i in 0..n {
+            let o = &obs[i * od..(i + 1) * od];
+            out.extend(o.iter().zip(&self.obs_mean).zip(&self.obs_std).map(|((x, m), s)| ((x - m) / s).clamp(-c, c)));
+            let g = &goal[i * gd..(i + 1) * gd];
+            out.extend(g.iter().zip(&self.goal_mean).zip(&self.goal_std).map(|((x, m), s)| ((x - m) / s).clamp(-c, c)));
+        }
+    }
+}
+
+fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut sum = vec![0.0f64; dim];
+    let mut n = 0usize;
+    for p in parts {
+        for row in p.chunks_exact(dim) {
+            for (s, &x) in sum.iter_mut().zip(row) {
+                *s += x as f64;
+            }
+            n += 1;
+        }
+    }
+    let mean: Vec<f64> = sum.iter().map(|s| s / n.max(1) as f64).collect();
+    let mut sq = vec![0.0f64; dim];
+    for p in parts {
+        for row in p.chunks_exact(dim) {
+            for ((s, &x), m) in sq.iter_mut().zip(row).zip(&mean) {
+                *s += (x as f64 - m) * (x as f64 - m);
+            }
+        }
+    }
+    let std = sq.iter().map(|s| (s / n.max(1) as f64).sqrt().max(MIN_STD) as f32).collect();
+    (mean.iter().map(|&m| m as f32).collect(), std)
+}
+
+/// Where the networks run. `cpu` is burn's flex backend (the fastest CPU backend that builds
+/// everywhere, see BENCHMARKS.md); GPU backends exist when pgser is built with the cargo
+/// feature of the same name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    Cpu,
+    Cuda,
+    Wgpu,
+}
+
+impl Backend {
+    pub fn device(self) -> anyhow::Result<Device> {
+        match self {
+            Backend::Cpu => Ok(Device::flex()),
+            #[cfg(feature = "cuda")]
+            Backend::Cuda => Ok(Device::cuda(0usize)),
+            #[cfg(feature = "wgpu")]
+            Backend::Wgpu => Ok(Device::wgpu(burn::tensor::DeviceKind::default())),
+            #[allow(unreachable_patterns)]
+            other => anyhow::bail!(
+                "--device {}: this pgser was built without that backend (rebuild with `cargo build --release --features {}`)",
+                other.name(),
+                other.name()
+            ),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Cpu => "cpu",
+            Backend::Cuda => "cuda",
+            Backend::Wgpu => "wgpu",
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! Unit tests of the pieces of the agent that are easy to get subtly wrong.
+
+use burn::tensor::{Device, Tensor, TensorData};
+
+use super::*;
+use crate::task::Task;
+
+fn device() -> Device {
+    Device::flex()
+}
+
+fn small_config(algo: Algo) -> AgentConfig {
+    AgentConfig { algo, hidden: 16, layers: 2, ..AgentConfig::default() }
+}
+
+fn unit_norm(task: &Task) -> Normalizer {
+    Normalizer {
+        obs_mean: vec![0.0; task.obs_dim],
+        obs_std: vec![1.0; task.obs_dim],
+        goal_mean: vec![0.0; task.goal_dim],
+        goal_std: vec![1.0; task.goal_dim],
+        clip: 5.0,
+    }
+}
+
+fn random_batch(task: &Task, n: usize, seed: u64) -> Batch {
+    let mut rng = NpRandom::new(seed);
+    let mut u = |k: usize| (0..k).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<_>>();
+    Batch {
+        n,
+        obs: u(n * task.obs_dim),
+        goal: u(n * task.goal_dim),
+        action: u(n * task.act_dim),
+        reward: u(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
+        next_obs: u(n * task.obs_dim),
+    }
+}
+
+fn values(net: &Mlp) -> Vec<Vec<f32>> {
+    net.tensors().into_iter().map(|(_, v)| v).collect()
+}
+
+#[test]
+fn soft_update_is_polyak_averaging() {
+    let mut rng = NpRandom::new(1);
+    let mut target = Mlp::init(&[3, 4, 2], &mut rng, &device());
+    let online = Mlp::init(&[3, 4, 2], &mut rng, &device());
+    let (t0, o) = (values(&target), values(&online));
+    target.soft_update(&online, 0.25);
+    for ((t1, t0), o) in values(&target).iter().zip(&t0).zip(&o) {
+        for ((a, b), c) in t1.iter().zip(t0).zip(o) {
+            let want = 0.75 * b + 0.25 * c;
+            assert!((a - want).abs() <= 1e-6 * want.abs().max(1.0), "{a} vs {want}");
+        }
+    }
+    // τ = 1 copies, τ = 0 keeps.
+    target.soft_update(&online, 1.0);
+    assert_eq!(values(&target), o);
+}
+
+#[test]
+fn td_target_is_clipped_to_the_return_range() {
+    let c = AgentConfig::default(); // γ = 0.98: returns lie in [−50, 0]
+    let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [4, 1]), &device());
+    let y = td_target(&c, t(vec![0.0, -1.0, -1.0, 0.0]), t(vec![10.0, -100.0, -10.0, -0.5]));
+    let got = host(y).1;
+    let want = [0.0, -50.0, -1.0 - 0.98 * 10.0, -0.98 * 0.5];
+    for (g, w) in got.iter().zip(want) {
+        assert!((g - w).abs() < 1e-5, "{got:?} vs {want:?}");
+    }
+}
+
+#[test]
+fn normalizer_standardizes_and_clips() {
+    let obs = [1.0f32, 10.0, 3.0, 10.0]; // two rows of obs_dim 2: dim 1 is constant
+    let goals = [0.0f32, 2.0];
+    let n = Normalizer::fit(&[&obs], 2, &[&goals], 1, 5.0);
+    assert_eq!(n.obs_mean, vec![2.0, 10.0]);
+    assert_eq!(n.obs_std, vec![1.0, 0.01]); // the constant dimension gets the floor
+    assert_eq!((n.goal_mean[0], n.goal_std[0]), (1.0, 1.0));
+    let mut x = Vec::new();
+    n.input(&[3.0, 10.5], &[100.0], 1, &mut x);
+    assert_eq!(x, vec![1.0, 5.0, 5.0]); // (10.5 − 10)/0.01 = 50 and 99 are clipped to 5
+}
+
+#[test]
+fn checkpoint_round_trip_keeps_policy_q_and_normalizer() {
+    let task = Task::known("FetchReach").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.ckpt");
+    let mut norm = unit_norm(&task);
+    norm.obs_mean[3] = 0.5;
+    norm.goal_std[1] = 2.0;
+    let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), norm, 7, device());
+    for i in 0..3 {
+        agent.update(&random_batch(&task, 32, i));
+    }
+    checkpoint::save(&agent, &path, &Default::default()).unwrap();
+    let (back, meta) = checkpoint::load(&path, device()).unwrap();
+    assert_eq!(back.norm, agent.norm);
+    assert_eq!(back.config, agent.config);
+    assert_eq!(back.task, agent.task);
+    assert_eq!(back.updates, 3);
+    assert_eq!(meta["format"], checkpoint::FORMAT);
+    let b = random_batch(&task, 16, 99);
+    assert_eq!(back.act(&b.obs, &b.goal, 16), agent.act(&b.obs, &b.goal, 16));
+    assert_eq!(back.q(&b.obs, &b.goal, &b.action, 16), agent.q(&b.obs, &b.goal, &b.action, 16));
+}
+
+#[test]
+fn resumed_updates_equal_uninterrupted_ones() {
+    let task = Task::known("FetchReach").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.ckpt");
+    let batches: Vec<Batch> = (0..6).map(|i| random_batch(&task, 32, i)).collect();
+    let mut straight = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 3, device());
+    for b in &batches {
+        straight.update(b);
+    }
+    let mut first = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 3, device());
+    for b in &batches[..3] {
+        first.update(b);
+    }
+    checkpoint::save(&first, &path, &Default::default()).unwrap();
+    checkpoint::save_resume(&first, &checkpoint::resume_path(&path), &Default::default()).unwrap();
+    drop(first);
+    let (mut resumed, _) = checkpoint::load(&path, device()).unwrap();
+    checkpoint::load_resume(&mut resumed, &checkpoint::resume_path(&path)).unwrap();
+    for b in &batches[3..] {
+        resumed.update(b);
+    }
+    for (a, b) in [
+        (&straight.actor, &resumed.actor),
+        (&straight.critic1, &resumed.critic1),
+        (&straight.critic2, &resumed.critic2),
+        (&straight.actor_target, &resumed.actor_target),
+        (&straight.critic2_target, &resumed.critic2_target),
+    ] {
+        assert_eq!(values(a), values(b));
+    }
+}
+
+#[test]
+fn a_resume_file_from_another_update_is_refused() {
+    let task = Task::known("FetchReach").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.ckpt");
+    let mut agent = Agent::new(small_config(Algo::Td3), task.clone(), unit_norm(&task), 0, device());
+    checkpoint::save_resume(&agent, &checkpoint::resume_path(&path), &Default::default()).unwrap();
+    agent.update(&random_batch(&task, 8, 0));
+    checkpoint::save(&agent, &path, &Default::default()).unwrap();
+    let (mut back, _) = checkpoint::load(&path, device()).unwrap();
+    let err = checkpoint::load_resume(&mut back, &checkpoint::resume_path(&path)).unwrap_err().to_string();
+    assert!(err.contains("update 0") && err.contains("update 1"), "{err}");
+}
+
+#[test]
+fn td3bc_actor_moves_toward_the_data_actions() {
+    // With α = 0 the TD3+BC actor loss is pure behaviour cloning: it must fall.
+    let task = Task::known("FetchReach").unwrap();
+    let cfg = AgentConfig { alpha: 0.0, policy_delay: 1, lr: Some(1e-3), ..small_config(Algo::Td3bc) };
+    let mut agent = Agent::new(cfg, task.clone(), unit_norm(&task), 0, device());
+    let b = random_batch(&task, 64, 5);
+    let first = agent.update(&b).read().2.unwrap();
+    let mut last = first;
+    for _ in 0..200 {
+        last = agent.update(&b).read().2.unwrap();
+    }
+    assert!(last < 0.6 * first, "BC loss {first} -> {last}");
+}

@@ -1,0 +1,153 @@
+//! `pgser-train`: train, evaluate and benchmark agents. Parses flags and calls the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use pgser::agent::{AgentConfig, Backend, checkpoint};
+use pgser::task::Task;
+use pgser::train::{self, TrainConfig};
+use pgser::{cli, eval, progress};
+
+#[derive(Parser)]
+#[command(
+    name = "pgser-train",
+    version,
+    long_version = pgser::cli::LONG_VERSION.as_str(),
+    about = "Train goal-conditioned TD3 / TD3+BC agents on pgser tables, evaluate them in MuJoCo",
+    args_conflicts_with_subcommands = true,
+    after_help = "Examples:\n  pgser-train --data traj.parquet --algo td3bc --swap none -o baseline.ckpt\n  \
+        pgser-train --data traj.parquet --algo td3bc --swap random --updates 1000000 -o q.ckpt   # PGSER step 1\n  \
+        pgser-train --data traj.parquet -o run.ckpt --resume        # continue an interrupted run\n  \
+        pgser-train eval --ckpt run.ckpt --episodes 50 --seed 1000000 --json\n\n\
+        Writes run.ckpt (safetensors), run.ckpt.resume (optimizer, targets, random streams) and\n\
+        run.ckpt.metrics.jsonl (losses and evaluations), each atomically."
+)]
+struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// Trajectory table to train on (from `pgser-etl convert` or `collect`).
+    #[arg(long, required = true)]
+    data: Option<PathBuf>,
+    /// Checkpoint to write.
+    #[arg(short, long, required = true)]
+    output: Option<PathBuf>,
+    /// Continue the interrupted run whose checkpoint is --output (same settings and data).
+    #[arg(long)]
+    resume: bool,
+    /// Print a JSON summary as the last line of stdout.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    run: Run,
+    #[command(flatten)]
+    config: TrainConfig,
+}
+
+/// Where and on how many threads to compute.
+#[derive(clap::Args, Clone, Copy)]
+struct Run {
+    /// Backend of the networks.
+    #[arg(long, value_enum, default_value = "cpu", global = true)]
+    device: Backend,
+    /// Worker threads (default: all cores). Results depend on the seed, not on this.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Evaluate a checkpoint's policy in its task's environment.
+    #[command(after_help = "Example:\n  pgser-train eval --ckpt run.ckpt --episodes 50 --seed 1000000 --json")]
+    Eval {
+        #[arg(long)]
+        ckpt: PathBuf,
+        #[arg(long, default_value_t = 50)]
+        episodes: usize,
+        /// Episode i is reset with seed S+i.
+        #[arg(long, default_value_t = 1_000_000)]
+        seed: u64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Time the update alone on random batches (what `make bench` compares with PyTorch).
+    #[command(after_help = "Example:\n  pgser-train bench --task FetchPush --batch-size 512 --updates 300 --json")]
+    Bench {
+        #[arg(long, default_value = "FetchPush")]
+        task: String,
+        #[arg(long, default_value_t = 512)]
+        batch_size: usize,
+        #[arg(long, default_value_t = 300)]
+        updates: u64,
+        #[arg(long, default_value_t = 20)]
+        warmup: u64,
+        #[command(flatten)]
+        agent: AgentConfig,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    cli::main_with("pgser-train", || {
+        if let Some(n) = args.run.threads {
+            rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+        }
+        let device = args.run.device.device()?;
+        match args.command {
+            Some(Command::Eval { ckpt, episodes, seed, json }) => {
+                let (agent, _) = checkpoint::load(&ckpt, device)?;
+                let report = eval::evaluate(&agent.task.name, &agent, episodes, seed)?;
+                if json {
+                    println!("{}", serde_json::to_string(&report)?);
+                } else {
+                    println!(
+                        "{}: {} episodes of {}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
+                        ckpt.display(),
+                        report.episodes,
+                        agent.task.name,
+                        report.return_mean,
+                        report.return_std,
+                        report.success_rate,
+                        report.paper_score
+                    );
+                }
+            }
+            Some(Command::Bench { task, batch_size, updates, warmup, agent, json }) => {
+                let task = Task::known(&task).ok_or_else(|| anyhow::anyhow!("{task}: unknown task"))?;
+                let r = train::bench(&task, &agent, batch_size, updates, warmup, device, args.run.device.name());
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!(
+                        "{} {:?} batch {} on {} ({} threads): {:.1} updates/s",
+                        r.task, r.algo, r.batch_size, r.backend, r.threads, r.updates_per_sec
+                    );
+                }
+            }
+            None => {
+                let (data, out) = (args.data.expect("required"), args.output.expect("required"));
+                let bar = progress::bar("training", "updates");
+                let s = train::train(&data, &out, &args.config, args.resume, device, &bar)?;
+                if let Some(e) = &s.eval {
+                    eprintln!(
+                        "{}: {} updates ({:.1}/s); eval over {} episodes: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
+                        out.display(),
+                        s.updates,
+                        s.updates_per_sec,
+                        e.episodes,
+                        e.return_mean,
+                        e.return_std,
+                        e.success_rate,
+                        e.paper_score
+                    );
+                }
+                if args.json {
+                    println!("{}", serde_json::to_string(&s)?);
+                }
+            }
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,76 @@
+//! Evaluation: the deterministic policy in the task's MuJoCo environment (SPEC §2).
+//!
+//! Episodes run in lockstep so the policy sees one batch of all live episodes per step (one
+//! forward pass instead of E), while the environments step in parallel on rayon's pool. Episode
+//! i is reset with seed `seed + i`, so a report is a function of (policy, seed, episodes).
+//!
+//! An episode is T environment steps (gymnasium's `max_episode_steps`, 50 for Fetch), so the
+//! return, the sum of the paper's eq. 2 rewards, lies in [−T, 0] and `paper_score` = T + return
+//! is the paper's Table 2 number (the sum of {0, 1} rewards). WGCSL data holds T observations
+//! and T − 1 actions per episode; evaluation follows the environment and the paper, not the
+//! data's length.
+
+use anyhow::Result;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::env::{self, GoalEnv, Obs};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    pub episodes: usize,
+    pub return_mean: f64,
+    pub return_std: f64,
+    /// Fraction of episodes whose final step reached the goal (gymnasium's `is_success`).
+    pub success_rate: f64,
+    /// T + return_mean: the paper's score, in [0, T].
+    pub paper_score: f64,
+}
+
+/// A batched policy: `n` rows of observations and desired goals in, `n` actions out.
+pub trait Policy {
+    fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32>;
+}
+
+impl Policy for crate::agent::Agent {
+    fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32> {
+        crate::agent::Agent::act(self, obs, goal, n)
+    }
+}
+
+/// Runs `episodes` episodes of `policy` in `task_name` with seeds `seed`, `seed + 1`, ...
+pub fn evaluate(task_name: &str, policy: &dyn Policy, episodes: usize, seed: u64) -> Result<EvalReport> {
+    let mut envs: Vec<Box<dyn GoalEnv + Send>> = (0..episodes).map(|_| env::make(task_name)).collect::<Result<_>>()?;
+    let task = envs.first().map(|e| e.task().clone());
+    let Some(task) = task else {
+        return Ok(EvalReport { episodes: 0, return_mean: 0.0, return_std: 0.0, success_rate: 0.0, paper_score: 0.0 });
+    };
+    let mut obs: Vec<Obs> = envs.par_iter_mut().enumerate().map(|(i, e)| e.reset(Some(seed + i as u64))).collect();
+    let mut returns = vec![0.0f64; episodes];
+    let mut success = vec![false; episodes];
+    for _ in 0..task.t {
+        let flat =
+            |f: fn(&Obs) -> &Vec<f64>| obs.iter().flat_map(|o| f(o).iter().map(|&x| x as f32)).collect::<Vec<f32>>();
+        let actions = policy.act(&flat(|o| &o.observation), &flat(|o| &o.desired_goal), episodes);
+        let steps: Vec<_> = envs
+            .par_iter_mut()
+            .zip(actions.par_chunks(task.act_dim))
+            .map(|(e, a)| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>()))
+            .collect();
+        for (i, s) in steps.into_iter().enumerate() {
+            returns[i] += s.reward;
+            success[i] = s.success;
+            obs[i] = s.obs;
+        }
+    }
+    let n = episodes as f64;
+    let mean = returns.iter().sum::<f64>() / n;
+    let std = (returns.iter().map(|r| (r - mean) * (r - mean)).sum::<f64>() / n).sqrt();
+    Ok(EvalReport {
+        episodes,
+        return_mean: mean,
+        return_std: std,
+        success_rate: success.iter().filter(|&&s| s).count() as f64 / n,
+        paper_score: task.t as f64 + mean,
+    })
+}

@@ -1,0 +1,210 @@
+//! Training batches from the original data β: uniform transitions, HER "future" relabelling,
+//! and (for the `-swap` variant) random goal swapping on the fly.
+//!
+//! Every row draws its own transition; the first `round(n · swap_ratio)` rows of a batch get a
+//! swapped goal (Alg. 1), each other row is relabelled with probability `her_ratio` to the
+//! achieved goal of a later step of its own episode (GoFAR's `future` strategy), and keeps its
+//! original goal otherwise. Rewards are recomputed for the goal each row ends up with, with the
+//! task's reward function, so relabelled and swapped rows are labelled exactly like original ones.
+
+use clap::{Args, ValueEnum};
+use serde::{Deserialize, Serialize};
+
+use crate::agent::Batch;
+use crate::env::rng::NpRandom;
+use crate::swap;
+use crate::trajectory::Episodes;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Swap {
+    /// Original goals and HER only (the paper's baseline).
+    None,
+    /// Alg. 1 on the fly: a fraction of each batch gets a goal from anywhere in the data.
+    Random,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
+pub struct SamplerConfig {
+    /// Goal swapping of the original data.
+    #[arg(long, value_enum, default_value = "none")]
+    pub swap: Swap,
+    /// With `--swap random`: the fraction of each batch that gets a swapped goal.
+    #[arg(long, default_value_t = 0.5)]
+    pub swap_ratio: f64,
+    /// Probability that a (non-swapped) row's goal is relabelled to a future achieved goal.
+    #[arg(long, default_value_t = 0.5)]
+    pub her_ratio: f64,
+}
+
+impl Default for SamplerConfig {
+    fn default() -> Self {
+        SamplerConfig { swap: Swap::None, swap_ratio: 0.5, her_ratio: 0.5 }
+    }
+}
+
+/// Where each row's goal came from; kept so tests can check the sampler's bookkeeping.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GoalSource {
+    Original,
+    /// HER: the achieved goal of this step of the same episode (always later than the row's).
+    Future(usize),
+    /// Alg. 1: the achieved goal of (episode, step).
+    Swapped(usize, usize),
+}
+
+/// Fills `out` with `n` rows sampled from `data`; returns each row's (episode, step, source).
+pub fn sample(
+    data: &Episodes,
+    cfg: &SamplerConfig,
+    rng: &mut NpRandom,
+    n: usize,
+    out: &mut Batch,
+) -> Vec<(usize, usize, GoalSource)> {
+    let task = &data.task;
+    let steps = data.t - 1;
+    let swapped = match cfg.swap {
+        Swap::None => 0,
+        Swap::Random => ((n as f64) * cfg.swap_ratio).round() as usize,
+    };
+    *out = Batch { n, ..Batch::default() };
+    out.obs.reserve(n * task.obs_dim);
+    out.next_obs.reserve(n * task.obs_dim);
+    out.goal.reserve(n * task.goal_dim);
+    out.action.reserve(n * task.act_dim);
+    let mut next_ag = Vec::with_capacity(n * task.goal_dim);
+    let mut rows = Vec::with_capacity(n);
+    for i in 0..n {
+        let (e, t) = (rng.below(data.n), rng.below(steps));
+        let source = if i < swapped {
+            let (ge, gt) = swap::random_goal(data, rng);
+            GoalSource::Swapped(ge, gt)
+        } else if rng.random() < cfg.her_ratio {
+            GoalSource::Future(t + 1 + rng.below(steps - t))
+        } else {
+            GoalSource::Original
+        };
+        out.obs.extend_from_slice(data.obs(e, t));
+        out.action.extend_from_slice(data.action(e, t));
+        out.next_obs.extend_from_slice(data.obs(e, t + 1));
+        next_ag.extend_from_slice(data.ag(e, t + 1));
+        out.goal.extend_from_slice(match source {
+            GoalSource::Original => data.goal(e, t),
+            GoalSource::Future(f) => data.ag(e, f),
+            GoalSource::Swapped(ge, gt) => data.ag(ge, gt),
+        });
+        rows.push((e, t, source));
+    }
+    out.reward = vec![0.0; n];
+    task.rewards(&next_ag, &out.goal, &mut out.reward);
+    rows
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::task::Task;
+    use crate::trajectory::{FloatType, Footer};
+
+    /// A synthetic table whose values encode where they are: obs/ag = episode·1000 + step,
+    /// so any value read back names its source row.
+    fn table(n: usize) -> Episodes {
+        let task = Task::known("FetchReach").unwrap();
+        let t = task.t;
+        let code = |e: usize, s: usize| (e * 1000 + s) as f32;
+        let mut d = Episodes {
+            footer: Footer::new(&task, FloatType::Float32, n, "test".into()),
+            task: task.clone(),
+            n,
+            t,
+            obs: vec![],
+            ag: vec![],
+            g: vec![],
+            u: vec![],
+        };
+        for e in 0..n {
+            for s in 0..t {
+                d.obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
+                d.ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
+                if s + 1 < t {
+                    // Desired goal: reached (equal to the next achieved goal) on even steps.
+                    let g = if s % 2 == 0 { code(e, s + 1) } else { -1.0 };
+                    d.g.extend(std::iter::repeat_n(g, task.goal_dim));
+                    d.u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
+                }
+            }
+        }
+        d
+    }
+
+    fn draw(cfg: &SamplerConfig, n: usize) -> (Episodes, Batch, Vec<(usize, usize, GoalSource)>) {
+        let data = table(20);
+        let mut batch = Batch::default();
+        let rows = sample(&data, cfg, &mut NpRandom::new(11), n, &mut batch);
+        (data, batch, rows)
+    }
+
+    #[test]
+    fn rows_are_consistent_transitions_with_recomputed_rewards() {
+        let cfg = SamplerConfig { swap: Swap::Random, ..SamplerConfig::default() };
+        let (data, b, rows) = draw(&cfg, 4000);
+        let (od, gd, ad) = (data.task.obs_dim, data.task.goal_dim, data.task.act_dim);
+        for (i, &(e, t, source)) in rows.iter().enumerate() {
+            assert!(t + 1 < data.t);
+            assert_eq!(&b.obs[i * od..(i + 1) * od], data.obs(e, t));
+            assert_eq!(&b.next_obs[i * od..(i + 1) * od], data.obs(e, t + 1));
+            assert_eq!(&b.action[i * ad..(i + 1) * ad], data.action(e, t));
+            let goal = &b.goal[i * gd..(i + 1) * gd];
+            match source {
+                GoalSource::Original => assert_eq!(goal, data.goal(e, t)),
+                GoalSource::Future(f) => {
+                    // HER: same episode, a strictly later step, up to the last observation.
+                    assert!(f > t && f < data.t, "future step {f} for step {t}");
+                    assert_eq!(goal, data.ag(e, f));
+                }
+                GoalSource::Swapped(ge, gt) => assert_eq!(goal, data.ag(ge, gt)),
+            }
+            assert_eq!(b.reward[i], data.task.reward(data.ag(e, t + 1), goal), "row {i}");
+        }
+        // Both reward values occur, so the check above is not vacuous.
+        assert!(b.reward.contains(&0.0) && b.reward.contains(&-1.0));
+    }
+
+    #[test]
+    fn goal_source_frequencies_match_the_ratios() {
+        let n = 20_000;
+        let cfg = SamplerConfig { swap: Swap::Random, swap_ratio: 0.25, her_ratio: 0.5 };
+        let (_, _, rows) = draw(&cfg, n);
+        let swapped = rows.iter().filter(|r| matches!(r.2, GoalSource::Swapped(..))).count();
+        assert_eq!(swapped, n / 4, "the swapped fraction is exact");
+        let her = rows.iter().filter(|r| matches!(r.2, GoalSource::Future(_))).count() as f64;
+        // Binomial(15000, 0.5): std ≈ 61; 5 std is a bound a correct sampler never fails.
+        assert!((her - 7500.0).abs() < 5.0 * 61.3, "HER rows {her}");
+        // Without swapping no row is swapped.
+        let (_, _, rows) = draw(&SamplerConfig::default(), 1000);
+        assert!(rows.iter().all(|r| !matches!(r.2, GoalSource::Swapped(..))));
+    }
+
+    #[test]
+    fn future_steps_are_uniform_over_the_later_steps() {
+        // Rows at step 45 of T = 50 relabel to one of steps 46..=49, each with p = 1/4.
+        let (_, _, rows) = draw(&SamplerConfig { her_ratio: 1.0, ..SamplerConfig::default() }, 200_000);
+        let mut counts = [0f64; 4];
+        for &(_, t, source) in &rows {
+            if let (45, GoalSource::Future(f)) = (t, source) {
+                counts[f - 46] += 1.0;
+            }
+        }
+        let total: f64 = counts.iter().sum();
+        let sd = (total * 0.25 * 0.75).sqrt();
+        for c in counts {
+            assert!((c - total / 4.0).abs() < 5.0 * sd, "{counts:?}");
+        }
+    }
+
+    #[test]
+    fn same_seed_same_batch() {
+        let cfg = SamplerConfig { swap: Swap::Random, ..SamplerConfig::default() };
+        assert_eq!(draw(&cfg, 256).1, draw(&cfg, 256).1);
+    }
+}

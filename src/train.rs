@@ -1,0 +1,335 @@
+//! `pgser-train`: the training job around the agent. Loads the data, fits the normalizer,
+//! samples batches, runs updates, evaluates and checkpoints on schedule, and can resume.
+//!
+//! A run is a function of (data, config, seed): the networks' initial weights, the batches and
+//! the target noise come from separate streams spawned from the seed, and all of their states go
+//! into the checkpoint, so `--resume` after an interruption reaches the same weights as a run
+//! that was never stopped.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
+use clap::Args;
+use indicatif::ProgressBar;
+use serde::{Deserialize, Serialize};
+
+use crate::agent::{Agent, AgentConfig, Batch, Normalizer, checkpoint};
+use crate::env::rng::NpRandom;
+use crate::eval::{self, EvalReport};
+use crate::output::{AtomicFile, sha256_file};
+use crate::sampler::{self, SamplerConfig};
+use crate::trajectory::Episodes;
+
+/// The training job's settings; with the agent's, this is everything a run depends on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
+pub struct TrainConfig {
+    #[command(flatten)]
+    pub agent: AgentConfig,
+    #[command(flatten)]
+    pub sampler: SamplerConfig,
+    /// Gradient updates to run (the paper: 500k per agent, 1M for the pre-trained Q).
+    #[arg(long, default_value_t = 500_000)]
+    pub updates: u64,
+    /// Transitions per update.
+    #[arg(long, default_value_t = 512)]
+    pub batch_size: usize,
+    /// Seed of the run: initial weights, batches and target noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Evaluate every M updates (0: only at the end).
+    #[arg(long, default_value_t = 10_000)]
+    pub eval_every: u64,
+    /// Episodes per evaluation (0: no evaluation).
+    #[arg(long, default_value_t = 50)]
+    pub eval_episodes: usize,
+    /// Seed of evaluation episode 0 (episode i uses eval_seed + i). Kept away from the small
+    /// seeds `collect` uses, so agents are not evaluated on the starts of their own data.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub eval_seed: u64,
+    /// Write the checkpoint every M updates (0: only at the end).
+    #[arg(long, default_value_t = 10_000)]
+    pub save_every: u64,
+    /// Record losses in the metrics file every M updates.
+    #[arg(long, default_value_t = 1_000)]
+    pub log_every: u64,
+}
+
+/// One line of the metrics file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MetricsLine {
+    pub updates: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub critic_loss: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub actor_loss: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q_mean: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eval: Option<EvalReport>,
+}
+
+/// What `--json` prints (SPEC §2).
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub updates: u64,
+    pub updates_per_sec: f64,
+    pub eval: Option<EvalReport>,
+    pub checkpoint: PathBuf,
+    pub metrics: PathBuf,
+}
+
+/// Where the metrics of checkpoint `out` go: `out` + `.metrics.jsonl`.
+pub fn metrics_path(out: &Path) -> PathBuf {
+    let mut p = out.as_os_str().to_owned();
+    p.push(".metrics.jsonl");
+    PathBuf::from(p)
+}
+
+/// Spawn key of the batch stream (the agent's streams use 1 and 2).
+const STREAM_BATCHES: u64 = 3;
+
+pub fn train(
+    data_path: &Path,
+    out: &Path,
+    cfg: &TrainConfig,
+    resume: bool,
+    device: Device,
+    bar: &ProgressBar,
+) -> Result<Summary> {
+    crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
+    if cfg.batch_size == 0 {
+        bail!("--batch-size must be at least 1");
+    }
+    let data = Episodes::load(data_path)?;
+    if data.t < 2 {
+        bail!("{}: episodes of {} step(s) hold no transition", data_path.display(), data.t);
+    }
+    let data_sha = sha256_file(data_path)?;
+    let mut extra = BTreeMap::new();
+    extra.insert("train".to_string(), serde_json::to_string(cfg)?);
+    extra.insert("data".to_string(), data_path.display().to_string());
+    extra.insert("data_sha256".to_string(), data_sha.clone());
+    extra.insert("command".to_string(), crate::cli::command_line());
+
+    let (mut agent, mut batches, mut metrics) = if resume {
+        restore(out, cfg, &data_sha, device)?
+    } else {
+        // The goal normalizer sees achieved goals too: HER and swapping train on them.
+        let norm = Normalizer::fit(
+            &[&data.obs],
+            data.task.obs_dim,
+            &[&data.g, &data.ag],
+            data.task.goal_dim,
+            cfg.agent.norm_clip,
+        );
+        let agent = Agent::new(cfg.agent.clone(), data.task.clone(), norm, cfg.seed, device);
+        (agent, NpRandom::spawned(cfg.seed, &[STREAM_BATCHES]), Vec::new())
+    };
+
+    let save = |agent: &Agent, batches: &NpRandom, metrics: &[MetricsLine]| -> Result<()> {
+        let mut resume_extra = BTreeMap::new();
+        resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&batches.words())?);
+        // Both files record their update count and `--resume` refuses a pair whose counts
+        // differ, so a crash between these two writes is reported, never continued from.
+        checkpoint::save_resume(agent, &checkpoint::resume_path(out), &resume_extra)?;
+        checkpoint::save(agent, out, &extra)?;
+        write_metrics(&metrics_path(out), metrics)
+    };
+    let evaluate = |agent: &Agent| -> Result<Option<EvalReport>> {
+        if cfg.eval_episodes == 0 {
+            return Ok(None);
+        }
+        eval::evaluate(&data.task.name, agent, cfg.eval_episodes, cfg.eval_seed).map(Some)
+    };
+
+    bar.set_length(cfg.updates);
+    bar.set_position(agent.updates);
+    let mut batch = Batch::default();
+    let mut update_time = 0.0f64;
+    let start_updates = agent.updates;
+    let mut last_eval = None;
+    while agent.updates < cfg.updates {
+        let t0 = Instant::now();
+        sampler::sample(&data, &cfg.sampler, &mut batches, cfg.batch_size, &mut batch);
+        let stats = agent.update(&batch);
+        let u = agent.updates;
+        let log = cfg.log_every > 0 && u % cfg.log_every == 0;
+        let mut line = MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None };
+        if log {
+            let (critic, q, actor) = stats.read();
+            if !critic.is_finite() {
+                bail!("update {u}: the critic loss is {critic}; training diverged (try a lower --lr)");
+            }
+            (line.critic_loss, line.q_mean, line.actor_loss) = (Some(critic), Some(q), actor);
+        }
+        update_time += t0.elapsed().as_secs_f64();
+        if cfg.eval_every > 0 && u % cfg.eval_every == 0 && u < cfg.updates {
+            line.eval = evaluate(&agent)?;
+            last_eval = line.eval;
+        }
+        if log || line.eval.is_some() {
+            metrics.push(line);
+        }
+        if cfg.save_every > 0 && u % cfg.save_every == 0 && u < cfg.updates {
+            save(&agent, &batches, &metrics)?;
+        }
+        bar.set_position(u);
+    }
+    // The final evaluation and checkpoint (also when resuming a run that had already finished).
+    if agent.updates > start_updates || last_eval.is_none() {
+        last_eval = evaluate(&agent)?;
+        metrics.retain(|m| m.updates < agent.updates || m.eval.is_none());
+        metrics.push(MetricsLine {
+            updates: agent.updates,
+            critic_loss: None,
+            actor_loss: None,
+            q_mean: None,
+            eval: last_eval,
+        });
+    }
+    save(&agent, &batches, &metrics)?;
+    bar.finish_and_clear();
+    let done = agent.updates - start_updates;
+    Ok(Summary {
+        updates: agent.updates,
+        updates_per_sec: if update_time > 0.0 { done as f64 / update_time } else { 0.0 },
+        eval: last_eval,
+        checkpoint: out.to_path_buf(),
+        metrics: metrics_path(out),
+    })
+}
+
+/// Loads checkpoint, resume state and metrics of an interrupted run and checks that it is the
+/// same run: same settings (the number of updates may grow) and the same data file.
+fn restore(
+    out: &Path,
+    cfg: &TrainConfig,
+    data_sha: &str,
+    device: Device,
+) -> Result<(Agent, NpRandom, Vec<MetricsLine>)> {
+    let at = out.display();
+    if !out.exists() {
+        bail!("{at}: --resume given but there is no checkpoint to resume");
+    }
+    let (mut agent, meta) = checkpoint::load(out, device)?;
+    let saved: TrainConfig = serde_json::from_str(meta.get("train").context("no train config in metadata")?)
+        .with_context(|| format!("{at}: the checkpoint's train config is not readable"))?;
+    let comparable = TrainConfig { updates: cfg.updates, ..saved.clone() };
+    if &comparable != cfg {
+        bail!(
+            "{at}: --resume with settings that differ from the checkpoint's (only --updates may change): saved {}, given {}",
+            serde_json::to_string(&saved)?,
+            serde_json::to_string(cfg)?
+        );
+    }
+    if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
+        bail!("{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)");
+    }
+    let resume_meta = checkpoint::load_resume(&mut agent, &checkpoint::resume_path(out))?;
+    let words = resume_meta.get("batch_rng").with_context(|| format!("{at}.resume: batch_rng missing"))?;
+    let batches = NpRandom::from_words(serde_json::from_str(words)?);
+    let metrics = read_metrics(&metrics_path(out))?.into_iter().filter(|m| m.updates <= agent.updates).collect();
+    Ok((agent, batches, metrics))
+}
+
+fn write_metrics(path: &Path, lines: &[MetricsLine]) -> Result<()> {
+    let mut text = String::new();
+    for l in lines {
+        text.push_str(&serde_json::to_string(l)?);
+        text.push('\n');
+    }
+    let out = AtomicFile::create(path)?;
+    std::io::Write::write_all(&mut out.handle()?, text.as_bytes())
+        .with_context(|| format!("{}: write failed", path.display()))?;
+    out.commit()
+}
+
+fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| {
+            serde_json::from_str(l)
+                .with_context(|| format!("{}: line {} is not a metrics record", path.display(), i + 1))
+        })
+        .collect()
+}
+
+/// `pgser-train bench`: updates/s of the agent alone on random batches of a task's dimensions,
+/// the figure `make bench` compares with the same update in PyTorch.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    pub task: String,
+    pub algo: crate::agent::Algo,
+    pub backend: String,
+    pub threads: usize,
+    pub batch_size: usize,
+    pub updates: u64,
+    pub seconds: f64,
+    pub updates_per_sec: f64,
+}
+
+pub fn bench(
+    task: &crate::task::Task,
+    agent_cfg: &AgentConfig,
+    batch_size: usize,
+    updates: u64,
+    warmup: u64,
+    device: Device,
+    backend: &str,
+) -> BenchReport {
+    let mut rng = NpRandom::new(0);
+    let mut uniform = |n: usize| (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<f32>>();
+    let n = batch_size;
+    // Eight distinct batches, cycled, so data generation is not what is timed.
+    let batches: Vec<Batch> = (0..8)
+        .map(|_| Batch {
+            n,
+            obs: uniform(n * task.obs_dim),
+            goal: uniform(n * task.goal_dim),
+            action: uniform(n * task.act_dim),
+            reward: uniform(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
+            next_obs: uniform(n * task.obs_dim),
+        })
+        .collect();
+    let zeros = |d| vec![0.0f32; d];
+    let ones = |d| vec![1.0f32; d];
+    let norm = Normalizer {
+        obs_mean: zeros(task.obs_dim),
+        obs_std: ones(task.obs_dim),
+        goal_mean: zeros(task.goal_dim),
+        goal_std: ones(task.goal_dim),
+        clip: agent_cfg.norm_clip as f32,
+    };
+    let mut agent = Agent::new(agent_cfg.clone(), task.clone(), norm, 0, device);
+    let mut run = |k: u64| {
+        let mut last = None;
+        for i in 0..k {
+            last = Some(agent.update(&batches[i as usize % batches.len()]));
+        }
+        // Reading the last loss waits for all queued work (asynchronous backends).
+        if let Some(s) = last {
+            s.read();
+        }
+    };
+    run(warmup);
+    let t0 = Instant::now();
+    run(updates);
+    let seconds = t0.elapsed().as_secs_f64();
+    BenchReport {
+        task: task.name.clone(),
+        algo: agent_cfg.algo,
+        backend: backend.to_string(),
+        threads: rayon::current_num_threads(),
+        batch_size,
+        updates,
+        seconds,
+        updates_per_sec: updates as f64 / seconds,
+    }
+}
