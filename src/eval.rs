@@ -38,6 +38,26 @@ impl Policy for crate::agent::Agent {
     }
 }
 
+/// Uniform random actions in [−1, 1]: the floor every learned policy is compared with.
+/// Seeded, and drawn from one stream in episode order, so its report is reproducible.
+pub struct RandomPolicy {
+    pub act_dim: usize,
+    pub rng: std::sync::Mutex<crate::env::rng::NpRandom>,
+}
+
+impl RandomPolicy {
+    pub fn new(act_dim: usize, seed: u64) -> RandomPolicy {
+        RandomPolicy { act_dim, rng: std::sync::Mutex::new(crate::env::rng::NpRandom::new(seed)) }
+    }
+}
+
+impl Policy for RandomPolicy {
+    fn act(&self, _obs: &[f32], _goal: &[f32], n: usize) -> Vec<f32> {
+        let mut rng = self.rng.lock().expect("not poisoned");
+        (0..n * self.act_dim).map(|_| rng.uniform(-1.0, 1.0) as f32).collect()
+    }
+}
+
 /// Runs `episodes` episodes of `policy` in `task_name` with seeds `seed`, `seed + 1`, ...
 pub fn evaluate(task_name: &str, policy: &dyn Policy, episodes: usize, seed: u64) -> Result<EvalReport> {
     let mut envs: Vec<Box<dyn GoalEnv + Send>> = (0..episodes).map(|_| env::make(task_name)).collect::<Result<_>>()?;

@@ -181,14 +181,17 @@ pub fn train(
     // The final evaluation and checkpoint (also when resuming a run that had already finished).
     if agent.updates > start_updates || last_eval.is_none() {
         last_eval = evaluate(&agent)?;
-        metrics.retain(|m| m.updates < agent.updates || m.eval.is_none());
-        metrics.push(MetricsLine {
-            updates: agent.updates,
-            critic_loss: None,
-            actor_loss: None,
-            q_mean: None,
-            eval: last_eval,
-        });
+        if last_eval.is_some() {
+            metrics.retain(|m| m.updates < agent.updates || m.eval.is_none());
+            let u = agent.updates;
+            metrics.push(MetricsLine {
+                updates: u,
+                critic_loss: None,
+                actor_loss: None,
+                q_mean: None,
+                eval: last_eval,
+            });
+        }
     }
     save(&agent, &batches, &metrics)?;
     bar.finish_and_clear();

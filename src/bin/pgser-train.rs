@@ -58,10 +58,19 @@ struct Run {
 #[derive(Subcommand)]
 enum Command {
     /// Evaluate a checkpoint's policy in its task's environment.
-    #[command(after_help = "Example:\n  pgser-train eval --ckpt run.ckpt --episodes 50 --seed 1000000 --json")]
+    #[command(after_help = "Examples:\n  pgser-train eval --ckpt run.ckpt --episodes 50 --seed 1000000 --json\n  \
+        pgser-train eval --random --task FetchPush --episodes 50")]
+    #[command(group = clap::ArgGroup::new("policy").required(true).args(["ckpt", "random"]))]
     Eval {
+        /// Checkpoint whose actor to run.
         #[arg(long)]
-        ckpt: PathBuf,
+        ckpt: Option<PathBuf>,
+        /// Run uniform random actions instead (the baseline), in --task.
+        #[arg(long, requires = "task")]
+        random: bool,
+        /// Task for --random.
+        #[arg(long)]
+        task: Option<String>,
         #[arg(long, default_value_t = 50)]
         episodes: usize,
         /// Episode i is reset with seed S+i.
@@ -96,21 +105,27 @@ fn main() -> ExitCode {
         }
         let device = args.run.device.device()?;
         match args.command {
-            Some(Command::Eval { ckpt, episodes, seed, json }) => {
-                let (agent, _) = checkpoint::load(&ckpt, device)?;
-                let report = eval::evaluate(&agent.task.name, &agent, episodes, seed)?;
+            Some(Command::Eval { ckpt, random, task, episodes, seed, json }) => {
+                let (report, what, task) = if random {
+                    let name = task.expect("clap requires --task with --random");
+                    let t = Task::known(&name).ok_or_else(|| anyhow::anyhow!("{name}: unknown task"))?;
+                    let policy = eval::RandomPolicy::new(t.act_dim, seed);
+                    (eval::evaluate(&t.name, &policy, episodes, seed)?, "random policy".to_string(), t.name)
+                } else {
+                    let ckpt = ckpt.expect("clap requires --ckpt or --random");
+                    let (agent, _) = checkpoint::load(&ckpt, device)?;
+                    (
+                        eval::evaluate(&agent.task.name, &agent, episodes, seed)?,
+                        ckpt.display().to_string(),
+                        agent.task.name,
+                    )
+                };
                 if json {
                     println!("{}", serde_json::to_string(&report)?);
                 } else {
                     println!(
-                        "{}: {} episodes of {}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
-                        ckpt.display(),
-                        report.episodes,
-                        agent.task.name,
-                        report.return_mean,
-                        report.return_std,
-                        report.success_rate,
-                        report.paper_score
+                        "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
+                        report.episodes, report.return_mean, report.return_std, report.success_rate, report.paper_score
                     );
                 }
             }
