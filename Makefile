@@ -15,7 +15,7 @@ ASSETS_DIR := $(DEPS)/gymnasium_robotics/assets
 ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 CARGO ?= cargo
 
-.PHONY: all build test demo bench deps venv fuzz clean
+.PHONY: all build test demo bench bench-venv deps venv fuzz clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP)
@@ -61,6 +61,17 @@ demo: build
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
 	$(PY) bench/bench_env.py --pgser target/release/pgser-etl --tasks FetchReach,FetchPush --episodes 400 --json bench-out/env.json
+	$(MAKE) bench-venv
+	$(PY) bench/bench_train.py --python $(BENCH_PY) --json bench-out/train.json
+	$(PY) bench/bench_sampler.py --python $(BENCH_PY) --json bench-out/sampler.json
+
+# The benchmark peers' interpreter: PyTorch (a large download), cpprb, pyarrow. Kept apart from
+# the test venv so `make test` never downloads torch.
+BENCH_PY = bench-out/torch-venv/bin/python
+bench-venv: $(BENCH_PY)
+$(BENCH_PY):
+	python3 -m venv bench-out/torch-venv
+	bench-out/torch-venv/bin/pip install --quiet torch numpy pyarrow cpprb
 
 # Needs cargo-fuzz (cargo install cargo-fuzz); stable Rust works with RUSTC_BOOTSTRAP=1.
 fuzz: deps

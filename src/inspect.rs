@@ -266,7 +266,7 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
     match &s.footer {
         Some(f) => {
             let _ = writeln!(o, "footer `{FOOTER_KEY}`:");
-            for line in serde_json::to_string_pretty(f).unwrap_or_default().lines() {
+            for line in compact_json(f).lines() {
                 let _ = writeln!(o, "  {line}");
             }
         }
@@ -286,6 +286,20 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
             f["task"].as_str().unwrap_or("?")
         );
         let _ = writeln!(o, "final-step success rate: {rate:.4} ({ok}/{e}, threshold {})", f["success_threshold"]);
+    }
+    if let Some(f) = s.footer.as_ref().filter(|f| f["kind"] == crate::score::KIND) {
+        let original = if f["include_original"] == true { " + the original goal" } else { "" };
+        let _ = writeln!(
+            o,
+            "transitions: {} of {} episodes, {} swapped goals each{original}; task: {}",
+            f["transitions"],
+            f["episodes"],
+            f["swaps"],
+            f["task"].as_str().unwrap_or("?")
+        );
+        let q = |k: &str| f["q"][k].as_f64().unwrap_or(f64::NAN);
+        let _ =
+            writeln!(o, "q min/mean/max: {:.4} / {:.4} / {:.4} (gamma {})", q("min"), q("mean"), q("max"), f["gamma"]);
     }
     let _ = writeln!(
         o,
@@ -316,6 +330,38 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
             }
         }
     }
+    o
+}
+
+/// Pretty JSON with arrays of scalars on one line (a histogram is one line, not a hundred).
+fn compact_json(v: &serde_json::Value) -> String {
+    fn go(v: &serde_json::Value, indent: usize, o: &mut String) {
+        use serde_json::Value;
+        let pad = |n: usize| "  ".repeat(n);
+        match v {
+            Value::Object(m) if !m.is_empty() => {
+                o.push_str("{\n");
+                for (i, (k, x)) in m.iter().enumerate() {
+                    o.push_str(&format!("{}{}: ", pad(indent + 1), Value::String(k.clone())));
+                    go(x, indent + 1, o);
+                    o.push_str(if i + 1 < m.len() { ",\n" } else { "\n" });
+                }
+                o.push_str(&format!("{}}}", pad(indent)));
+            }
+            Value::Array(a) if a.iter().any(|x| x.is_object() || x.is_array()) => {
+                o.push_str("[\n");
+                for (i, x) in a.iter().enumerate() {
+                    o.push_str(&pad(indent + 1));
+                    go(x, indent + 1, o);
+                    o.push_str(if i + 1 < a.len() { ",\n" } else { "\n" });
+                }
+                o.push_str(&format!("{}]", pad(indent)));
+            }
+            other => o.push_str(&other.to_string()),
+        }
+    }
+    let mut o = String::new();
+    go(v, 0, &mut o);
     o
 }
 

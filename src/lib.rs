@@ -16,6 +16,7 @@ pub mod output;
 pub mod pickle;
 pub mod progress;
 pub mod sampler;
+pub mod score;
 pub mod swap;
 pub mod table;
 pub mod task;

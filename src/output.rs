@@ -73,7 +73,7 @@ pub fn check_not_an_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
 }
 
 /// The folder a file lives in; `.` for a bare file name.
-fn folder_of(p: &Path) -> PathBuf {
+pub fn folder_of(p: &Path) -> PathBuf {
     match p.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => dir.to_path_buf(),
         _ => PathBuf::from("."),
@@ -88,6 +88,24 @@ fn canonical_maybe_missing(p: &Path) -> PathBuf {
         Some(name) => std::fs::canonicalize(folder_of(p)).map(|d| d.join(name)).unwrap_or_else(|_| p.to_path_buf()),
         None => p.to_path_buf(),
     }
+}
+
+/// `target` as a path relative to the folder of `file` (which need not exist yet), for footers
+/// that point at their inputs: the pair can then be moved or copied together. Both are made
+/// absolute (symlinks resolved) first; with no common root the absolute target is returned.
+pub fn relative_to_folder_of(target: &Path, file: &Path) -> Result<PathBuf> {
+    let target = std::fs::canonicalize(target).with_context(|| format!("{}: cannot resolve", target.display()))?;
+    let dir = folder_of(file);
+    let dir = std::fs::canonicalize(&dir).with_context(|| format!("{}: cannot resolve", dir.display()))?;
+    let (t, d): (Vec<_>, Vec<_>) = (target.components().collect(), dir.components().collect());
+    let common = t.iter().zip(&d).take_while(|(a, b)| a == b).count();
+    // Only the root in common (`/` or a Windows prefix): a relative path would just climb to it.
+    if common <= 1 {
+        return Ok(target);
+    }
+    let mut rel: PathBuf = d[common..].iter().map(|_| std::path::Component::ParentDir).collect();
+    rel.extend(&t[common..]);
+    Ok(rel)
 }
 
 /// The sha256 of a file, read in 1 MiB blocks (footers and checkpoints record their inputs').
@@ -131,6 +149,19 @@ mod tests {
         f.commit().unwrap();
         assert_eq!(std::fs::read(&dest).unwrap(), b"whole");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn relative_paths_climb_from_the_output_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = std::fs::canonicalize(dir.path()).unwrap();
+        std::fs::create_dir_all(d.join("a/b")).unwrap();
+        std::fs::create_dir_all(d.join("c")).unwrap();
+        std::fs::write(d.join("c/t.parquet"), b"x").unwrap();
+        let t = d.join("c/t.parquet");
+        assert_eq!(relative_to_folder_of(&t, &d.join("a/b/out.parquet")).unwrap(), Path::new("../../c/t.parquet"));
+        assert_eq!(relative_to_folder_of(&t, &d.join("c/out.parquet")).unwrap(), Path::new("t.parquet"));
+        assert_eq!(relative_to_folder_of(&t, &d.join("out.parquet")).unwrap(), Path::new("c/t.parquet"));
     }
 
     #[test]

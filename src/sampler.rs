@@ -7,6 +7,9 @@
 //! original goal otherwise. Rewards are recomputed for the goal each row ends up with, with the
 //! task's reward function, so relabelled and swapped rows are labelled exactly like original ones.
 
+pub mod priority;
+pub mod scored;
+
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
@@ -77,7 +80,7 @@ pub fn sample(
     for i in 0..n {
         let (e, t) = (rng.below(data.n), rng.below(steps));
         let source = if i < swapped {
-            let (ge, gt) = swap::random_goal(data, rng);
+            let (ge, gt) = swap::random_goal(data.n, data.t, rng);
             GoalSource::Swapped(ge, gt)
         } else if rng.random() < cfg.her_ratio {
             GoalSource::Future(t + 1 + rng.below(steps - t))

@@ -20,6 +20,8 @@ use crate::agent::{Agent, AgentConfig, Batch, Normalizer, checkpoint};
 use crate::env::rng::NpRandom;
 use crate::eval::{self, EvalReport};
 use crate::output::{AtomicFile, sha256_file};
+use crate::sampler::priority::PriorityConfig;
+use crate::sampler::scored::{ScoredSampler, ScoredTable};
 use crate::sampler::{self, SamplerConfig};
 use crate::trajectory::Episodes;
 
@@ -52,6 +54,16 @@ pub struct TrainConfig {
     /// Write the checkpoint every M updates (0: only at the end).
     #[arg(long, default_value_t = 10_000)]
     pub save_every: u64,
+    /// With a scored table (`--data scored.parquet`, the `-mem` variant): the fraction of each
+    /// batch drawn by priority from its swapped rows; the rest comes from the original data.
+    #[arg(long, default_value_t = 0.5)]
+    pub aug_ratio: f64,
+    #[command(flatten)]
+    pub priority: PriorityConfig,
+    /// With a scored table: hold its rows in memory instead of reading them from the file
+    /// (same batches either way).
+    #[arg(long)]
+    pub aug_in_memory: bool,
     /// Record losses in the metrics file every M updates.
     #[arg(long, default_value_t = 1_000)]
     pub log_every: u64,
@@ -103,7 +115,14 @@ pub fn train(
     if cfg.batch_size == 0 {
         bail!("--batch-size must be at least 1");
     }
-    let data = Episodes::load(data_path)?;
+    let scored = match crate::table::read_footer(data_path) {
+        Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(data_path)?),
+        _ => None,
+    };
+    let data = match &scored {
+        Some(table) => original_data(table, cfg)?,
+        None => Episodes::load(data_path)?,
+    };
     if data.t < 2 {
         bail!("{}: episodes of {} step(s) hold no transition", data_path.display(), data.t);
     }
@@ -145,6 +164,12 @@ pub fn train(
         eval::evaluate(&data.task.name, agent, cfg.eval_episodes, cfg.eval_seed).map(Some)
     };
 
+    let k_aug = if scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
+    let mut aug = match scored {
+        Some(t) => Some(ScoredSampler::start(t, &cfg.priority, k_aug, cfg.seed, agent.updates, cfg.aug_in_memory)?),
+        None => None,
+    };
+
     bar.set_length(cfg.updates);
     bar.set_position(agent.updates);
     let mut batch = Batch::default();
@@ -153,7 +178,15 @@ pub fn train(
     let mut last_eval = None;
     while agent.updates < cfg.updates {
         let t0 = Instant::now();
-        sampler::sample(&data, &cfg.sampler, &mut batches, cfg.batch_size, &mut batch);
+        sampler::sample(&data, &cfg.sampler, &mut batches, cfg.batch_size - k_aug, &mut batch);
+        if let Some(aug) = aug.as_mut() {
+            let a = aug.next_batch()?;
+            if cfg.priority.is_beta.is_some() {
+                batch.weight = vec![1.0; batch.n];
+                batch.weight.extend_from_slice(&a.weights);
+            }
+            batch.append(&a.batch);
+        }
         let stats = agent.update(&batch);
         let u = agent.updates;
         let log = cfg.log_every > 0 && u % cfg.log_every == 0;
@@ -203,6 +236,35 @@ pub fn train(
         checkpoint: out.to_path_buf(),
         metrics: metrics_path(out),
     })
+}
+
+/// The original data β of a scored table: the trajectory table its footer names, checked
+/// against the recorded sha256 so the two halves of a batch come from the same data.
+fn original_data(table: &ScoredTable, cfg: &TrainConfig) -> Result<Episodes> {
+    let at = table.path.display();
+    if cfg.sampler.swap != crate::sampler::Swap::None {
+        bail!(
+            "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
+        );
+    }
+    if !(0.0..=1.0).contains(&cfg.aug_ratio) {
+        bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
+    }
+    let (path, sha) = table.trajectory();
+    if !path.exists() {
+        bail!(
+            "{at}: its original data {} is missing (the footer's path is relative to the scored file)",
+            path.display()
+        );
+    }
+    if sha256_file(&path)? != sha {
+        bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
+    }
+    let data = Episodes::load(&path)?;
+    if data.task != table.task {
+        bail!("{at}: its task differs from that of its original data {}", path.display());
+    }
+    Ok(data)
 }
 
 /// Loads checkpoint, resume state and metrics of an interrupted run and checks that it is the
@@ -299,6 +361,7 @@ pub fn bench(
             action: uniform(n * task.act_dim),
             reward: uniform(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
             next_obs: uniform(n * task.obs_dim),
+            weight: vec![],
         })
         .collect();
     let zeros = |d| vec![0.0f32; d];
@@ -335,4 +398,50 @@ pub fn bench(
         seconds,
         updates_per_sec: updates as f64 / seconds,
     }
+}
+
+/// `pgser-train bench-sampler`: prioritized batches/s from a scored table, from disk or memory.
+#[derive(Debug, Clone, Serialize)]
+pub struct SamplerBenchReport {
+    pub rows: usize,
+    pub batch_size: usize,
+    pub batches: u64,
+    pub in_memory: bool,
+    /// Seconds to read q and build the sum tree (and, in memory, load the rows).
+    pub setup_seconds: f64,
+    pub seconds: f64,
+    pub batches_per_sec: f64,
+    pub samples_per_sec: f64,
+}
+
+pub fn bench_sampler(
+    path: &Path,
+    cfg: &PriorityConfig,
+    k: usize,
+    batches: u64,
+    in_memory: bool,
+) -> Result<SamplerBenchReport> {
+    let t0 = Instant::now();
+    let table = ScoredTable::open(path)?;
+    let rows = table.rows;
+    let mut s = ScoredSampler::start(table, cfg, k, 0, 0, in_memory)?;
+    let first = s.next_batch()?; // the first block is ready: setup is over
+    let setup_seconds = t0.elapsed().as_secs_f64();
+    drop(first);
+    let t1 = Instant::now();
+    for _ in 1..batches {
+        s.next_batch()?;
+    }
+    let seconds = t1.elapsed().as_secs_f64();
+    let per_sec = (batches - 1) as f64 / seconds;
+    Ok(SamplerBenchReport {
+        rows,
+        batch_size: k,
+        batches,
+        in_memory,
+        setup_seconds,
+        seconds,
+        batches_per_sec: per_sec,
+        samples_per_sec: per_sec * k as f64,
+    })
 }

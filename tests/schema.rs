@@ -16,6 +16,8 @@ fn json_type_ok(v: &Value, ty: &str) -> bool {
         "number" => v.is_number(),
         "string" => v.is_string(),
         "array" => v.is_array(),
+        "object" => v.is_object(),
+        "boolean" => v.is_boolean(),
         other => panic!("schema names unknown JSON type {other}"),
     }
 }
@@ -62,6 +64,15 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
     for key in footer.as_object().unwrap().keys() {
         assert!(known.contains(&key), "footer key {key} is not in {}", schema_file.display());
     }
+    // Footer values that are objects: their own required fields.
+    for (key, fields) in f.get("object_fields").and_then(|o| o.as_object()).into_iter().flatten() {
+        for (field, ty) in fields.as_object().unwrap() {
+            assert!(
+                json_type_ok(&footer[key][field], ty.as_str().unwrap()),
+                "footer {key}.{field} missing or not {ty}"
+            );
+        }
+    }
     if let Some(fields) = f.get("source_fields").and_then(|s| s.as_object()) {
         for source in footer["sources"].as_array().into_iter().flatten() {
             for (key, ty) in fields {
@@ -94,5 +105,30 @@ fn collect_writes_the_trajectory_schema() {
                 .concat();
         collect_ok(&args, None);
         check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
+    }
+}
+
+#[test]
+fn score_writes_the_transition_schema() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (table, ckpt) = (tmp.path().join("t.parquet"), tmp.path().join("c.ckpt"));
+    let pkl = repo().join("data/fetch_reach_expert_50.pkl");
+    convert_ok(&[&pkl], &table, &["--task".to_string(), "FetchReach".to_string()]);
+    let trained = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", table.to_str().unwrap(), "-o", ckpt.to_str().unwrap(), "--updates", "5", "--hidden", "16"])
+        .args(["--batch-size", "32", "--eval-episodes", "0"])
+        .output()
+        .unwrap();
+    assert!(trained.status.success(), "{}", text(&trained.stderr));
+    let out = tmp.path().join("s.parquet");
+    for extra in [&[][..], &["--include-original"][..]] {
+        let o = etl()
+            .args(["score", "--q", ckpt.to_str().unwrap(), "--data", table.to_str().unwrap()])
+            .args(["-o", out.to_str().unwrap(), "--swaps", "2"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        check_table_against_schema(&out, &repo().join("schemas/transition.json"));
     }
 }

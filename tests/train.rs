@@ -78,7 +78,7 @@ fn td3bc_learns_fetch_reach_far_beyond_a_random_policy() {
     assert!(summary["updates_per_sec"].as_f64().unwrap() > 0.0);
     let learned: EvalReport = serde_json::from_value(summary["eval"].clone()).unwrap();
     let random: EvalReport = serde_json::from_str(
-        &run_ok(&["eval", "--random", "--task", "FetchReach", "--episodes", "20", "--json"]).trim_end(),
+        run_ok(&["eval", "--random", "--task", "FetchReach", "--episodes", "20", "--json"]).trim_end(),
     )
     .unwrap();
     // A random policy almost never reaches: return ≈ −49. The learned one must get most of the

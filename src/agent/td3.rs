@@ -21,6 +21,20 @@ pub struct Batch {
     pub action: Vec<f32>,
     pub reward: Vec<f32>,
     pub next_obs: Vec<f32>,
+    /// Importance-sampling weights of the critic loss per row; empty means all 1.
+    pub weight: Vec<f32>,
+}
+
+impl Batch {
+    /// Appends `other`'s rows (weights are handled by the caller, who knows both halves).
+    pub fn append(&mut self, other: &Batch) {
+        self.n += other.n;
+        self.obs.extend_from_slice(&other.obs);
+        self.goal.extend_from_slice(&other.goal);
+        self.action.extend_from_slice(&other.action);
+        self.reward.extend_from_slice(&other.reward);
+        self.next_obs.extend_from_slice(&other.next_obs);
+    }
 }
 
 /// Losses of one update, left on the device: reading them forces a sync, so the trainer reads
@@ -124,7 +138,13 @@ impl Agent {
         let q1 = c1.forward(x.clone());
         let q2 = c2.forward(x);
         let q_mean = q1.clone().detach().mean().without_autodiff();
-        let critic_loss = (q1 - target.clone()).square().mean() + (q2 - target).square().mean();
+        let critic_loss = if b.weight.is_empty() {
+            (q1 - target.clone()).square().mean() + (q2 - target).square().mean()
+        } else {
+            // Prioritized rows are over-represented; their weights undo that in expectation.
+            let w = self.tensor(b.weight.clone(), [n, 1]);
+            ((q1 - target.clone()).square() * w.clone()).mean() + ((q2 - target).square() * w).mean()
+        };
         let grads = critic_loss.backward();
         self.critic1_opt.step(&mut self.critic1, &c1, &grads);
         self.critic2_opt.step(&mut self.critic2, &c2, &grads);

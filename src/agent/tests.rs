@@ -33,6 +33,7 @@ fn random_batch(task: &Task, n: usize, seed: u64) -> Batch {
         action: u(n * task.act_dim),
         reward: u(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
         next_obs: u(n * task.obs_dim),
+        weight: vec![],
     }
 }
 

@@ -4,15 +4,16 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use pgser::agent::Backend;
 use pgser::env::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, inspect, progress, trajectory};
+use pgser::{cli, collect, inspect, progress, score, trajectory};
 
 #[derive(Parser)]
 #[command(
     name = "pgser-etl",
     version,
     long_version = pgser::cli::LONG_VERSION.as_str(),
-    about = "pgser data jobs: convert, collect, inspect"
+    about = "pgser data jobs: convert, collect, inspect, score"
 )]
 struct Args {
     #[command(subcommand)]
@@ -86,6 +87,45 @@ enum Command {
         /// Target rows per row group (row groups always hold whole episodes).
         #[arg(long, default_value_t = 65_536)]
         row_group_rows: usize,
+    },
+    /// Goal-swap every transition of a trajectory table and score each row with a critic (Alg. 2).
+    #[command(after_help = "Examples:\n  pgser-etl score --q pretrain.ckpt --data traj.parquet -o scored.parquet\n  \
+        pgser-etl score --q pretrain.ckpt --data traj.parquet -o scored.parquet --swaps 8 --seed 1 --include-original\n\n\
+        Each transition (s, a, s') gets K goals drawn uniformly from the achieved goals of the whole table \
+        (goal_episode, goal_step), reward R(next_achieved_goal, goal) and q = min(Q1, Q2)(s, goal, a). With \
+        --include-original its own desired goal comes first, marked goal_step = -1. The output depends on the \
+        inputs, --seed and --chunk-episodes, not on the thread count.")]
+    Score {
+        /// The pre-trained checkpoint (`pgser-train -o model.ckpt`) whose twin critics score the rows.
+        #[arg(long = "q", value_name = "CKPT")]
+        checkpoint: PathBuf,
+        /// Trajectory table (`pgser-etl convert` / `collect`) of the same task.
+        #[arg(long)]
+        data: PathBuf,
+        /// Output transition table (written atomically).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Swapped goals per transition.
+        #[arg(long, default_value_t = score::DEFAULT_SWAPS)]
+        swaps: usize,
+        /// Seed of the goal draws (chunk c draws from the stream spawned from (seed, c)).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Also write each transition with its own desired goal (goal_episode = episode, goal_step = -1).
+        #[arg(long)]
+        include_original: bool,
+        /// Where the critic runs.
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: Backend,
+        /// Episodes per chunk: the unit of parallel work, of random streams and of row groups.
+        #[arg(long, default_value_t = score::DEFAULT_CHUNK_EPISODES)]
+        chunk_episodes: usize,
+        /// Worker threads (0: RAYON_NUM_THREADS, else one per core). Does not change the output.
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        /// Also print the summary as one JSON line on stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// Show a table's schema, footer, counts, success rate and column statistics.
     #[command(after_help = "Example:\n  pgser-etl inspect traj.parquet --per-dim")]
@@ -161,6 +201,54 @@ fn main() -> ExitCode {
                 s.episodes as f64 / s.seconds,
                 s.steps as f64 / s.seconds
             );
+            Ok(())
+        }
+        Command::Score {
+            checkpoint,
+            data,
+            output,
+            swaps,
+            seed,
+            include_original,
+            device,
+            chunk_episodes,
+            threads,
+            json,
+        } => {
+            let opts = score::ScoreOptions {
+                checkpoint,
+                data,
+                output,
+                swaps,
+                seed,
+                include_original,
+                device,
+                chunk_episodes,
+                threads,
+                command: cli::command_line(),
+            };
+            let bar = progress::bar("score", "transitions");
+            let s = score::score(&opts, &bar)?;
+            bar.finish_and_clear();
+            eprintln!(
+                "wrote {}: {} rows ({} transitions × {}{}), q min/mean/max {:.3}/{:.3}/{:.3}, {:.1} MB; {:.2} s, \
+                 {:.0} rows/s on {} threads",
+                opts.output.display(),
+                s.rows,
+                s.transitions,
+                s.swaps,
+                if s.include_original { " swaps + original" } else { " swaps" },
+                s.q_min,
+                s.q_mean,
+                s.q_max,
+                s.bytes as f64 / 1e6,
+                s.seconds,
+                s.rows_per_sec,
+                s.threads
+            );
+            if json {
+                println!("{}", serde_json::to_string(&s)?);
+            }
             Ok(())
         }
         Command::Inspect { file, per_dim, json } => {

@@ -79,6 +79,24 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Time the prioritized sampler alone on a scored table (from disk, or --in-memory).
+    #[command(
+        after_help = "Example:\n  pgser-train bench-sampler --data scored.parquet --batch-size 256 --batches 2000 --json"
+    )]
+    BenchSampler {
+        #[arg(long)]
+        data: PathBuf,
+        #[arg(long, default_value_t = 256)]
+        batch_size: usize,
+        #[arg(long, default_value_t = 2000)]
+        batches: u64,
+        #[arg(long)]
+        in_memory: bool,
+        #[command(flatten)]
+        priority: pgser::sampler::priority::PriorityConfig,
+        #[arg(long)]
+        json: bool,
+    },
     /// Time the update alone on random batches (what `make bench` compares with PyTorch).
     #[command(after_help = "Example:\n  pgser-train bench --task FetchPush --batch-size 512 --updates 300 --json")]
     Bench {
@@ -126,6 +144,23 @@ fn main() -> ExitCode {
                     println!(
                         "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
                         report.episodes, report.return_mean, report.return_std, report.success_rate, report.paper_score
+                    );
+                }
+            }
+            Some(Command::BenchSampler { data, batch_size, batches, in_memory, priority, json }) => {
+                let r = train::bench_sampler(&data, &priority, batch_size, batches.max(2), in_memory)?;
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!(
+                        "{}: {} rows, {} batches of {} from {}: {:.0} samples/s (setup {:.2} s)",
+                        data.display(),
+                        r.rows,
+                        r.batches,
+                        r.batch_size,
+                        if r.in_memory { "memory" } else { "disk" },
+                        r.samples_per_sec,
+                        r.setup_seconds
                     );
                 }
             }

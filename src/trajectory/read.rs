@@ -144,7 +144,7 @@ impl Episodes {
 }
 
 /// The `pgser` footer, required to be a trajectory footer that agrees with itself.
-fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
+pub(crate) fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
     let text = kv
         .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
         .and_then(|e| e.value.as_deref())
@@ -173,7 +173,7 @@ fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue
 }
 
 /// Check the six columns' types against the footer; returns their root indices.
-fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Result<Vec<usize>> {
+pub(crate) fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Result<Vec<usize>> {
     let index = |name: &str| {
         schema.index_of(name).map_err(|_| {
             anyhow::anyhow!(
@@ -214,7 +214,7 @@ fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Resu
 }
 
 /// Rows `first_row..` must be (episode, step) = (row / T, row % T), with no nulls.
-fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Footer) -> Result<()> {
+pub(crate) fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Footer) -> Result<()> {
     let t = f.t;
     let episode = batch.column_by_name("episode").expect("projected").as_primitive::<Int64Type>();
     let step = batch.column_by_name("step").expect("projected").as_primitive::<Int32Type>();
@@ -252,7 +252,7 @@ fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Footer) -> Re
 /// action) the rows with step < T − 1, whose last-step row may be null. Rows already passed
 /// [`check_keys`], so row r of the batch is table row `first_row + r`. Errors name the row,
 /// episode, step and column; the caller adds the file.
-fn append(
+pub(crate) fn append(
     out: &mut Vec<f32>,
     col: &ArrayRef,
     name: &str,

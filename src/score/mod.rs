@@ -1,0 +1,386 @@
+//! `pgser-etl score` (PGSER Alg. 2, step 2): materialize goal-swapped transitions of a
+//! trajectory table and score each with the pre-trained critic, w = min(Q1, Q2)(s, g, a), into a
+//! transition table (SPEC §3.2) that the final trainer samples by priority.
+//!
+//! Streaming, in parallel, reproducibly:
+//! - the achieved goals of the whole table (the swap pool, goal_dim floats per row) are read
+//!   first; everything else streams in blocks ("chunks") of `--chunk-episodes` whole episodes;
+//! - a window of 2 × threads chunks is swapped and scored in parallel (rayon), and their record
+//!   batches are written, one row group per chunk, in chunk order, so memory is bounded by the
+//!   window, not the input;
+//! - chunk c draws its goals from `NpRandom::spawned(seed, [STREAM_SWAP, c])`, never from a
+//!   thread's identity, so the file's bytes depend on (inputs, seed, chunk size) and on the
+//!   backend that runs the critic, never on the thread count.
+
+mod read;
+mod stats;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::mpsc::sync_channel;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use arrow_array::{ArrayRef, FixedSizeListArray, Float32Array, Int32Array, Int64Array, RecordBatch};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::agent::{Agent, Backend, checkpoint};
+use crate::env::rng::NpRandom;
+use crate::output::{check_not_an_input, relative_to_folder_of, sha256_file};
+use crate::swap::{self, GoalPool, SwappedRows};
+use crate::table::{SCHEMA_VERSION, TableWriter};
+use crate::task::{GoalMetric, Task};
+use crate::trajectory::{self, Episodes, FloatType, vector_field};
+
+pub use stats::{BINS, Histogram, QStats};
+
+/// Footer `kind` of a transition table.
+pub const KIND: &str = "transition";
+/// `--swaps` default. Four swapped goals per transition make the scored table 4× the original
+/// transitions (≈ 490k rows for the paper's 2500-episode datasets): several candidate goals per
+/// transition for the priority sampler to choose among, at a few hundred MB at most.
+pub const DEFAULT_SWAPS: usize = 4;
+/// `--chunk-episodes` default: 64 × 49 transitions × 4 swaps ≈ 12.5k rows per chunk, six critic
+/// batches, enough work per rayon task to amortise it, while a window of 2 × threads chunks
+/// stays a few MB per thread.
+pub const DEFAULT_CHUNK_EPISODES: usize = 64;
+/// Rows per critic call. On burn's flex CPU backend 2048 was the fastest batch for FetchPush
+/// dims (≈ 320k rows/s; 4096 halves it: the activations fall out of cache), SPEC §4.4.
+pub const Q_BATCH: usize = 2048;
+/// Spawn key of the swap streams under `--seed` (chunk c uses `[STREAM_SWAP, c]`).
+const STREAM_SWAP: u64 = 0x5357_4150; // "SWAP"
+
+/// The transition table's columns (SPEC §3.2); vectors are float32 with non-null items.
+pub fn schema(task: &Task) -> SchemaRef {
+    let f = FloatType::Float32;
+    Arc::new(Schema::new(vec![
+        Field::new("episode", DataType::Int64, false),
+        Field::new("step", DataType::Int32, false),
+        Field::new("goal_episode", DataType::Int64, false),
+        Field::new("goal_step", DataType::Int32, false),
+        vector_field("obs", f, task.obs_dim, false),
+        vector_field("action", f, task.act_dim, false),
+        vector_field("next_obs", f, task.obs_dim, false),
+        vector_field("next_achieved_goal", f, task.goal_dim, false),
+        vector_field("goal", f, task.goal_dim, false),
+        Field::new("reward", DataType::Float32, false),
+        Field::new("q", DataType::Float32, false),
+    ]))
+}
+
+/// An input file: its path relative to the transition table's folder, and its sha256.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FileRef {
+    pub path: String,
+    pub sha256: String,
+}
+
+/// The `pgser` footer of a transition table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Footer {
+    pub schema_version: u32,
+    pub kind: String,
+    pub task: String,
+    #[serde(rename = "T")]
+    pub t: usize,
+    pub obs_dim: usize,
+    pub goal_dim: usize,
+    pub act_dim: usize,
+    pub goal_metric: GoalMetric,
+    pub success_threshold: f64,
+    pub float_type: FloatType,
+    /// Episodes of the source table; `transitions` = episodes × (T − 1).
+    pub episodes: usize,
+    pub transitions: usize,
+    /// transitions × (swaps + include_original).
+    pub rows: usize,
+    /// The trajectory table (original data β) the transitions come from.
+    pub source: FileRef,
+    pub checkpoint: FileRef,
+    /// The checkpoint's discount γ; the histogram spans [−1/(1−γ), 0].
+    pub gamma: f64,
+    pub seed: u64,
+    pub swaps: usize,
+    pub include_original: bool,
+    pub chunk_episodes: usize,
+    pub q: QStats,
+    pub command: String,
+    pub pgser_version: String,
+}
+
+impl Footer {
+    pub fn task(&self) -> Task {
+        Task {
+            name: self.task.clone(),
+            t: self.t,
+            obs_dim: self.obs_dim,
+            goal_dim: self.goal_dim,
+            act_dim: self.act_dim,
+            threshold: self.success_threshold,
+            metric: self.goal_metric,
+        }
+    }
+
+    /// Where the source trajectory table of the transition table at `scored` is.
+    pub fn source_table(&self, scored: &Path) -> PathBuf {
+        let p = Path::new(&self.source.path);
+        match scored.parent() {
+            Some(dir) if p.is_relative() => dir.join(p),
+            _ => p.to_path_buf(),
+        }
+    }
+}
+
+/// The footer of a transition table, refusing other tables in one line.
+pub fn read_footer(path: &Path) -> Result<Footer> {
+    let at = path.display();
+    let json = crate::table::read_footer(path)?;
+    match json.get("kind").and_then(|k| k.as_str()) {
+        Some(KIND) => {}
+        Some(kind) => bail!("{at}: a {kind} table, not a transition table from `pgser-etl score`"),
+        None => bail!("{at}: the footer names no table kind; a transition table from `pgser-etl score` is expected"),
+    }
+    let f: Footer = serde_json::from_value(json).with_context(|| format!("{at}: malformed transition footer"))?;
+    if f.schema_version != SCHEMA_VERSION {
+        bail!("{at}: table schema version {}; this pgser reads version {SCHEMA_VERSION}", f.schema_version);
+    }
+    Ok(f)
+}
+
+#[derive(Debug, Clone)]
+pub struct ScoreOptions {
+    pub checkpoint: PathBuf,
+    pub data: PathBuf,
+    pub output: PathBuf,
+    pub swaps: usize,
+    pub seed: u64,
+    pub include_original: bool,
+    pub device: Backend,
+    pub chunk_episodes: usize,
+    /// Worker threads; 0: rayon's default (`RAYON_NUM_THREADS`, else one per core).
+    pub threads: usize,
+    pub command: String,
+}
+
+/// What `score` reports (`--json` prints it).
+#[derive(Debug, Clone, Serialize)]
+pub struct ScoreSummary {
+    pub output: PathBuf,
+    pub episodes: usize,
+    pub transitions: usize,
+    pub rows: usize,
+    pub swaps: usize,
+    pub include_original: bool,
+    pub q_min: f64,
+    pub q_mean: f64,
+    pub q_max: f64,
+    pub bytes: u64,
+    pub threads: usize,
+    pub seconds: f64,
+    pub rows_per_sec: f64,
+}
+
+/// Swap and score a trajectory table into a transition table; the output appears whole or not
+/// at all.
+pub fn score(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
+    if o.threads == 0 {
+        return run(o, bar);
+    }
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(o.threads).build().context("cannot start threads")?;
+    pool.install(|| run(o, bar))
+}
+
+fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
+    let start = Instant::now();
+    if o.swaps == 0 && !o.include_original {
+        bail!("{}: --swaps 0 without --include-original leaves no rows to write", o.output.display());
+    }
+    if o.chunk_episodes == 0 {
+        bail!("--chunk-episodes must be at least 1");
+    }
+    check_not_an_input(&o.output, &[o.data.clone(), o.checkpoint.clone()])?;
+    let table = read::footer(&o.data)?;
+    let (agent, _) = checkpoint::load(&o.checkpoint, o.device.device()?)?;
+    check_compatible(&agent.task, &o.checkpoint, &table, &o.data)?;
+    let task = table.task();
+    let pool = read::goal_pool(&o.data)?;
+    let transitions = table.episodes * (table.t - 1);
+    let per = o.swaps + o.include_original as usize;
+    let schema = schema(&task);
+    bar.set_length(transitions as u64);
+
+    let mut writer = TableWriter::create(&o.output, schema.clone())?;
+    let threads = rayon::current_num_threads();
+    let window = 2 * threads;
+    let mut q = stats::QAccumulator::new(agent.config.gamma);
+    let mut rows = 0;
+    let blocks = read::Blocks::open(&o.data, o.chunk_episodes, o.include_original)?;
+    std::thread::scope(|s| -> Result<()> {
+        // The reader runs ahead by one window, overlapping decoding with scoring.
+        let (tx, rx) = sync_channel(window);
+        s.spawn(move || {
+            for (index, block) in blocks.enumerate() {
+                if tx.send(block.map(|(first, b)| (index, first, b))).is_err() {
+                    break;
+                }
+            }
+        });
+        loop {
+            let mut pending = Vec::with_capacity(window);
+            while pending.len() < window {
+                match rx.recv() {
+                    Ok(block) => pending.push(block?),
+                    Err(_) => break,
+                }
+            }
+            if pending.is_empty() {
+                return Ok(());
+            }
+            let scored: Vec<(RecordBatch, stats::QAccumulator)> = pending
+                .par_iter()
+                .map(|(index, first, block)| score_block(o, &agent, &pool, &task, &schema, *index, *first, block))
+                .collect::<Result<_>>()?;
+            let (batches, accumulators): (Vec<_>, Vec<_>) = scored.into_iter().unzip();
+            accumulators.iter().for_each(|a| q.merge(a));
+            let n: usize = batches.iter().map(|b| b.num_rows()).sum();
+            writer.write_row_groups(&batches)?;
+            rows += n;
+            bar.inc((n / per) as u64);
+        }
+    })?;
+    assert_eq!(rows, transitions * per, "every transition was scored");
+
+    let q = q.finish();
+    let footer = Footer {
+        schema_version: SCHEMA_VERSION,
+        kind: KIND.to_string(),
+        task: task.name.clone(),
+        t: task.t,
+        obs_dim: task.obs_dim,
+        goal_dim: task.goal_dim,
+        act_dim: task.act_dim,
+        goal_metric: task.metric,
+        success_threshold: task.threshold,
+        float_type: FloatType::Float32,
+        episodes: table.episodes,
+        transitions,
+        rows,
+        source: file_ref(&o.data, &o.output)?,
+        checkpoint: file_ref(&o.checkpoint, &o.output)?,
+        gamma: agent.config.gamma,
+        seed: o.seed,
+        swaps: o.swaps,
+        include_original: o.include_original,
+        chunk_episodes: o.chunk_episodes,
+        q: q.clone(),
+        command: o.command.clone(),
+        pgser_version: env!("CARGO_PKG_VERSION").to_string(),
+    };
+    let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
+    let seconds = start.elapsed().as_secs_f64();
+    Ok(ScoreSummary {
+        output: o.output.clone(),
+        episodes: table.episodes,
+        transitions,
+        rows,
+        swaps: o.swaps,
+        include_original: o.include_original,
+        q_min: q.min,
+        q_mean: q.mean,
+        q_max: q.max,
+        bytes,
+        threads,
+        seconds,
+        rows_per_sec: rows as f64 / seconds,
+    })
+}
+
+/// The checkpoint must have been trained for the table's task: same name, T and dimensions.
+fn check_compatible(ckpt: &Task, ckpt_path: &Path, table: &trajectory::Footer, data: &Path) -> Result<()> {
+    let t = table.task();
+    let shape = |k: &Task| format!("{} (T {}, obs {}, goal {}, act {})", k.name, k.t, k.obs_dim, k.goal_dim, k.act_dim);
+    if (&ckpt.name, ckpt.t, ckpt.obs_dim, ckpt.goal_dim, ckpt.act_dim)
+        != (&t.name, t.t, t.obs_dim, t.goal_dim, t.act_dim)
+    {
+        bail!(
+            "{}: the checkpoint is for {} but {} holds {}; score a table with a critic trained on the same task",
+            ckpt_path.display(),
+            shape(ckpt),
+            data.display(),
+            shape(&t)
+        );
+    }
+    Ok(())
+}
+
+fn file_ref(input: &Path, output: &Path) -> Result<FileRef> {
+    Ok(FileRef { path: relative_to_folder_of(input, output)?.display().to_string(), sha256: sha256_file(input)? })
+}
+
+/// Swap, score and lay out one chunk (chunk `index`, episodes `first ..` of the table).
+#[allow(clippy::too_many_arguments)]
+fn score_block(
+    o: &ScoreOptions,
+    agent: &Agent,
+    pool: &GoalPool,
+    task: &Task,
+    schema: &SchemaRef,
+    index: usize,
+    first: usize,
+    block: &Episodes,
+) -> Result<(RecordBatch, stats::QAccumulator)> {
+    let mut rng = NpRandom::spawned(o.seed, &[STREAM_SWAP, index as u64]);
+    let rows = swap::swap_block(block, first, pool, task, o.swaps, o.include_original, &mut rng);
+    let q = critic_scores(agent, task, &rows);
+    if let Some(i) = q.iter().position(|v| !v.is_finite()) {
+        bail!(
+            "{}: the critic gives Q = {} for episode {} step {} with the goal of episode {} step {}; the checkpoint is \
+             damaged",
+            o.checkpoint.display(),
+            q[i],
+            rows.episode[i],
+            rows.step[i],
+            rows.goal_episode[i],
+            rows.goal_step[i]
+        );
+    }
+    let mut acc = stats::QAccumulator::new(agent.config.gamma);
+    acc.add(&q);
+    Ok((record_batch(schema, task, rows, q)?, acc))
+}
+
+/// min(Q1, Q2) of every row, [`Q_BATCH`] rows per critic call (no autodiff, no per-row tensor).
+fn critic_scores(agent: &Agent, task: &Task, r: &SwappedRows) -> Vec<f32> {
+    let (od, gd, ad) = (task.obs_dim, task.goal_dim, task.act_dim);
+    let mut q = Vec::with_capacity(r.n);
+    for s in (0..r.n).step_by(Q_BATCH) {
+        let m = (r.n - s).min(Q_BATCH);
+        q.extend(agent.q(&r.obs[s * od..][..m * od], &r.goal[s * gd..][..m * gd], &r.action[s * ad..][..m * ad], m));
+    }
+    q
+}
+
+/// The rows as Arrow columns, moving the vectors without copying them.
+fn record_batch(schema: &SchemaRef, task: &Task, r: SwappedRows, q: Vec<f32>) -> Result<RecordBatch> {
+    let vector = |values: Vec<f32>, dim: usize| -> Result<ArrayRef> {
+        let item = Arc::new(Field::new("item", DataType::Float32, false));
+        Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, Arc::new(Float32Array::from(values)), None)?))
+    };
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(Int64Array::from(r.episode)),
+        Arc::new(Int32Array::from(r.step)),
+        Arc::new(Int64Array::from(r.goal_episode)),
+        Arc::new(Int32Array::from(r.goal_step)),
+        vector(r.obs, task.obs_dim)?,
+        vector(r.action, task.act_dim)?,
+        vector(r.next_obs, task.obs_dim)?,
+        vector(r.next_achieved_goal, task.goal_dim)?,
+        vector(r.goal, task.goal_dim)?,
+        Arc::new(Float32Array::from(r.reward)),
+        Arc::new(Float32Array::from(q)),
+    ];
+    Ok(RecordBatch::try_new(schema.clone(), columns)?)
+}

@@ -1,0 +1,179 @@
+//! Streaming a trajectory table for `score`: the goal pool in a first pass over one column, then
+//! blocks of whole episodes in a second pass, each checked row by row as `Episodes::load` checks
+//! a whole table (the same functions), so a bad table fails with the row named, not as a wrong
+//! score. Memory is one block and one Parquet row group of the projected columns at a time.
+
+use std::fs::File;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use arrow_array::RecordBatch;
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
+
+use crate::swap::GoalPool;
+use crate::trajectory::Episodes;
+use crate::trajectory::Footer;
+use crate::trajectory::read::{append, check_keys, check_schema, trajectory_footer};
+
+/// The footer of a trajectory table, checked against the file's row count and column types.
+pub fn footer(path: &Path) -> Result<Footer> {
+    Ok(open(path, &[], 1)?.0)
+}
+
+/// Open `path` as a trajectory table, reading `columns` (plus episode and step) in batches of
+/// `batch_episodes` episodes. Errors are one line naming the file.
+fn open(path: &Path, columns: &[&str], batch_episodes: usize) -> Result<(Footer, ParquetRecordBatchReader)> {
+    let at = path.display().to_string();
+    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+    let builder =
+        ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+    let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
+    let file_rows = builder.metadata().file_metadata().num_rows();
+    if usize::try_from(file_rows).ok() != Some(footer.rows) {
+        bail!(
+            "{at}: the file holds {file_rows} rows but its footer says {} ({} episodes × T = {})",
+            footer.rows,
+            footer.episodes,
+            footer.t
+        );
+    }
+    let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
+    // episode, step, obs, achieved_goal, desired_goal, action: all checked, some read.
+    let indices = check_schema(&at, builder.schema(), &footer, dims)?;
+    let names = ["episode", "step", "obs", "achieved_goal", "desired_goal", "action"];
+    let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
+    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i));
+    let reader = builder
+        .with_projection(mask)
+        .with_batch_size(batch_episodes.max(1).saturating_mul(footer.t))
+        .build()
+        .with_context(|| format!("{at}: cannot read"))?;
+    Ok((footer, reader))
+}
+
+/// Every achieved goal of the table, read as a stream of the `achieved_goal` column alone.
+pub fn goal_pool(path: &Path) -> Result<GoalPool> {
+    let at = path.display().to_string();
+    let (f, reader) = open(path, &["achieved_goal"], 1024)?;
+    let mut ag = Vec::with_capacity(f.rows.saturating_mul(f.goal_dim).min(1 << 26));
+    let mut row = 0;
+    for batch in reader {
+        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+        check_keys(&at, &batch, row, &f)?;
+        let col = batch.column_by_name("achieved_goal").expect("projected");
+        append(&mut ag, col, "achieved_goal", f.goal_dim, false, row, f.t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+        row += batch.num_rows();
+    }
+    if row != f.rows {
+        bail!("{at}: {row} rows read but the footer says {} ({} episodes × T = {})", f.rows, f.episodes, f.t);
+    }
+    Ok(GoalPool { n: f.episodes, t: f.t, goal_dim: f.goal_dim, ag })
+}
+
+/// Blocks of `per_block` whole episodes, in table order, as float32 [`Episodes`] (the last
+/// block may be shorter). `desired_goal` is read only when `with_goals` (for original rows).
+pub struct Blocks {
+    at: String,
+    footer: Footer,
+    reader: ParquetRecordBatchReader,
+    per_block: usize,
+    with_goals: bool,
+    /// Table rows consumed so far.
+    row: usize,
+    /// Rows of the last batch read that belong to the next block.
+    rest: Option<RecordBatch>,
+    done: bool,
+}
+
+impl Blocks {
+    pub fn open(path: &Path, per_block: usize, with_goals: bool) -> Result<Blocks> {
+        let mut columns = vec!["obs", "achieved_goal", "action"];
+        if with_goals {
+            columns.push("desired_goal");
+        }
+        // Batches of one block: blocks are then cut from whole batches, not pieced together.
+        let (footer, reader) = open(path, &columns, per_block)?;
+        Ok(Blocks {
+            at: path.display().to_string(),
+            footer,
+            reader,
+            per_block,
+            with_goals,
+            row: 0,
+            rest: None,
+            done: false,
+        })
+    }
+
+    /// Read the next block: (first episode, episodes), or None at the end of the table.
+    fn next_block(&mut self) -> Result<Option<(usize, Episodes)>> {
+        let f = &self.footer;
+        let (t, at) = (f.t, self.at.as_str());
+        let first = self.row / t;
+        let end_row = (first + self.per_block).min(f.episodes) * t;
+        // The file's row count was checked against the footer's when it was opened.
+        if self.row >= f.rows {
+            return Ok(None);
+        }
+        let n = end_row / t - first;
+        let mut block = Episodes {
+            footer: f.clone(),
+            task: f.task(),
+            n,
+            t,
+            obs: Vec::with_capacity(n * t * f.obs_dim),
+            ag: Vec::with_capacity(n * t * f.goal_dim),
+            g: Vec::with_capacity(if self.with_goals { n * (t - 1) * f.goal_dim } else { 0 }),
+            u: Vec::with_capacity(n * (t - 1) * f.act_dim),
+        };
+        while self.row < end_row {
+            let batch = match self.rest.take() {
+                Some(b) => b,
+                None => match self.reader.next() {
+                    Some(b) => b.with_context(|| format!("{at}: cannot read the rows after row {}", self.row))?,
+                    None => bail!(
+                        "{at}: {} rows read but the footer says {} ({} episodes × T = {t})",
+                        self.row,
+                        f.rows,
+                        f.episodes
+                    ),
+                },
+            };
+            let take = batch.num_rows().min(end_row - self.row);
+            if take < batch.num_rows() {
+                self.rest = Some(batch.slice(take, batch.num_rows() - take));
+            }
+            let part = batch.slice(0, take);
+            check_keys(at, &part, self.row, f)?;
+            let add = |out: &mut Vec<f32>, name: &str, dim: usize, padded: bool| {
+                let col = part.column_by_name(name).expect("projected");
+                append(out, col, name, dim, padded, self.row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))
+            };
+            add(&mut block.obs, "obs", f.obs_dim, false)?;
+            add(&mut block.ag, "achieved_goal", f.goal_dim, false)?;
+            add(&mut block.u, "action", f.act_dim, true)?;
+            if self.with_goals {
+                add(&mut block.g, "desired_goal", f.goal_dim, true)?;
+            }
+            self.row += take;
+        }
+        Ok(Some((first, block)))
+    }
+}
+
+impl Iterator for Blocks {
+    type Item = Result<(usize, Episodes)>;
+
+    /// Stops after the first error.
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let r = self.next_block().transpose();
+        if !matches!(r, Some(Ok(_))) {
+            self.done = true;
+        }
+        r
+    }
+}

@@ -1,0 +1,181 @@
+//! The `-mem` variant end to end: pre-train Q with random swapping, score swapped transitions,
+//! train on the scored table with prioritized sampling (from disk and from memory).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use common::*;
+use pgser::agent::checkpoint;
+use pgser::sampler::priority::PriorityConfig;
+use pgser::sampler::scored::{BLOCK_BATCHES, ScoredSampler, ScoredTable};
+
+fn train(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_pgser-train")).args(args).output().unwrap();
+    assert!(out.status.success(), "pgser-train {args:?}:\n{}", text(&out.stderr));
+    text(&out.stdout)
+}
+
+/// The FetchReach sample as a table, a Q pre-trained on it with random swapping, and the
+/// table of 2 scored swaps per transition: made once for all tests here.
+fn scored() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
+    static S: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    S.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let traj = dir.path().join("reach.parquet");
+        let data = repo().join("data");
+        convert_ok(&[&data.join("fetch_reach_expert_50.pkl"), &data.join("fetch_reach_random_200.pkl")], &traj, &[]);
+        let q = dir.path().join("q.ckpt");
+        train(&[
+            "--data",
+            traj.to_str().unwrap(),
+            "-o",
+            q.to_str().unwrap(),
+            "--swap",
+            "random",
+            "--updates",
+            "300",
+            "--batch-size",
+            "256",
+            "--eval-episodes",
+            "0",
+            "--seed",
+            "2",
+        ]);
+        let scored = dir.path().join("scored.parquet");
+        let out = etl()
+            .args(["score", "--q", q.to_str().unwrap(), "--data", traj.to_str().unwrap(), "-o"])
+            .arg(&scored)
+            .args(["--swaps", "2", "--seed", "3"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "score: {}", text(&out.stderr));
+        (dir, traj, scored)
+    })
+}
+
+#[test]
+fn the_mem_agent_learns_fetch_reach() {
+    let (dir, _, scored) = scored();
+    let ckpt = dir.path().join("mem.ckpt");
+    let out = train(&[
+        "--data",
+        scored.to_str().unwrap(),
+        "-o",
+        ckpt.to_str().unwrap(),
+        "--updates",
+        "600",
+        "--batch-size",
+        "256",
+        "--eval-every",
+        "0",
+        "--eval-episodes",
+        "20",
+        "--seed",
+        "1",
+        "--json",
+    ]);
+    let summary: serde_json::Value = serde_json::from_str(out.trim_end().lines().last().unwrap()).unwrap();
+    let ret = summary["eval"]["return_mean"].as_f64().unwrap();
+    assert!(ret > -30.0, "mem agent return {ret}");
+}
+
+fn weights(path: &Path) -> Vec<Vec<f32>> {
+    let (agent, _) = checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
+    [&agent.actor, &agent.critic1, &agent.critic2].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
+}
+
+fn short(scored: &Path, ckpt: &Path, updates: &str, extra: &[&str]) {
+    let mut args = vec![
+        "--data",
+        scored.to_str().unwrap(),
+        "-o",
+        ckpt.to_str().unwrap(),
+        "--updates",
+        updates,
+        "--batch-size",
+        "32",
+        "--hidden",
+        "16",
+        "--eval-episodes",
+        "0",
+        "--seed",
+        "9",
+    ];
+    args.extend_from_slice(extra);
+    train(&args);
+}
+
+#[test]
+fn disk_and_memory_sampling_train_the_same_agent_and_resume_exactly() {
+    let (dir, _, scored) = scored();
+    let d = dir.path();
+    // Past one block, so the resumed run starts inside the second block.
+    let n = (BLOCK_BATCHES + 40).to_string();
+    let (disk, mem, split) = (d.join("disk.ckpt"), d.join("inmem.ckpt"), d.join("split.ckpt"));
+    short(scored, &disk, &n, &["--is-beta", "0.4"]);
+    short(scored, &mem, &n, &["--is-beta", "0.4", "--aug-in-memory"]);
+    assert_eq!(weights(&disk), weights(&mem));
+    short(scored, &split, &(BLOCK_BATCHES + 7).to_string(), &["--is-beta", "0.4"]);
+    short(scored, &split, &n, &["--is-beta", "0.4", "--resume"]);
+    assert_eq!(weights(&disk), weights(&split));
+}
+
+#[test]
+fn disk_batches_hold_the_rows_they_name() {
+    let (_, _, scored) = scored();
+    let cfg = PriorityConfig { is_beta: Some(1.0), ..PriorityConfig::default() };
+    let mut disk = ScoredSampler::start(ScoredTable::open(scored).unwrap(), &cfg, 64, 5, 0, false).unwrap();
+    // Batch row i must equal table row rows[i].
+    let (t, _) = read_table(scored);
+    let obs = t.column_by_name("obs").unwrap();
+    let obs = arrow_array::cast::AsArray::as_fixed_size_list(obs);
+    let goal = arrow_array::cast::AsArray::as_fixed_size_list(t.column_by_name("goal").unwrap());
+    let f32s = |a: &arrow_array::ArrayRef| {
+        arrow_array::cast::AsArray::as_primitive::<arrow_array::types::Float32Type>(a).values().to_vec()
+    };
+    let tree = disk.tree.clone();
+    for _ in 0..3 {
+        let b = disk.next_batch().unwrap();
+        assert_eq!(b.rows.len(), 64);
+        for (i, &r) in b.rows.iter().enumerate() {
+            assert_eq!(&b.batch.obs[i * 10..(i + 1) * 10], &f32s(&obs.value(r))[..], "row {r}");
+            assert_eq!(&b.batch.goal[i * 3..(i + 1) * 3], &f32s(&goal.value(r))[..], "row {r}");
+            // IS weights: (N·P(i))^−1 / max, with max at the least likely row.
+            assert!(b.weights[i] > 0.0 && b.weights[i] <= 1.0);
+            assert!((b.weights[i] as f64 - tree.is_weights(&[r], 1.0)[0] as f64).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn a_scored_table_with_changed_original_data_is_refused() {
+    let (dir, traj, scored) = scored();
+    // A copy of the scored table beside a different "reach.parquet".
+    let other = dir.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(scored, other.join("scored.parquet")).unwrap();
+    let rel = pgser::table::read_footer(scored).unwrap()["source"]["path"].as_str().unwrap().to_string();
+    let fake = other.join(&rel);
+    std::fs::create_dir_all(fake.parent().unwrap()).unwrap();
+    if fake.canonicalize().ok() != traj.canonicalize().ok() {
+        let out = etl()
+            .args(["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "2", "--seed", "0", "-o"])
+            .arg(&fake)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let out = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+            .args(["--data", other.join("scored.parquet").to_str().unwrap(), "-o"])
+            .arg(other.join("x.ckpt"))
+            .args(["--updates", "2", "--eval-episodes", "0"])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = text(&out.stderr);
+        assert!(err.contains("has changed since scoring"), "{err}");
+        assert!(!other.join("x.ckpt").exists());
+    }
+}
