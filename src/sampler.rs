@@ -106,38 +106,11 @@ pub fn sample(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::task::Task;
-    use crate::trajectory::{FloatType, Footer};
 
-    /// A synthetic table whose values encode where they are: obs/ag = episode·1000 + step,
-    /// so any value read back names its source row.
+    /// A table whose values say where they are (`Episodes::coded`); desired goals are reached
+    /// (equal to the next achieved goal) on even steps.
     fn table(n: usize) -> Episodes {
-        let task = Task::known("FetchReach").unwrap();
-        let t = task.t;
-        let code = |e: usize, s: usize| (e * 1000 + s) as f32;
-        let mut d = Episodes {
-            footer: Footer::new(&task, FloatType::Float32, n, "test".into()),
-            task: task.clone(),
-            n,
-            t,
-            obs: vec![],
-            ag: vec![],
-            g: vec![],
-            u: vec![],
-        };
-        for e in 0..n {
-            for s in 0..t {
-                d.obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
-                d.ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
-                if s + 1 < t {
-                    // Desired goal: reached (equal to the next achieved goal) on even steps.
-                    let g = if s % 2 == 0 { code(e, s + 1) } else { -1.0 };
-                    d.g.extend(std::iter::repeat_n(g, task.goal_dim));
-                    d.u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
-                }
-            }
-        }
-        d
+        Episodes::coded(0, n, |e, s| if s % 2 == 0 { (e * 1000 + s + 1) as f32 } else { -1.0 })
     }
 
     fn draw(cfg: &SamplerConfig, n: usize) -> (Episodes, Batch, Vec<(usize, usize, GoalSource)>) {

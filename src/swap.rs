@@ -126,34 +126,10 @@ pub fn swap_block(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trajectory::{FloatType, Footer};
 
-    /// Episodes whose values encode where they are: obs/ag = (first + e)·1000 + step.
+    /// Episodes whose values encode where they are (see `Episodes::coded`).
     fn block(first: usize, n: usize) -> Episodes {
-        let task = Task::known("FetchReach").unwrap();
-        let t = task.t;
-        let code = |e: usize, s: usize| ((first + e) * 1000 + s) as f32;
-        let mut d = Episodes {
-            footer: Footer::new(&task, FloatType::Float32, n, "test".into()),
-            task: task.clone(),
-            n,
-            t,
-            obs: vec![],
-            ag: vec![],
-            g: vec![],
-            u: vec![],
-        };
-        for e in 0..n {
-            for s in 0..t {
-                d.obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
-                d.ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
-                if s + 1 < t {
-                    d.g.extend(std::iter::repeat_n(-code(e, s), task.goal_dim));
-                    d.u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
-                }
-            }
-        }
-        d
+        Episodes::coded(first, n, |e, s| -(((e * 1000) + s) as f32))
     }
 
     #[test]

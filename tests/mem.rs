@@ -8,7 +8,6 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 use common::*;
-use pgser::agent::checkpoint;
 use pgser::sampler::priority::PriorityConfig;
 use pgser::sampler::scored::{BLOCK_BATCHES, ScoredSampler, ScoredTable};
 
@@ -82,11 +81,6 @@ fn the_mem_agent_learns_fetch_reach() {
     assert!(ret > -30.0, "mem agent return {ret}");
 }
 
-fn weights(path: &Path) -> Vec<Vec<f32>> {
-    let (agent, _) = checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
-    [&agent.actor, &agent.critic1, &agent.critic2].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
-}
-
 fn short(scored: &Path, ckpt: &Path, updates: &str, extra: &[&str]) {
     let mut args = vec![
         "--data",
@@ -117,10 +111,10 @@ fn disk_and_memory_sampling_train_the_same_agent_and_resume_exactly() {
     let (disk, mem, split) = (d.join("disk.ckpt"), d.join("inmem.ckpt"), d.join("split.ckpt"));
     short(scored, &disk, &n, &["--is-beta", "0.4"]);
     short(scored, &mem, &n, &["--is-beta", "0.4", "--aug-in-memory"]);
-    assert_eq!(weights(&disk), weights(&mem));
+    assert_eq!(checkpoint_weights(&disk), checkpoint_weights(&mem));
     short(scored, &split, &(BLOCK_BATCHES + 7).to_string(), &["--is-beta", "0.4"]);
     short(scored, &split, &n, &["--is-beta", "0.4", "--resume"]);
-    assert_eq!(weights(&disk), weights(&split));
+    assert_eq!(checkpoint_weights(&disk), checkpoint_weights(&split));
 }
 
 #[test]

@@ -308,3 +308,36 @@ pub(crate) fn append(
     }
     Ok(())
 }
+
+#[cfg(test)]
+impl Episodes {
+    /// A FetchReach-shaped test table whose values say where they are: obs and achieved goals of
+    /// (episode e, step s) are `(first + e)·1000 + s`, actions that over 10⁵, and desired goals
+    /// `desired(first + e, s)`. Any value read back names its source row.
+    pub fn coded(first: usize, n: usize, desired: impl Fn(usize, usize) -> f32) -> Episodes {
+        let task = Task::known("FetchReach").unwrap();
+        let t = task.t;
+        let code = |e: usize, s: usize| ((first + e) * 1000 + s) as f32;
+        let mut d = Episodes {
+            footer: Footer::new(&task, FloatType::Float32, n, "test".into()),
+            task: task.clone(),
+            n,
+            t,
+            obs: vec![],
+            ag: vec![],
+            g: vec![],
+            u: vec![],
+        };
+        for e in 0..n {
+            for s in 0..t {
+                d.obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
+                d.ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
+                if s + 1 < t {
+                    d.g.extend(std::iter::repeat_n(desired(first + e, s), task.goal_dim));
+                    d.u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
+                }
+            }
+        }
+        d
+    }
+}

@@ -92,3 +92,9 @@ pub fn read_table(path: &Path) -> (arrow_array::RecordBatch, usize) {
     let batches: Vec<_> = builder.build().unwrap().map(|b| b.unwrap()).collect();
     (arrow_select::concat::concat_batches(&schema, &batches).unwrap(), groups)
 }
+
+/// A checkpoint's online weights (actor, critic1, critic2), for comparing runs exactly.
+pub fn checkpoint_weights(path: &Path) -> Vec<Vec<f32>> {
+    let (agent, _) = pgser::agent::checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
+    [&agent.actor, &agent.critic1, &agent.critic2].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
+}
