@@ -333,8 +333,9 @@ def main(argv=None):
         print(f"  {trainer['updates_per_sec']:.1f} updates/s x {trainer['rows_per_update']} prioritized rows/update "
               f"(batch {TRAIN_BATCH}, --aug-ratio {AUG_RATIO}) = {trainer['rows_per_sec_needed']:.0f} rows/s needed")
         if "pgser_disk_times_needs" in trainer:
-            print(f"  disk sampler: {trainer['pgser_disk_times_needs']:.0f}x the trainer's needs"
-                  + (f"; in memory: {trainer['pgser_memory_times_needs']:.0f}x"
+            fmt = lambda x: f"{x:.0f}" if x >= 10 else f"{x:.2f}"  # noqa: E731
+            print(f"  disk sampler: {fmt(trainer['pgser_disk_times_needs'])}x the trainer's needs"
+                  + (f"; in memory: {fmt(trainer['pgser_memory_times_needs'])}x"
                      if "pgser_memory_times_needs" in trainer else ""))
     if failed:
         print(f"failed: {failed}")

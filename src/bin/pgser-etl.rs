@@ -117,9 +117,10 @@ enum Command {
         /// Where the critic runs.
         #[arg(long, value_enum, default_value = "cpu")]
         device: Backend,
-        /// Episodes per chunk: the unit of parallel work, of random streams and of row groups.
-        #[arg(long, default_value_t = score::DEFAULT_CHUNK_EPISODES)]
-        chunk_episodes: usize,
+        /// Episodes per chunk: the unit of parallel work, of random streams and of row groups
+        /// [default: as many as make about 32k rows].
+        #[arg(long)]
+        chunk_episodes: Option<usize>,
         /// Worker threads (0: RAYON_NUM_THREADS, else one per core). Does not change the output.
         #[arg(long, default_value_t = 0)]
         threads: usize,

@@ -43,10 +43,12 @@ pub const KIND: &str = "transition";
 /// transitions (≈ 490k rows for the paper's 2500-episode datasets): several candidate goals per
 /// transition for the priority sampler to choose among, at a few hundred MB at most.
 pub const DEFAULT_SWAPS: usize = 4;
-/// `--chunk-episodes` default: 64 × 49 transitions × 4 swaps ≈ 12.5k rows per chunk, six critic
-/// batches, enough work per rayon task to amortise it, while a window of 2 × threads chunks
-/// stays a few MB per thread.
-pub const DEFAULT_CHUNK_EPISODES: usize = 64;
+/// Target output rows per chunk when `--chunk-episodes` is not given: the chunk is the unit of
+/// parallel work and of output row groups, and its rows (episodes × (T − 1) × (K + originals))
+/// are what scoring holds in memory and what the prioritized sampler decodes per row group, so
+/// it is sized in rows, not episodes: with K = 280 swaps a fixed 64 episodes made 880k-row
+/// chunks and 2 GB of memory.
+pub const CHUNK_ROWS: usize = 32_768;
 /// Rows per critic call. On burn's flex CPU backend 2048 was the fastest batch for FetchPush
 /// dims (≈ 320k rows/s; 4096 halves it: the activations fall out of cache), SPEC §4.4.
 pub const Q_BATCH: usize = 2048;
@@ -159,7 +161,8 @@ pub struct ScoreOptions {
     pub seed: u64,
     pub include_original: bool,
     pub device: Backend,
-    pub chunk_episodes: usize,
+    /// None: as many episodes as fit `CHUNK_ROWS` rows (at least one).
+    pub chunk_episodes: Option<usize>,
     /// Worker threads; 0: rayon's default (`RAYON_NUM_THREADS`, else one per core).
     pub threads: usize,
     pub command: String,
@@ -198,7 +201,7 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
     if o.swaps == 0 && !o.include_original {
         bail!("{}: --swaps 0 without --include-original leaves no rows to write", o.output.display());
     }
-    if o.chunk_episodes == 0 {
+    if o.chunk_episodes == Some(0) {
         bail!("--chunk-episodes must be at least 1");
     }
     check_not_an_input(&o.output, &[o.data.clone(), o.checkpoint.clone()])?;
@@ -209,6 +212,7 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
     let pool = read::goal_pool(&o.data)?;
     let transitions = table.episodes * (table.t - 1);
     let per = o.swaps + o.include_original as usize;
+    let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
     let schema = schema(&task);
     bar.set_length(transitions as u64);
 
@@ -217,7 +221,7 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
     let window = 2 * threads;
     let mut q = stats::QAccumulator::new(agent.config.gamma);
     let mut rows = 0;
-    let blocks = read::Blocks::open(&o.data, o.chunk_episodes, o.include_original)?;
+    let blocks = read::Blocks::open(&o.data, chunk_episodes, o.include_original)?;
     std::thread::scope(|s| -> Result<()> {
         // The reader runs ahead by one window, overlapping decoding with scoring.
         let (tx, rx) = sync_channel(window);
@@ -274,7 +278,7 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
         seed: o.seed,
         swaps: o.swaps,
         include_original: o.include_original,
-        chunk_episodes: o.chunk_episodes,
+        chunk_episodes,
         q: q.clone(),
         command: o.command.clone(),
         pgser_version: env!("CARGO_PKG_VERSION").to_string(),
