@@ -75,6 +75,7 @@ bench: build venv
 	$(MAKE) bench-venv
 	$(PY) bench/bench_train.py --python $(BENCH_PY) --json bench-out/train.json
 	$(PY) bench/bench_sampler.py --python $(BENCH_PY) --json bench-out/sampler.json
+	$(PY) bench/bench_score.py --python $(BENCH_PY) --threads 2 --swaps 4 --repeat 3 --json bench-out/score.json
 
 # The benchmark peers' interpreter: PyTorch (a large download), cpprb, pyarrow. Kept apart from
 # the test venv so `make test` never downloads torch.

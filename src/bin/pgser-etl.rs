@@ -118,7 +118,7 @@ enum Command {
         #[arg(long, value_enum, default_value = "cpu")]
         device: Backend,
         /// Episodes per chunk: the unit of parallel work, of random streams and of row groups
-        /// [default: as many as make about 32k rows].
+        /// [default: as many as make about 12.5k rows].
         #[arg(long)]
         chunk_episodes: Option<usize>,
         /// Worker threads (0: RAYON_NUM_THREADS, else one per core). Does not change the output.
