@@ -150,18 +150,28 @@ impl Mlp {
         x
     }
 
+    /// A network of the same shapes whose weights are `w(weight)` and biases `b(bias)`.
+    fn map(&self, w: impl Fn(Tensor<2>) -> Tensor<2>, b: impl Fn(Tensor<1>) -> Tensor<1>) -> Mlp {
+        let layer = |l: &Dense| Dense {
+            weight: Param::from_tensor(w(l.weight.val())),
+            bias: Param::from_tensor(b(l.bias.val())),
+        };
+        Mlp { layers: self.layers.iter().map(layer).collect() }
+    }
+
     /// A copy whose parameters are fresh autodiff leaves, for one backward pass.
     pub fn tracked(&self) -> Mlp {
-        let leaf2 = |p: &Param<Tensor<2>>| Param::from_tensor(p.val().autodiff().require_grad());
-        let leaf1 = |p: &Param<Tensor<1>>| Param::from_tensor(p.val().autodiff().require_grad());
-        Mlp { layers: self.layers.iter().map(|l| Dense { weight: leaf2(&l.weight), bias: leaf1(&l.bias) }).collect() }
+        self.map(|t| t.autodiff().require_grad(), |t| t.autodiff().require_grad())
     }
 
     /// A detached copy (the tensors are shared, not copied: burn tensors are immutable handles).
     pub fn copy(&self) -> Mlp {
-        let p2 = |p: &Param<Tensor<2>>| Param::from_tensor(p.val());
-        let p1 = |p: &Param<Tensor<1>>| Param::from_tensor(p.val());
-        Mlp { layers: self.layers.iter().map(|l| Dense { weight: p2(&l.weight), bias: p1(&l.bias) }).collect() }
+        self.map(|t| t, |t| t)
+    }
+
+    /// A network of the same shapes with every parameter zero (Adam's initial moments).
+    pub fn zeros_like(&self) -> Mlp {
+        self.map(|t| t.zeros_like(), |t| t.zeros_like())
     }
 
     /// Parameters in a fixed order (w0, b0, w1, b1, ...) as flat f32 with their `[in, out]` /

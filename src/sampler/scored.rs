@@ -21,7 +21,9 @@ use arrow_array::RecordBatch;
 use arrow_array::cast::AsArray;
 use arrow_array::types::Float32Type;
 use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
+use parquet::arrow::arrow_reader::{
+    ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
+};
 use rayon::prelude::*;
 
 use super::priority::{PriorityConfig, SumTree};
@@ -45,6 +47,9 @@ pub struct ScoredTable {
     pub rows: usize,
     /// First row of each row group, plus the total at the end.
     pub group_starts: Vec<usize>,
+    /// The Parquet metadata, parsed once: every block reads many row groups, and re-parsing the
+    /// footer of a large file per row group would cost as much as the reads.
+    metadata: ArrowReaderMetadata,
 }
 
 impl ScoredTable {
@@ -52,10 +57,10 @@ impl ScoredTable {
         let at = path.display();
         let footer = crate::score::read_footer(path)?;
         let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
-        let builder =
-            ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+        let metadata = ArrowReaderMetadata::load(&file, ArrowReaderOptions::default())
+            .with_context(|| format!("{at}: not a Parquet file"))?;
         let mut group_starts = vec![0usize];
-        for rg in builder.metadata().row_groups() {
+        for rg in metadata.metadata().row_groups() {
             group_starts.push(group_starts.last().unwrap() + rg.num_rows() as usize);
         }
         let rows = *group_starts.last().unwrap();
@@ -69,6 +74,7 @@ impl ScoredTable {
             footer,
             rows,
             group_starts,
+            metadata,
         })
     }
 
@@ -79,7 +85,7 @@ impl ScoredTable {
 
     fn builder(&self) -> Result<ParquetRecordBatchReaderBuilder<File>> {
         let file = File::open(&self.path).with_context(|| format!("{}: cannot open", self.path.display()))?;
-        Ok(ParquetRecordBatchReaderBuilder::try_new(file)?)
+        Ok(ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone()))
     }
 
     /// The `q` column, streamed.

@@ -3,59 +3,26 @@
 //! a whole table (the same functions), so a bad table fails with the row named, not as a wrong
 //! score. Memory is one block and one Parquet row group of the projected columns at a time.
 
-use std::fs::File;
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use arrow_array::RecordBatch;
-use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
+use parquet::arrow::arrow_reader::ParquetRecordBatchReader;
 
 use crate::swap::GoalPool;
 use crate::trajectory::Episodes;
 use crate::trajectory::Footer;
-use crate::trajectory::read::{append, check_keys, check_schema, trajectory_footer};
+use crate::trajectory::read::{append, check_all_read, check_keys, open_checked, rows_read_error};
 
 /// The footer of a trajectory table, checked against the file's row count and column types.
 pub fn footer(path: &Path) -> Result<Footer> {
-    Ok(open(path, &[], 1)?.0)
-}
-
-/// Open `path` as a trajectory table, reading `columns` (plus episode and step) in batches of
-/// `batch_episodes` episodes. Errors are one line naming the file.
-fn open(path: &Path, columns: &[&str], batch_episodes: usize) -> Result<(Footer, ParquetRecordBatchReader)> {
-    let at = path.display().to_string();
-    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
-    let builder =
-        ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
-    let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
-    let file_rows = builder.metadata().file_metadata().num_rows();
-    if usize::try_from(file_rows).ok() != Some(footer.rows) {
-        bail!(
-            "{at}: the file holds {file_rows} rows but its footer says {} ({} episodes × T = {})",
-            footer.rows,
-            footer.episodes,
-            footer.t
-        );
-    }
-    let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
-    // episode, step, obs, achieved_goal, desired_goal, action: all checked, some read.
-    let indices = check_schema(&at, builder.schema(), &footer, dims)?;
-    let names = ["episode", "step", "obs", "achieved_goal", "desired_goal", "action"];
-    let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
-    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i));
-    let reader = builder
-        .with_projection(mask)
-        .with_batch_size(batch_episodes.max(1).saturating_mul(footer.t))
-        .build()
-        .with_context(|| format!("{at}: cannot read"))?;
-    Ok((footer, reader))
+    Ok(open_checked(path, &[], 1)?.0)
 }
 
 /// Every achieved goal of the table, read as a stream of the `achieved_goal` column alone.
 pub fn goal_pool(path: &Path) -> Result<GoalPool> {
     let at = path.display().to_string();
-    let (f, reader) = open(path, &["achieved_goal"], 1024)?;
+    let (f, reader) = open_checked(path, &["achieved_goal"], 1024)?;
     let mut ag = Vec::with_capacity(f.rows.saturating_mul(f.goal_dim).min(1 << 26));
     let mut row = 0;
     for batch in reader {
@@ -65,9 +32,7 @@ pub fn goal_pool(path: &Path) -> Result<GoalPool> {
         append(&mut ag, col, "achieved_goal", f.goal_dim, false, row, f.t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
         row += batch.num_rows();
     }
-    if row != f.rows {
-        bail!("{at}: {row} rows read but the footer says {} ({} episodes × T = {})", f.rows, f.episodes, f.t);
-    }
+    check_all_read(&at, row, &f)?;
     Ok(GoalPool { n: f.episodes, t: f.t, goal_dim: f.goal_dim, ag })
 }
 
@@ -93,7 +58,7 @@ impl Blocks {
             columns.push("desired_goal");
         }
         // Batches of one block: blocks are then cut from whole batches, not pieced together.
-        let (footer, reader) = open(path, &columns, per_block)?;
+        let (footer, reader) = open_checked(path, &columns, per_block)?;
         Ok(Blocks {
             at: path.display().to_string(),
             footer,
@@ -132,12 +97,7 @@ impl Blocks {
                 Some(b) => b,
                 None => match self.reader.next() {
                     Some(b) => b.with_context(|| format!("{at}: cannot read the rows after row {}", self.row))?,
-                    None => bail!(
-                        "{at}: {} rows read but the footer says {} ({} episodes × T = {t})",
-                        self.row,
-                        f.rows,
-                        f.episodes
-                    ),
+                    None => return Err(rows_read_error(at, self.row, f)),
                 },
             };
             let take = batch.num_rows().min(end_row - self.row);

@@ -18,7 +18,7 @@ use arrow_array::types::{Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow_array::{Array, ArrayRef, RecordBatch};
 use arrow_schema::{DataType, Schema};
 use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
 
 use super::{FloatType, Footer, KIND};
 use crate::table::{FOOTER_KEY, SCHEMA_VERSION};
@@ -65,23 +65,9 @@ impl Episodes {
     /// Read and check a whole trajectory table; errors are one line naming the file and where.
     pub fn load(path: &Path) -> Result<Episodes> {
         let at = path.display().to_string();
-        let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
-        let builder =
-            ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
-        let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
+        let (footer, reader) = open_checked(path, &VECTORS, BATCH_EPISODES)?;
         let (n, t) = (footer.episodes, footer.t);
-        let file_rows = builder.metadata().file_metadata().num_rows();
-        if usize::try_from(file_rows).ok() != Some(footer.rows) {
-            bail!("{at}: the file holds {file_rows} rows but its footer says {} ({n} episodes × T = {t})", footer.rows);
-        }
         let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
-        let indices = check_schema(&at, builder.schema(), &footer, dims)?;
-        let mask = ProjectionMask::roots(builder.parquet_schema(), indices);
-        let reader = builder
-            .with_projection(mask)
-            .with_batch_size(BATCH_EPISODES.saturating_mul(t))
-            .build()
-            .with_context(|| format!("{at}: cannot read"))?;
 
         let steps = [t, t, t - 1, t - 1];
         let mut out: [Vec<f32>; 4] = std::array::from_fn(|k| {
@@ -97,9 +83,7 @@ impl Episodes {
             }
             row += batch.num_rows();
         }
-        if row != footer.rows {
-            bail!("{at}: {row} rows read but the footer says {} ({n} episodes × T = {t})", footer.rows);
-        }
+        check_all_read(&at, row, &footer)?;
         let [obs, ag, g, u] = out;
         Ok(Episodes { task: footer.task(), footer, n, t, obs, ag, g, u })
     }
@@ -143,8 +127,53 @@ impl Episodes {
     }
 }
 
+/// Opens `path` as a trajectory table: footer, row count and all six columns checked, `columns`
+/// (plus episode and step, always) projected, batches of `batch_episodes` whole episodes.
+/// Both the in-memory load and `score`'s streaming reader start here.
+pub(crate) fn open_checked(
+    path: &Path,
+    columns: &[&str],
+    batch_episodes: usize,
+) -> Result<(Footer, ParquetRecordBatchReader)> {
+    let at = path.display().to_string();
+    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+    let builder =
+        ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+    let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
+    let file_rows = builder.metadata().file_metadata().num_rows();
+    if usize::try_from(file_rows).ok() != Some(footer.rows) {
+        bail!(
+            "{at}: the file holds {file_rows} rows but its footer says {} ({} episodes × T = {})",
+            footer.rows,
+            footer.episodes,
+            footer.t
+        );
+    }
+    let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
+    let indices = check_schema(&at, builder.schema(), &footer, dims)?;
+    let names = ["episode", "step"].into_iter().chain(VECTORS);
+    let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
+    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i));
+    let reader = builder
+        .with_projection(mask)
+        .with_batch_size(batch_episodes.max(1).saturating_mul(footer.t))
+        .build()
+        .with_context(|| format!("{at}: cannot read"))?;
+    Ok((footer, reader))
+}
+
+/// After the last batch: `rows` read must be what the footer promised.
+pub(crate) fn check_all_read(at: &str, rows: usize, f: &Footer) -> Result<()> {
+    if rows != f.rows { Err(rows_read_error(at, rows, f)) } else { Ok(()) }
+}
+
+/// The file ended (or ran on) at `rows` where the footer promised `f.rows`.
+pub(crate) fn rows_read_error(at: &str, rows: usize, f: &Footer) -> anyhow::Error {
+    anyhow::anyhow!("{at}: {rows} rows read but the footer says {} ({} episodes × T = {})", f.rows, f.episodes, f.t)
+}
+
 /// The `pgser` footer, required to be a trajectory footer that agrees with itself.
-pub(crate) fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
+fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
     let text = kv
         .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
         .and_then(|e| e.value.as_deref())
@@ -173,7 +202,7 @@ pub(crate) fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadat
 }
 
 /// Check the six columns' types against the footer; returns their root indices.
-pub(crate) fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Result<Vec<usize>> {
+fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Result<Vec<usize>> {
     let index = |name: &str| {
         schema.index_of(name).map_err(|_| {
             anyhow::anyhow!(
