@@ -8,6 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -103,12 +104,16 @@ pub fn metrics_path(out: &Path) -> PathBuf {
 /// Spawn key of the batch stream (the agent's streams use 1 and 2).
 const STREAM_BATCHES: u64 = 3;
 
+/// Trains on `data_path` (a trajectory table, or a scored table for the `-mem` variant) into
+/// the checkpoint `out`; `command` is recorded in the checkpoint (the CLI passes its command line,
+/// a pipeline its step name, so a re-run writes the same bytes however it was invoked).
 pub fn train(
     data_path: &Path,
     out: &Path,
     cfg: &TrainConfig,
     resume: bool,
     device: Device,
+    command: &str,
     bar: &ProgressBar,
 ) -> Result<Summary> {
     crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
@@ -119,10 +124,11 @@ pub fn train(
         Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(data_path)?),
         _ => None,
     };
-    let data = match &scored {
+    // Shared with the prioritized sampler's thread, which rebuilds scored rows from β.
+    let data = Arc::new(match &scored {
         Some(table) => original_data(table, cfg)?,
         None => Episodes::load(data_path)?,
-    };
+    });
     if data.t < 2 {
         bail!("{}: episodes of {} step(s) hold no transition", data_path.display(), data.t);
     }
@@ -131,7 +137,7 @@ pub fn train(
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
     extra.insert("data".to_string(), data_path.display().to_string());
     extra.insert("data_sha256".to_string(), data_sha.clone());
-    extra.insert("command".to_string(), crate::cli::command_line());
+    extra.insert("command".to_string(), command.to_string());
 
     let (mut agent, mut batches, mut metrics) = if resume {
         restore(out, cfg, &data_sha, device)?
@@ -166,7 +172,15 @@ pub fn train(
 
     let k_aug = if scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
     let mut aug = match scored {
-        Some(t) => Some(ScoredSampler::start(t, &cfg.priority, k_aug, cfg.seed, agent.updates, cfg.aug_in_memory)?),
+        Some(t) => Some(ScoredSampler::start(
+            t,
+            data.clone(),
+            &cfg.priority,
+            k_aug,
+            cfg.seed,
+            agent.updates,
+            cfg.aug_in_memory,
+        )?),
         None => None,
     };
 
@@ -250,6 +264,12 @@ fn original_data(table: &ScoredTable, cfg: &TrainConfig) -> Result<Episodes> {
     if !(0.0..=1.0).contains(&cfg.aug_ratio) {
         bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
     }
+    beta_of(table)
+}
+
+/// The trajectory table a scored table names, checked: present, unchanged, same task.
+pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
+    let at = table.path.display();
     let (path, sha) = table.trajectory();
     if !path.exists() {
         bail!(
@@ -424,7 +444,8 @@ pub fn bench_sampler(
     let t0 = Instant::now();
     let table = ScoredTable::open(path)?;
     let rows = table.rows;
-    let mut s = ScoredSampler::start(table, cfg, k, 0, 0, in_memory)?;
+    let beta = Arc::new(beta_of(&table)?);
+    let mut s = ScoredSampler::start(table, beta, cfg, k, 0, 0, in_memory)?;
     let first = s.next_batch()?; // the first block is ready: setup is over
     let setup_seconds = t0.elapsed().as_secs_f64();
     drop(first);

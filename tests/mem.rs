@@ -18,7 +18,8 @@ fn train(args: &[&str]) -> String {
 }
 
 /// The FetchReach sample as a table, a Q pre-trained on it with random swapping, and the
-/// table of 2 scored swaps per transition: made once for all tests here.
+/// table of 2 scored swaps per transition plus the transition with its own goal: made once for
+/// all tests here.
 fn scored() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
     static S: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
     S.get_or_init(|| {
@@ -47,7 +48,7 @@ fn scored() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
         let out = etl()
             .args(["score", "--q", q.to_str().unwrap(), "--data", traj.to_str().unwrap(), "-o"])
             .arg(&scored)
-            .args(["--swaps", "2", "--seed", "3"])
+            .args(["--swaps", "2", "--seed", "3", "--include-original"])
             .output()
             .unwrap();
         assert!(out.status.success(), "score: {}", text(&out.stderr));
@@ -121,27 +122,45 @@ fn disk_and_memory_sampling_train_the_same_agent_and_resume_exactly() {
 fn disk_batches_hold_the_rows_they_name() {
     let (_, _, scored) = scored();
     let cfg = PriorityConfig { is_beta: Some(1.0), ..PriorityConfig::default() };
-    let mut disk = ScoredSampler::start(ScoredTable::open(scored).unwrap(), &cfg, 64, 5, 0, false).unwrap();
+    let table = ScoredTable::open(scored).unwrap();
+    let beta = std::sync::Arc::new(pgser::train::beta_of(&table).unwrap());
+    let mut disk = ScoredSampler::start(table, beta, &cfg, 64, 5, 0, false).unwrap();
     // Batch row i must equal table row rows[i].
     let (t, _) = read_table(scored);
     let obs = t.column_by_name("obs").unwrap();
     let obs = arrow_array::cast::AsArray::as_fixed_size_list(obs);
-    let goal = arrow_array::cast::AsArray::as_fixed_size_list(t.column_by_name("goal").unwrap());
+    let list = |name: &str| arrow_array::cast::AsArray::as_fixed_size_list(t.column_by_name(name).unwrap()).clone();
+    let (goal, action, next_obs) = (list("goal"), list("action"), list("next_obs"));
+    let reward = arrow_array::cast::AsArray::as_primitive::<arrow_array::types::Float32Type>(
+        t.column_by_name("reward").unwrap(),
+    )
+    .clone();
     let f32s = |a: &arrow_array::ArrayRef| {
         arrow_array::cast::AsArray::as_primitive::<arrow_array::types::Float32Type>(a).values().to_vec()
     };
+    let goal_step = arrow_array::cast::AsArray::as_primitive::<arrow_array::types::Int32Type>(
+        t.column_by_name("goal_step").unwrap(),
+    )
+    .clone();
+    let mut originals = 0;
     let tree = disk.tree.clone();
     for _ in 0..3 {
         let b = disk.next_batch().unwrap();
         assert_eq!(b.rows.len(), 64);
         for (i, &r) in b.rows.iter().enumerate() {
             assert_eq!(&b.batch.obs[i * 10..(i + 1) * 10], &f32s(&obs.value(r))[..], "row {r}");
+            // Rebuilt from β by the row's keys: equal to what `score` wrote, bit for bit.
             assert_eq!(&b.batch.goal[i * 3..(i + 1) * 3], &f32s(&goal.value(r))[..], "row {r}");
+            assert_eq!(&b.batch.action[i * 4..(i + 1) * 4], &f32s(&action.value(r))[..], "row {r}");
+            assert_eq!(&b.batch.next_obs[i * 10..(i + 1) * 10], &f32s(&next_obs.value(r))[..], "row {r}");
+            assert_eq!(b.batch.reward[i].to_bits(), reward.value(r).to_bits(), "row {r}");
+            originals += (goal_step.value(r) == -1) as usize;
             // IS weights: (N·P(i))^−1 / max, with max at the least likely row.
             assert!(b.weights[i] > 0.0 && b.weights[i] <= 1.0);
             assert!((b.weights[i] as f64 - tree.is_weights(&[r], 1.0)[0] as f64).abs() < 1e-6);
         }
     }
+    assert!(originals > 0, "no row with its own desired goal was drawn");
 }
 
 #[test]

@@ -179,7 +179,7 @@ fn main() -> ExitCode {
             None => {
                 let (data, out) = (args.data.expect("required"), args.output.expect("required"));
                 let bar = progress::bar("training", "updates");
-                let s = train::train(&data, &out, &args.config, args.resume, device, &bar)?;
+                let s = train::train(&data, &out, &args.config, args.resume, device, &cli::command_line(), &bar)?;
                 if let Some(e) = &s.eval {
                     eprintln!(
                         "{}: {} updates ({:.1}/s); eval over {} episodes: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",

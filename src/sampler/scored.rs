@@ -9,6 +9,14 @@
 //! so reading keeps ahead of training while memory stays at two blocks, whatever the file size.
 //! In memory (`--aug-in-memory`) the same draws are served from arrays, so both modes give the
 //! same batches for the same seed.
+//!
+//! A row is read as its four keys only — (episode, step) of the transition and (goal_episode,
+//! goal_step) of its goal — and rebuilt from the original data β, which the trainer holds in
+//! memory anyway: s, a, s′ from the transition, g from the achieved goal it names (its own
+//! desired goal when goal_step = −1), r = R(φ(s′), g) with the task's reward. Those are the very
+//! values `score` wrote (same float32 casts, same reward function; `tests/mem.rs` checks it),
+//! at 24 bytes of integers per row to decode instead of 232 of floats: the disk reads of a
+//! block are an order of magnitude cheaper, and `--aug-in-memory` holds 16 bytes a row.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -19,7 +27,7 @@ use std::thread::JoinHandle;
 use anyhow::{Context, Result, bail};
 use arrow_array::RecordBatch;
 use arrow_array::cast::AsArray;
-use arrow_array::types::Float32Type;
+use arrow_array::types::{Float32Type, Int32Type, Int64Type};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{
     ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
@@ -30,13 +38,24 @@ use super::priority::{PriorityConfig, SumTree};
 use crate::agent::Batch;
 use crate::env::rng::NpRandom;
 use crate::task::Task;
+use crate::trajectory::Episodes;
 
 /// Batches per block: one read of the file serves this many batches.
 pub const BLOCK_BATCHES: usize = 256;
 /// Spawn key of the prioritized draws (the agent and β's sampler use 1–3).
 const STREAM_AUG: u64 = 4;
-/// The columns a training row needs, in `Batch` order.
-const COLUMNS: [&str; 5] = ["obs", "goal", "action", "reward", "next_obs"];
+/// The columns that name a row's transition and goal.
+const COLUMNS: [&str; 4] = ["episode", "step", "goal_episode", "goal_step"];
+
+/// Where a scored row's transition and goal are in β.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowKey {
+    pub episode: u32,
+    pub step: u32,
+    pub goal_episode: u32,
+    /// −1: the transition's own desired goal (`--include-original`).
+    pub goal_step: i32,
+}
 
 /// A scored transition table: its footer and the shape of its row groups.
 pub struct ScoredTable {
@@ -109,8 +128,9 @@ impl ScoredTable {
         Ok(q)
     }
 
-    /// The training columns of `rows` (sorted, unique, within row group `rg`), in that order.
-    fn read_rows(&self, rg: usize, rows: &[usize]) -> Result<Batch> {
+    /// The keys of `rows` (sorted, unique, within row group `rg`), in that order, checked
+    /// against β's shape so a row can never index outside it.
+    fn read_rows(&self, rg: usize, rows: &[usize], beta: &Episodes) -> Result<Vec<RowKey>> {
         let b = self.builder()?;
         let mask = ProjectionMask::columns(b.parquet_schema(), COLUMNS);
         let start = self.group_starts[rg];
@@ -129,35 +149,63 @@ impl ScoredTable {
             b = b.with_row_selection(RowSelection::from(selectors));
         }
         let reader = b.build()?;
-        let mut out = Batch::default();
+        let mut out = Vec::with_capacity(rows.len());
         for batch in reader {
             let batch = batch.with_context(|| format!("{}: row group {rg}: read failed", self.path.display()))?;
-            append(&self.path, &batch, &mut out)?;
+            append_keys(&self.path, &batch, beta, rows, &mut out)?;
         }
         Ok(out)
     }
 }
 
-/// Appends a record batch's training columns to `out` (as f32 slices; the table is float32).
-fn append(path: &Path, batch: &RecordBatch, out: &mut Batch) -> Result<()> {
-    let floats = |name: &str| -> Result<Vec<f32>> {
-        let col = batch.column_by_name(name).with_context(|| format!("{}: no column {name}", path.display()))?;
-        let values = match col.as_fixed_size_list_opt() {
-            Some(list) => list.values().clone(),
-            None => col.clone(),
-        };
-        let v = values
-            .as_primitive_opt::<Float32Type>()
-            .with_context(|| format!("{}: column {name} is not float32", path.display()))?;
-        Ok(v.values().to_vec())
+/// Appends a record batch's row keys to `out`; `rows` are the table rows being read (for errors).
+fn append_keys(path: &Path, batch: &RecordBatch, beta: &Episodes, rows: &[usize], out: &mut Vec<RowKey>) -> Result<()> {
+    let at = path.display();
+    let col = |name: &str| batch.column_by_name(name).with_context(|| format!("{at}: no column {name}"));
+    let (ep, st) = (col("episode")?.as_primitive_opt::<Int64Type>(), col("step")?.as_primitive_opt::<Int32Type>());
+    let (gep, gst) =
+        (col("goal_episode")?.as_primitive_opt::<Int64Type>(), col("goal_step")?.as_primitive_opt::<Int32Type>());
+    let (Some(ep), Some(st), Some(gep), Some(gst)) = (ep, st, gep, gst) else {
+        bail!("{at}: episode/goal_episode must be int64 and step/goal_step int32");
     };
-    out.obs.extend(floats("obs")?);
-    out.goal.extend(floats("goal")?);
-    out.action.extend(floats("action")?);
-    out.reward.extend(floats("reward")?);
-    out.next_obs.extend(floats("next_obs")?);
-    out.n += batch.num_rows();
+    for i in 0..batch.num_rows() {
+        let (e, s, ge, gs) = (ep.value(i), st.value(i), gep.value(i), gst.value(i));
+        let ok = (0..beta.n as i64).contains(&e)
+            && (0..beta.t as i32 - 1).contains(&s)
+            && (0..beta.n as i64).contains(&ge)
+            && (-1..beta.t as i32).contains(&gs);
+        if !ok {
+            let row = rows.get(out.len()).copied().unwrap_or_default();
+            bail!(
+                "{at}: row {row}: (episode {e}, step {s}, goal_episode {ge}, goal_step {gs}) is outside its original data ({} episodes of {} steps)",
+                beta.n,
+                beta.t
+            );
+        }
+        out.push(RowKey { episode: e as u32, step: s as u32, goal_episode: ge as u32, goal_step: gs });
+    }
     Ok(())
+}
+
+/// The training rows of `keys` (in that order), rebuilt from β.
+pub fn gather(beta: &Episodes, keys: impl Iterator<Item = RowKey>) -> Batch {
+    let mut b = Batch::default();
+    let mut next_ag = Vec::new();
+    for k in keys {
+        let (e, s) = (k.episode as usize, k.step as usize);
+        b.obs.extend_from_slice(beta.obs(e, s));
+        b.action.extend_from_slice(beta.action(e, s));
+        b.next_obs.extend_from_slice(beta.obs(e, s + 1));
+        next_ag.extend_from_slice(beta.ag(e, s + 1));
+        match k.goal_step {
+            -1 => b.goal.extend_from_slice(beta.goal(e, s)),
+            g => b.goal.extend_from_slice(beta.ag(k.goal_episode as usize, g as usize)),
+        }
+        b.n += 1;
+    }
+    b.reward = vec![0.0; b.n];
+    beta.task.rewards(&next_ag, &b.goal, &mut b.reward);
+    b
 }
 
 /// A batch of prioritized rows with their importance weights (all 1 without `--is-beta`).
@@ -174,10 +222,10 @@ pub struct ScoredSampler {
     pub tree: Arc<SumTree>,
 }
 
-/// Where rows come from.
+/// Where row keys come from.
 enum Rows {
-    Memory(Batch),
-    Disk(Arc<ScoredTable>),
+    Memory(Vec<RowKey>),
+    Disk(ScoredTable),
 }
 
 impl ScoredSampler {
@@ -185,6 +233,7 @@ impl ScoredSampler {
     /// the updates already done, and gets the batches an uninterrupted run would have had).
     pub fn start(
         table: ScoredTable,
+        beta: Arc<Episodes>,
         cfg: &PriorityConfig,
         k: usize,
         seed: u64,
@@ -195,22 +244,21 @@ impl ScoredSampler {
         let tree = Arc::new(SumTree::new(&cfg.priorities(&q, table.gamma)));
         drop(q);
         let rows = if in_memory {
-            let mut all = Batch::default();
+            let mut all = Vec::with_capacity(table.rows);
             for rg in 0..table.group_starts.len() - 1 {
                 let rows: Vec<usize> = (table.group_starts[rg]..table.group_starts[rg + 1]).collect();
-                let part = table.read_rows(rg, &rows)?;
-                all.append(&part);
+                all.extend(table.read_rows(rg, &rows, &beta)?);
             }
             Rows::Memory(all)
         } else {
-            Rows::Disk(Arc::new(table))
+            Rows::Disk(table)
         };
         let (tx, rx) = sync_channel(2 * BLOCK_BATCHES);
         let is_beta = cfg.is_beta;
         let t = tree.clone();
         let worker = std::thread::Builder::new()
             .name("pgser-aug-sampler".into())
-            .spawn(move || produce(&rows, &t, k, seed, first, is_beta, &tx))
+            .spawn(move || produce(&rows, &beta, &t, k, seed, first, is_beta, &tx))
             .context("cannot start the sampler thread")?;
         Ok(ScoredSampler { rx, worker: Some(worker), tree })
     }
@@ -235,8 +283,10 @@ impl Drop for ScoredSampler {
 }
 
 /// The worker: block after block until the trainer hangs up.
+#[allow(clippy::too_many_arguments)]
 fn produce(
     rows: &Rows,
+    beta: &Episodes,
     tree: &SumTree,
     k: usize,
     seed: u64,
@@ -247,7 +297,7 @@ fn produce(
     let mut block = first / BLOCK_BATCHES as u64;
     let mut skip = (first % BLOCK_BATCHES as u64) as usize;
     loop {
-        let batches = match draw_block(rows, tree, k, seed, block, is_beta) {
+        let batches = match draw_block(rows, beta, tree, k, seed, block, is_beta) {
             Ok(b) => b,
             Err(e) => {
                 let _ = tx.send(Err(e));
@@ -267,6 +317,7 @@ fn produce(
 /// Draws block `block`'s `BLOCK_BATCHES` batches and fetches their rows.
 fn draw_block(
     rows: &Rows,
+    beta: &Episodes,
     tree: &SumTree,
     k: usize,
     seed: u64,
@@ -281,8 +332,8 @@ fn draw_block(
         drawn.push(buf.clone());
     }
     let fetched = match rows {
-        Rows::Memory(all) => drawn.iter().map(|rows| gather(all, rows.iter().copied())).collect(),
-        Rows::Disk(table) => fetch(table, &drawn)?,
+        Rows::Memory(all) => drawn.iter().map(|rows| gather(beta, rows.iter().map(|&r| all[r]))).collect(),
+        Rows::Disk(table) => fetch(table, beta, &drawn)?,
     };
     Ok(drawn
         .into_iter()
@@ -297,24 +348,8 @@ fn draw_block(
         .collect())
 }
 
-/// Copies rows of `all` (in the given order) into a new batch.
-fn gather(all: &Batch, rows: impl Iterator<Item = usize>) -> Batch {
-    let (od, gd) = (all.obs.len() / all.n, all.goal.len() / all.n);
-    let ad = all.action.len() / all.n;
-    let mut b = Batch::default();
-    for r in rows {
-        b.obs.extend_from_slice(&all.obs[r * od..(r + 1) * od]);
-        b.goal.extend_from_slice(&all.goal[r * gd..(r + 1) * gd]);
-        b.action.extend_from_slice(&all.action[r * ad..(r + 1) * ad]);
-        b.reward.push(all.reward[r]);
-        b.next_obs.extend_from_slice(&all.next_obs[r * od..(r + 1) * od]);
-        b.n += 1;
-    }
-    b
-}
-
 /// Reads every row a block needs, one pass over the row groups that hold any (in parallel).
-fn fetch(table: &ScoredTable, drawn: &[Vec<usize>]) -> Result<Vec<Batch>> {
+fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<Vec<Batch>> {
     let mut wanted: Vec<usize> = drawn.iter().flatten().copied().collect();
     wanted.sort_unstable();
     wanted.dedup();
@@ -327,17 +362,17 @@ fn fetch(table: &ScoredTable, drawn: &[Vec<usize>]) -> Result<Vec<Batch>> {
             _ => groups.push((rg, vec![r])),
         }
     }
-    let parts: Vec<(Vec<usize>, Batch)> = groups
+    let parts: Vec<(Vec<usize>, Vec<RowKey>)> = groups
         .into_par_iter()
-        .map(|(rg, rows)| table.read_rows(rg, &rows).map(|b| (rows, b)))
+        .map(|(rg, rows)| table.read_rows(rg, &rows, beta).map(|k| (rows, k)))
         .collect::<Result<_>>()?;
-    // The fetched rows, concatenated in row order, and each row's position among them.
-    let mut all = Batch::default();
+    // The fetched rows' keys in row order, and each row's position among them.
+    let mut keys = Vec::new();
     let mut order = Vec::new();
-    for (rows, b) in parts {
+    for (rows, k) in parts {
         order.extend(rows);
-        all.append(&b);
+        keys.extend(k);
     }
-    let position = |r: usize| order.binary_search(&r).expect("every drawn row was fetched");
-    Ok(drawn.iter().map(|rows| gather(&all, rows.iter().map(|&r| position(r)))).collect())
+    let key = |r: usize| keys[order.binary_search(&r).expect("every drawn row was fetched")];
+    Ok(drawn.par_iter().map(|rows| gather(beta, rows.iter().map(|&r| key(r)))).collect())
 }
