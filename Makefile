@@ -52,22 +52,12 @@ build: deps
 test: deps venv
 	$(CARGO) test --release
 
-# PGSER on the FetchReach sample, with small update counts: the data, the baseline and -swap
-# TD3+BC agents, the pre-trained Q, the scored swaps, and the -mem agent; each agent is
-# evaluated on 50 episodes. (The declarative pipelines of pipelines/ will replace this list.)
-DEMO_UPDATES ?= 2000
-DEMO_TRAIN = ./target/release/pgser-train --updates $(DEMO_UPDATES) --eval-every 0 --eval-episodes 50 --seed 0
+# PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
+# the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and
+# the results table with Welch's t-tests. A second `make demo` reruns only what changed.
 demo: build
-	@mkdir -p out
-	./target/release/pgser-etl convert data/fetch_reach_expert_50.pkl data/fetch_reach_random_200.pkl \
-	  -o out/demo_traj.parquet --task FetchReach
-	./target/release/pgser-etl inspect out/demo_traj.parquet
-	$(DEMO_TRAIN) --data out/demo_traj.parquet --algo td3bc --swap none -o out/demo_baseline.ckpt
-	$(DEMO_TRAIN) --data out/demo_traj.parquet --algo td3bc --swap random -o out/demo_swap.ckpt
-	./target/release/pgser-etl score --q out/demo_swap.ckpt --data out/demo_traj.parquet -o out/demo_scored.parquet --swaps 4
-	$(DEMO_TRAIN) --data out/demo_scored.parquet --algo td3bc -o out/demo_mem.ckpt
-	./target/release/pgser-train eval --random --task FetchReach --episodes 50
-	@for v in baseline swap mem; do ./target/release/pgser-train eval --ckpt out/demo_$$v.ckpt --episodes 50; done
+	./target/release/pgser-etl pipeline run pipelines/demo.toml
+	@./target/release/pgser-train eval --random --task FetchReach --episodes 50 | sed 's/^/for scale: /'
 
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json

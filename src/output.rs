@@ -25,9 +25,14 @@ impl AtomicFile {
         if dest.is_dir() {
             bail!("{}: output path is a folder", dest.display());
         }
-        let tmp = tempfile::Builder::new()
-            .prefix(&format!(".{}.", name.to_string_lossy()))
-            .suffix(".tmp")
+        let prefix = format!(".{}.", name.to_string_lossy());
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".tmp");
+        // Temporary files are private (0600); a finished output is an ordinary file that the
+        // group and others may read, as `cp` or Python's `open` would leave it.
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644));
+        let tmp = builder
             .tempfile_in(&dir)
             .with_context(|| format!("{}: cannot create a temporary file in {}", dest.display(), dir.display()))?;
         Ok(Self { tmp, dest: dest.to_path_buf() })

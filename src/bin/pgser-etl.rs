@@ -6,14 +6,15 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
 use pgser::env::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, inspect, progress, score, trajectory};
+use anyhow::Context;
+use pgser::{cli, collect, inspect, pipeline, progress, report, score, trajectory};
 
 #[derive(Parser)]
 #[command(
     name = "pgser-etl",
     version,
     long_version = pgser::cli::LONG_VERSION.as_str(),
-    about = "pgser data jobs: convert, collect, inspect, score"
+    about = "pgser data jobs: convert, collect, inspect, score, report"
 )]
 struct Args {
     #[command(subcommand)]
@@ -128,6 +129,38 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Run an experiment file of pipelines/: data, Q pre-training, scoring, report, agents, results.
+    #[command(subcommand)]
+    Pipeline(PipelineCommand),
+    /// Fig. 5 and Table 1: how well the scoring critic's Q separates own goals from swapped ones.
+    #[command(after_help = "Examples:\n  pgser-etl report scored.parquet -o report/\n  \
+        pgser-etl report scored.parquet -o report/ --positive-episodes 500 --seed 1 --json\n\n\
+        Positives: the transitions of the first N episodes of the scored table's source with their own goals, \
+        scored with the checkpoint its footer names (N defaults to the episodes taken from the first source \
+        file, the expert one in `convert expert.pkl random.pkl`). Negatives: as many goal-swapped rows of the \
+        table. Writes DIR/fig5_q_hist.png, DIR/table1.md and DIR/table1.json.")]
+    Report {
+        /// A transition table from `pgser-etl score`.
+        scored: PathBuf,
+        /// Output folder (created if missing).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Positives come from the first N episodes of the source trajectory table.
+        #[arg(long)]
+        positive_episodes: Option<usize>,
+        /// Seed of the subsamples and of the train/test split.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// At most this many samples per class.
+        #[arg(long, default_value_t = 20_000)]
+        max_samples: usize,
+        /// At most this many training rows for the SVC (its training time grows as n² or faster).
+        #[arg(long, default_value_t = 2_000)]
+        svm_max_train: usize,
+        /// Print the report as JSON instead of the markdown table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Show a table's schema, footer, counts, success rate and column statistics.
     #[command(after_help = "Example:\n  pgser-etl inspect traj.parquet --per-dim")]
     Inspect {
@@ -136,6 +169,36 @@ enum Command {
         #[arg(long)]
         per_dim: bool,
         /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum PipelineCommand {
+    /// Run the steps of a pipeline file in order, skipping those already up to date.
+    #[command(after_help = "Examples:\n  pgser-etl pipeline run pipelines/demo.toml\n  \
+        pgser-etl pipeline run pipelines/fetch_push.toml --until score     # data and scored swaps only\n  \
+        pgser-etl pipeline run pipelines/fetch_push.toml --dry-run         # what would run\n\n\
+        A step is skipped when its record in OUT/.pipeline/ matches the sha256 of its parameters and\n\
+        inputs and its outputs are unchanged; rerun after a crash or an edit and only what changed runs\n\
+        (an interrupted training step continues from its last checkpoint).")]
+    Run {
+        /// The pipeline file (TOML; paths in it are relative to its folder).
+        file: PathBuf,
+        /// Stop after this step (names as printed, e.g. `score`, `report`, `agent td3bc_mem_s0`).
+        #[arg(long)]
+        until: Option<String>,
+        /// Print which steps are up to date and which would run, and run nothing.
+        #[arg(long)]
+        dry_run: bool,
+        /// Where the networks run.
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: Backend,
+        /// Worker threads (default: all cores). Results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Print the run's report as one JSON line on stdout.
         #[arg(long)]
         json: bool,
     },
@@ -249,6 +312,42 @@ fn main() -> ExitCode {
             );
             if json {
                 println!("{}", serde_json::to_string(&s)?);
+            }
+            Ok(())
+        }
+        Command::Pipeline(PipelineCommand::Run { file, until, dry_run, device, threads, json }) => {
+            if let Some(n) = threads {
+                rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+            }
+            let p = pipeline::Pipeline::load(&file)?;
+            let o = pipeline::RunOptions { until, dry_run, device };
+            let r = pipeline::run(&p, &o, &mut |line| eprintln!("pipeline {}: {line}", p.name))?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                for t in [&r.table1, &r.results].into_iter().flatten() {
+                    println!("{}", std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?);
+                }
+                print!("{}", pipeline::render(&r));
+            }
+            Ok(())
+        }
+        Command::Report { scored, output, positive_episodes, seed, max_samples, svm_max_train, json } => {
+            let opts = report::QReportOptions {
+                scored,
+                out_dir: output,
+                positive_episodes,
+                max_samples,
+                svm_max_train,
+                seed,
+                ..Default::default()
+            };
+            let r = report::q_report(&opts)?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                print!("{}", report::table1_markdown(&r));
+                println!("\nFig. 5: {}", r.fig5.display());
             }
             Ok(())
         }

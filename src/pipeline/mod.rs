@@ -1,0 +1,345 @@
+//! `pgser-etl pipeline run FILE`: the paper's whole experiment as one command.
+//!
+//! A pipeline file (`spec.rs`) becomes a list of steps — data, Q pre-training, scoring, the grid
+//! of agents, the Fig. 5 / Table 1 report, the results table — each calling the same library
+//! function as its CLI command. (The report comes after the agents so that the hours of training
+//! never wait on it; it reads only the scored table and the Q.) A step is *up to date* when its record in `OUT/.pipeline/`
+//! holds the same key — the sha256 of its parameters and of its inputs' contents — and its
+//! outputs still have the sha256 recorded when they were written. So a second run repeats
+//! nothing, changing one parameter reruns only the steps whose inputs or parameters changed, and
+//! because every step is deterministic a deleted output is rebuilt byte for byte and the steps
+//! after it stay up to date.
+//!
+//! Crashes: every output is written atomically, and a record is written only after its step
+//! finished, so an interrupted run is resumed by running it again. A training step interrupted
+//! after a checkpoint continues from it (`pgser-train --resume`), which gives the same weights
+//! as an uninterrupted run; so does raising `updates` on a finished agent.
+
+mod spec;
+mod state;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use serde_json::json;
+
+pub use spec::{Data, Pipeline, Variant, normalize, train_config};
+use state::Hashes;
+
+use crate::agent::{Algo, Backend, checkpoint};
+use crate::env::policy::{PolicyKind, PolicySpec};
+use crate::train::{TrainConfig, metrics_path};
+use crate::{collect, progress, report, score, trajectory};
+
+/// What one step does, with everything it needs.
+enum Action {
+    Collect(collect::CollectOptions),
+    Convert(trajectory::ConvertOptions),
+    Train { data: PathBuf, out: PathBuf, cfg: Box<TrainConfig> },
+    Score(score::ScoreOptions),
+    Report(report::QReportOptions),
+    Results(Vec<report::Run>),
+}
+
+/// One step of the plan.
+pub struct Step {
+    /// Unique within the pipeline: `pretrain`, `agent td3bc_mem_s0`, …
+    pub name: String,
+    pub inputs: Vec<PathBuf>,
+    pub outputs: Vec<PathBuf>,
+    /// What, besides the inputs' bytes, the outputs depend on.
+    pub params: serde_json::Value,
+    action: Action,
+}
+
+/// How a step went.
+#[derive(Debug, Clone, Serialize)]
+pub struct StepReport {
+    pub name: String,
+    /// `ran`, `resumed` (a training step continued from its checkpoint), `up to date`, or with
+    /// `--dry-run` `would run`.
+    pub status: String,
+    pub seconds: f64,
+    pub outputs: Vec<PathBuf>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    pub pipeline: String,
+    pub out: PathBuf,
+    pub steps: Vec<StepReport>,
+    /// The results table (Markdown) and the Fig. 5 / Table 1 report, when they were reached.
+    pub results: Option<PathBuf>,
+    pub table1: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Stop after the step of this name (e.g. `score` to prepare the data and Q only).
+    pub until: Option<String>,
+    /// Only say which steps would run.
+    pub dry_run: bool,
+    pub device: Backend,
+}
+
+/// The steps of `p`, in the order they run.
+pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
+    let out = &p.out;
+    let cmd = |step: &str| format!("pgser pipeline {} step {step}", p.name);
+    let mut steps = Vec::new();
+    let traj = out.join("traj.parquet");
+    let (pickles, episodes) = match &p.data {
+        Data::Pickles { inputs, episodes } => (inputs.clone(), episodes.clone()),
+        Data::Collect { expert, random, seed, noise } => {
+            let mut files = Vec::new();
+            for (kind, n, s) in [(PolicyKind::Expert, *expert, *seed), (PolicyKind::Random, *random, seed + *expert as u64)] {
+                let name = format!("collect_{}", kind.name());
+                let file = out.join(format!("data/{}.pkl", kind.name()));
+                let noise = if kind == PolicyKind::Expert { *noise } else { 0.0 };
+                steps.push(Step {
+                    params: json!({"task": p.task, "policy": kind.name(), "episodes": n, "seed": s, "noise": noise}),
+                    name: name.clone(),
+                    inputs: vec![],
+                    outputs: vec![file.clone()],
+                    action: Action::Collect(collect::CollectOptions {
+                        task: p.task.clone(),
+                        policy: PolicySpec { kind, noise, epsilon: 0.0 },
+                        episodes: n,
+                        seed: s,
+                        output: file.clone(),
+                        float32: false,
+                        row_group_rows: 65_536,
+                        command: cmd(&name),
+                    }),
+                });
+                files.push(file);
+            }
+            (files, None)
+        }
+    };
+    steps.push(Step {
+        name: "convert".into(),
+        params: json!({"task": p.task, "episodes": episodes}),
+        inputs: pickles.clone(),
+        outputs: vec![traj.clone()],
+        action: Action::Convert(trajectory::ConvertOptions {
+            inputs: pickles,
+            output: traj.clone(),
+            task: Some(p.task.clone()),
+            threshold: None,
+            episodes,
+            float32: false,
+            allow_nonfinite: false,
+            row_group_rows: 65_536,
+            command: cmd("convert"),
+        }),
+    });
+
+    let q = out.join("q.ckpt");
+    steps.push(train_step("pretrain", &traj, &q, p.pretrain_config()?));
+    let scored = out.join("scored.parquet");
+    let s = &p.score;
+    steps.push(Step {
+        name: "score".into(),
+        params: json!({"swaps": s.swaps, "seed": s.seed, "include_original": s.include_original,
+                       "chunk_episodes": s.chunk_episodes}),
+        inputs: vec![q.clone(), traj.clone()],
+        outputs: vec![scored.clone()],
+        action: Action::Score(score::ScoreOptions {
+            checkpoint: q.clone(),
+            data: traj.clone(),
+            output: scored.clone(),
+            swaps: s.swaps,
+            seed: s.seed,
+            include_original: s.include_original,
+            device: Backend::Cpu,
+            chunk_episodes: s.chunk_episodes,
+            threads: 0,
+            command: cmd("score"),
+        }),
+    });
+    let mut runs = Vec::new();
+    for &algo in &p.agents.algos {
+        for &variant in &p.agents.variants {
+            for &seed in &p.agents.seeds {
+                let id = format!("{}_{}_s{seed}", algo_name(algo), variant.name());
+                let ckpt = out.join(format!("agents/{id}.ckpt"));
+                let data = if variant == Variant::Mem { &scored } else { &traj };
+                let mut step = train_step(&format!("agent {id}"), data, &ckpt, p.agent_config(algo, variant, seed)?);
+                if variant == Variant::Mem {
+                    // The scored table names β; training reads it too.
+                    step.inputs.push(traj.clone());
+                }
+                steps.push(step);
+                runs.push(report::Run {
+                    task: p.task.clone(),
+                    algo: algo_name(algo).into(),
+                    variant: variant.name().into(),
+                    seed,
+                    metrics: metrics_path(&ckpt),
+                });
+            }
+        }
+    }
+    let report_dir = out.join("report");
+    let r = report::QReportOptions {
+        scored: scored.clone(),
+        out_dir: report_dir.clone(),
+        positive_episodes: p.report.positive_episodes,
+        seed: p.report.seed,
+        ..report::QReportOptions::default()
+    };
+    steps.push(Step {
+        name: "report".into(),
+        params: json!({"positive_episodes": r.positive_episodes, "seed": r.seed, "test_fraction": r.test_fraction,
+                       "max_samples": r.max_samples, "svm_max_train": r.svm_max_train}),
+        inputs: vec![scored.clone(), traj.clone(), q.clone()],
+        outputs: ["fig5_q_hist.png", "table1.md", "table1.json"].iter().map(|f| report_dir.join(f)).collect(),
+        action: Action::Report(r),
+    });
+
+    steps.push(Step {
+        name: "results".into(),
+        params: json!({"runs": runs.iter().map(|r| (&r.algo, &r.variant, r.seed)).collect::<Vec<_>>()}),
+        inputs: runs.iter().map(|r| r.metrics.clone()).collect(),
+        outputs: vec![out.join("results.md"), out.join("results.csv"), out.join(format!("curves_{}.png", p.task))],
+        action: Action::Results(runs),
+    });
+    let names: std::collections::HashSet<_> = steps.iter().map(|s| &s.name).collect();
+    debug_assert_eq!(names.len(), steps.len());
+    Ok(steps)
+}
+
+fn algo_name(a: Algo) -> &'static str {
+    match a {
+        Algo::Td3 => "td3",
+        Algo::Td3bc => "td3bc",
+    }
+}
+
+fn train_step(name: &str, data: &Path, ckpt: &Path, cfg: TrainConfig) -> Step {
+    Step {
+        name: name.into(),
+        params: json!({ "train": cfg }),
+        inputs: vec![data.to_path_buf()],
+        outputs: vec![ckpt.to_path_buf(), metrics_path(ckpt)],
+        action: Action::Train { data: data.to_path_buf(), out: ckpt.to_path_buf(), cfg: Box::new(cfg) },
+    }
+}
+
+/// Runs (or with `dry_run` only checks) the steps of `p` in order, skipping those up to date.
+/// `log` receives one line per step.
+pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<RunReport> {
+    let steps = plan(p)?;
+    if let Some(u) = &o.until
+        && !steps.iter().any(|s| &s.name == u)
+    {
+        let names: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
+        bail!("--until {u}: no such step (steps: {})", names.join(", "));
+    }
+    let mut hashes = Hashes::default();
+    let mut report = RunReport { pipeline: p.name.clone(), out: p.out.clone(), steps: vec![], results: None, table1: None };
+    let n = steps.len();
+    for (i, step) in steps.into_iter().enumerate() {
+        let head = format!("[{}/{n}] {}", i + 1, step.name);
+        let key = hashes.key(&step)?;
+        let status = if key.as_ref().is_some_and(|k| state::up_to_date(&p.out, &step, k, &mut hashes)) {
+            log(&format!("{head}: up to date"));
+            ("up to date".to_string(), 0.0)
+        } else if o.dry_run {
+            log(&format!("{head}: would run"));
+            ("would run".to_string(), 0.0)
+        } else {
+            log(&format!("{head}: running"));
+            let t0 = Instant::now();
+            // A training step may continue from its checkpoint after a crash (no record) or a
+            // change of settings (another key; `train` refuses what cannot continue), but not when
+            // a finished output no longer has its recorded bytes: that one is rebuilt from scratch.
+            let resume = state::recorded_key(&p.out, &step) != key;
+            let how = execute(&step, o.device, resume).with_context(|| format!("pipeline {}, step {}", p.name, step.name))?;
+            let secs = t0.elapsed().as_secs_f64();
+            let key = hashes.key(&step)?.context("an input vanished while the step ran")?;
+            state::record(&p.out, &step, &key, secs, &mut hashes)?;
+            log(&format!("{head}: {how} in {secs:.1} s"));
+            (how.to_string(), secs)
+        };
+        match step.action {
+            Action::Results(_) if status.0 != "would run" => report.results = Some(step.outputs[0].clone()),
+            Action::Report(_) if status.0 != "would run" => report.table1 = Some(step.outputs[1].clone()),
+            _ => {}
+        }
+        let stop = o.until.as_deref() == Some(step.name.as_str());
+        report.steps.push(StepReport { name: step.name, status: status.0, seconds: status.1, outputs: step.outputs });
+        if stop {
+            break;
+        }
+    }
+    Ok(report)
+}
+
+/// Runs one step; returns `ran` or `resumed`.
+fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
+    for o in &step.outputs {
+        if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+        }
+    }
+    let bar = progress::bar("step", "");
+    let mut how = "ran";
+    match &step.action {
+        Action::Collect(o) => drop(collect::collect(o, &bar)?),
+        Action::Convert(o) => drop(trajectory::convert(o, &bar)?),
+        Action::Score(o) => drop(score::score(&score::ScoreOptions { device, ..o.clone() }, &bar)?),
+        Action::Report(o) => drop(report::q_report(o)?),
+        Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),
+        Action::Train { data, out, cfg } => {
+            let command = format!("pgser pipeline step {}", step.name);
+            let resumed = resume
+                && resumable(out, cfg)?
+                && match crate::train::train(data, out, cfg, true, device.device()?, &command, &bar) {
+                    Ok(_) => true,
+                    // Settings or data changed since that checkpoint: start over.
+                    Err(e) => {
+                        eprintln!("pgser pipeline: {}: not resumed ({e:#}); training from scratch", step.name);
+                        false
+                    }
+                };
+            if resumed {
+                how = "resumed";
+            } else {
+                crate::train::train(data, out, cfg, false, device.device()?, &command, &bar)?;
+            }
+        }
+    }
+    bar.finish_and_clear();
+    Ok(how)
+}
+
+/// Whether `out` holds an earlier checkpoint (with its resume state) of no more than
+/// `cfg.updates` updates; `train` itself refuses one of other settings or data.
+fn resumable(out: &Path, cfg: &TrainConfig) -> Result<bool> {
+    if !out.exists() || !checkpoint::resume_path(out).exists() {
+        return Ok(false);
+    }
+    Ok(match checkpoint::load(out, Backend::Cpu.device()?) {
+        Ok((agent, _)) => agent.updates <= cfg.updates,
+        Err(_) => false,
+    })
+}
+
+/// The report's one-screen summary: steps, then where the tables are.
+pub fn render(r: &RunReport) -> String {
+    let mut s = String::new();
+    let ran = r.steps.iter().filter(|s| s.status == "ran" || s.status == "resumed").count();
+    s += &format!("pipeline {}: {} steps, {ran} run, {} up to date\n", r.pipeline, r.steps.len(),
+        r.steps.iter().filter(|s| s.status == "up to date").count());
+    if let Some(t) = &r.table1 {
+        s += &format!("Fig. 5 and Table 1: {} (and fig5_q_hist.png beside it)\n", t.display());
+    }
+    if let Some(t) = &r.results {
+        s += &format!("results: {} (CSV and curves beside it)\n", t.display());
+    }
+    s
+}

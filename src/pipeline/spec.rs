@@ -1,0 +1,337 @@
+//! The pipeline file: one TOML document per experiment (see `pipelines/README.md`).
+//!
+//! Paths in the file are relative to the file's folder, so a pipeline means the same thing
+//! whatever directory it is run from. Training settings are `pgser-train` flag names in
+//! snake_case (`batch_size`, `lr`, `her_ratio`, `priority_alpha`, …) layered as defaults ←
+//! `[train]` ← `[pretrain]` or `[agents]` ← the grid cell (algo, seed, variant); an unknown
+//! name is an error, so a typo cannot silently fall back to a default.
+
+use std::path::{Component, Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use serde::Deserialize;
+
+use crate::agent::Algo;
+use crate::train::TrainConfig;
+
+/// The three variants of the paper's Table 2.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Variant {
+    /// No goal swapping (HER only).
+    Baseline,
+    /// Random goal swapping on the fly (Alg. 1).
+    Swap,
+    /// Prioritized goal-swapping experience replay from the scored table (Alg. 2).
+    Mem,
+}
+
+impl Variant {
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Baseline => "baseline",
+            Variant::Swap => "swap",
+            Variant::Mem => "mem",
+        }
+    }
+}
+
+/// A parsed pipeline file with its paths resolved.
+#[derive(Debug, Clone)]
+pub struct Pipeline {
+    pub name: String,
+    pub task: String,
+    /// Where every output goes (`out = "…"`, relative to the pipeline file).
+    pub out: PathBuf,
+    pub data: Data,
+    /// `[train]`: settings shared by the pre-training and every agent.
+    pub train: toml::Table,
+    /// `[pretrain]`: the Q of Alg. 2 step 1 (TD3+BC with random swapping unless overridden).
+    pub pretrain: toml::Table,
+    pub score: ScoreSpec,
+    pub report: ReportSpec,
+    pub agents: Agents,
+}
+
+/// Where β comes from.
+#[derive(Debug, Clone)]
+pub enum Data {
+    /// WGCSL pickles, converted in order taking the first `episodes[i]` of each (GoFAR's mix;
+    /// the expert file first, which is what the report takes as positives).
+    Pickles { inputs: Vec<PathBuf>, episodes: Option<Vec<usize>> },
+    /// Simulated: `expert` episodes of the scripted expert (seeds seed…) and `random` of
+    /// uniform actions (seeds seed + expert …), written as pickles and converted.
+    Collect { expert: usize, random: usize, seed: u64, noise: f64 },
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScoreSpec {
+    #[serde(default = "default_swaps")]
+    pub swaps: usize,
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub include_original: bool,
+    #[serde(default)]
+    pub chunk_episodes: Option<usize>,
+}
+
+fn default_swaps() -> usize {
+    crate::score::DEFAULT_SWAPS
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReportSpec {
+    /// Episodes of β taken as positives in Fig. 5 / Table 1 (default: the first source's).
+    #[serde(default)]
+    pub positive_episodes: Option<usize>,
+    #[serde(default)]
+    pub seed: u64,
+}
+
+/// `[agents]`: the grid algos × variants × seeds, and training settings for all of them.
+#[derive(Debug, Clone)]
+pub struct Agents {
+    pub algos: Vec<Algo>,
+    pub variants: Vec<Variant>,
+    pub seeds: Vec<u64>,
+    pub train: toml::Table,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    name: String,
+    task: String,
+    out: String,
+    data: DataFile,
+    #[serde(default)]
+    train: toml::Table,
+    #[serde(default)]
+    pretrain: toml::Table,
+    #[serde(default = "default_score")]
+    score: ScoreSpec,
+    #[serde(default)]
+    report: ReportSpec,
+    agents: toml::Table,
+}
+
+fn default_score() -> ScoreSpec {
+    ScoreSpec { swaps: default_swaps(), seed: 0, include_original: false, chunk_episodes: None }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DataFile {
+    #[serde(default)]
+    pickles: Vec<String>,
+    episodes: Option<Vec<usize>>,
+    expert: Option<usize>,
+    random: Option<usize>,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default)]
+    noise: f64,
+}
+
+impl Pipeline {
+    pub fn load(path: &Path) -> Result<Pipeline> {
+        let at = path.display();
+        let text = std::fs::read_to_string(path).with_context(|| format!("{at}: cannot read"))?;
+        Pipeline::parse(&text, path).with_context(|| format!("{at}"))
+    }
+
+    /// Parses `text` as the pipeline file at `path` (paths resolve against its folder).
+    pub fn parse(text: &str, path: &Path) -> Result<Pipeline> {
+        let f: File = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim().replace('\n', " ")))?;
+        let dir = path.parent().unwrap_or(Path::new(""));
+        let resolve = |p: &str| normalize(&dir.join(p));
+        if crate::task::Task::known(&f.task).is_none() {
+            bail!("task {:?} is not one pgser can evaluate ({})", f.task, crate::task::Task::known_names().join(", "));
+        }
+        if f.name.is_empty() || !f.name.chars().all(|c| c.is_ascii_alphanumeric() || "-_".contains(c)) {
+            bail!("name {:?}: use letters, digits, - and _ only", f.name);
+        }
+        let d = f.data;
+        let data = match (d.pickles.is_empty(), d.expert, d.random) {
+            (false, None, None) => {
+                if let Some(e) = &d.episodes
+                    && e.len() != d.pickles.len()
+                {
+                    bail!("[data]: {} pickles but {} episode counts", d.pickles.len(), e.len());
+                }
+                Data::Pickles { inputs: d.pickles.iter().map(|p| resolve(p)).collect(), episodes: d.episodes }
+            }
+            (true, Some(expert), Some(random)) if d.episodes.is_none() => {
+                if expert == 0 {
+                    bail!("[data]: expert = 0; the report needs expert episodes as positives");
+                }
+                Data::Collect { expert, random, seed: d.seed, noise: d.noise }
+            }
+            _ => bail!("[data]: give either `pickles` (and optionally `episodes`) or both `expert` and `random`"),
+        };
+
+        let mut agents = f.agents;
+        let algos: Vec<Algo> = take(&mut agents, "algos")?.unwrap_or(vec![Algo::Td3bc]);
+        let variants: Vec<Variant> =
+            take(&mut agents, "variants")?.unwrap_or(vec![Variant::Baseline, Variant::Swap, Variant::Mem]);
+        let seeds: Vec<u64> = take(&mut agents, "seeds")?.unwrap_or(vec![0]);
+        if algos.is_empty() || variants.is_empty() || seeds.is_empty() {
+            bail!("[agents]: algos, variants and seeds must not be empty");
+        }
+        let p = Pipeline {
+            name: f.name,
+            task: f.task,
+            out: resolve(&f.out),
+            data,
+            train: f.train,
+            pretrain: f.pretrain,
+            score: f.score,
+            report: f.report,
+            agents: Agents { algos, variants, seeds, train: agents },
+        };
+        // Fail now, not after an hour of training, on a misspelt setting.
+        p.pretrain_config()?;
+        p.agent_config(p.agents.algos[0], p.agents.variants[0], p.agents.seeds[0])?;
+        Ok(p)
+    }
+
+    /// The pre-training run's settings: TD3+BC with random swapping (Alg. 2 step 1) unless the
+    /// file says otherwise.
+    pub fn pretrain_config(&self) -> Result<TrainConfig> {
+        let mut base = toml::Table::new();
+        base.insert("algo".into(), "td3bc".into());
+        base.insert("swap".into(), "random".into());
+        train_config(&[&base, &self.train, &self.pretrain]).context("[pretrain]")
+    }
+
+    /// One grid cell's settings.
+    pub fn agent_config(&self, algo: Algo, variant: Variant, seed: u64) -> Result<TrainConfig> {
+        let mut cell = toml::Table::new();
+        cell.insert("algo".into(), serde_json::to_value(algo)?.as_str().unwrap_or_default().into());
+        cell.insert("seed".into(), toml::Value::Integer(seed as i64));
+        cell.insert("swap".into(), if variant == Variant::Swap { "random" } else { "none" }.into());
+        train_config(&[&self.train, &self.agents.train, &cell]).context("[agents]")
+    }
+}
+
+fn take<T: serde::de::DeserializeOwned>(t: &mut toml::Table, key: &str) -> Result<Option<T>> {
+    match t.remove(key) {
+        None => Ok(None),
+        Some(v) => Ok(Some(v.try_into().with_context(|| format!("[agents] {key}"))?)),
+    }
+}
+
+/// `TrainConfig` from the CLI's defaults with `layers` applied in order. Keys are the flags'
+/// snake_case names, found in whichever group (agent, sampler, priority) holds them.
+pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
+    #[derive(Parser)]
+    struct Defaults {
+        #[command(flatten)]
+        c: TrainConfig,
+    }
+    let defaults = Defaults::try_parse_from(["pgser-train"]).context("the training defaults")?.c;
+    let mut json = serde_json::to_value(&defaults)?;
+    let obj = json.as_object_mut().expect("a struct");
+    for layer in layers {
+        for (key, value) in layer.iter() {
+            let value = serde_json::to_value(value)?;
+            let group = obj.iter().find(|(_, g)| g.as_object().is_some_and(|g| g.contains_key(key))).map(|(n, _)| n.clone());
+            match group {
+                Some(g) => {
+                    obj[&g].as_object_mut().expect("a group").insert(key.clone(), value);
+                }
+                None if obj.get(key).is_some_and(|v| !v.is_object()) => {
+                    obj.insert(key.clone(), value);
+                }
+                None => bail!("unknown training setting {key:?} (use pgser-train's flag names in snake_case)"),
+            }
+        }
+    }
+    serde_json::from_value(json).map_err(|e| anyhow::anyhow!("a training setting has the wrong type: {e}"))
+}
+
+/// `a/b/../c` → `a/c`, without touching the file system (the outputs may not exist yet), so
+/// the paths recorded in checkpoints and printed to the user stay short and stable.
+pub fn normalize(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(out.components().next_back(), Some(Component::Normal(_))) => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    if out.as_os_str().is_empty() { PathBuf::from(".") } else { out }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MIN: &str = r#"
+        name = "t"
+        task = "FetchReach"
+        out = "../out/t"
+        [data]
+        pickles = ["../data/a.pkl", "b.pkl"]
+        episodes = [5, 10]
+        [train]
+        batch_size = 64
+        lr = 0.001
+        [agents]
+        seeds = [0, 1]
+        updates = 300
+        priority_alpha = 0.5
+    "#;
+
+    #[test]
+    fn layers_apply_in_order_and_paths_resolve_against_the_file() {
+        let p = Pipeline::parse(MIN, Path::new("pipes/t.toml")).unwrap();
+        assert_eq!(p.out, PathBuf::from("out/t"));
+        match &p.data {
+            Data::Pickles { inputs, episodes } => {
+                assert_eq!(inputs, &[PathBuf::from("data/a.pkl"), PathBuf::from("pipes/b.pkl")]);
+                assert_eq!(episodes.as_deref(), Some(&[5, 10][..]));
+            }
+            d => panic!("{d:?}"),
+        }
+        let c = p.agent_config(Algo::Td3, Variant::Swap, 1).unwrap();
+        assert_eq!((c.batch_size, c.updates, c.seed), (64, 300, 1));
+        assert_eq!(c.agent.lr, Some(0.001));
+        assert_eq!(c.agent.algo, Algo::Td3);
+        assert_eq!(c.sampler.swap, crate::sampler::Swap::Random);
+        assert_eq!(c.priority.priority_alpha, 0.5);
+        let q = p.pretrain_config().unwrap();
+        assert_eq!((q.agent.algo, q.sampler.swap, q.updates), (Algo::Td3bc, crate::sampler::Swap::Random, 500_000));
+        assert_eq!(p.agents.variants, [Variant::Baseline, Variant::Swap, Variant::Mem]);
+    }
+
+    #[test]
+    fn mistakes_are_named() {
+        let bad = MIN.replace("batch_size = 64", "batch_sise = 64");
+        let e = format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err());
+        assert!(e.contains("batch_sise"), "{e}");
+        let bad = MIN.replace("batch_size = 64", "batch_size = \"big\"");
+        let e = format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err());
+        assert!(e.contains("wrong type"), "{e}");
+        let bad = MIN.replace("FetchReach", "FetchNothing");
+        assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("FetchNothing"));
+        let bad = MIN.replace("episodes = [5, 10]", "episodes = [5]");
+        assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("2 pickles"));
+        let bad = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"best\"]");
+        assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("variants"));
+    }
+
+    #[test]
+    fn normalize_is_lexical() {
+        assert_eq!(normalize(Path::new("pipelines/../out/./demo")), PathBuf::from("out/demo"));
+        assert_eq!(normalize(Path::new("../x/../y")), PathBuf::from("../y"));
+        assert_eq!(normalize(Path::new("/a/../b")), PathBuf::from("/b"));
+    }
+}

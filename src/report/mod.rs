@@ -1,0 +1,51 @@
+//! The paper's evidence as files: Fig. 5 and Table 1 ([`q_report`]), Table 2 and training
+//! curves ([`results`]).
+//!
+//! - **Fig. 5 / Table 1** ask whether the pre-trained critic tells reachable goals from
+//!   unreachable ones, which is what PGSER's prioritized sampling relies on: Q of expert
+//!   transitions with their own goals (positives) against Q of randomly goal-swapped transitions
+//!   (negatives, the `goal_step >= 0` rows of a scored table). The figure overlays the two
+//!   densities; the table reports how well simple classifiers separate the classes from Q alone.
+//! - **Table 2** collects the final evaluation of every training run (the last `eval` line of
+//!   its metrics file), averages it over seeds per (task, algorithm, variant) and tests whether
+//!   the `mem` variant differs from `baseline` and `swap` (Welch's t-test, unequal variances,
+//!   since the variants' spreads over seeds differ).
+//!
+//! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
+
+mod plot;
+mod qreport;
+mod results;
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+pub use qreport::{ClassifierScore, QReport, QReportOptions, q_report, table1_markdown};
+pub use results::{ResultRow, Results, Run, results, results_markdown, welch_t_test};
+
+/// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.
+pub const FIG_SIZE: (u32, u32) = (900, 600);
+
+/// Writes `text` to `path` atomically.
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    let f = crate::output::AtomicFile::create(path)?;
+    f.handle()?.write_all(text.as_bytes()).with_context(|| format!("{}: write failed", path.display()))?;
+    f.commit()
+}
+
+/// Creates the output folder (and its parents) if needed.
+fn ensure_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the output folder", dir.display()))
+}
+
+/// A name safe in a file name: task names are already, but a `/` or space must not make a path.
+fn file_safe(name: &str) -> String {
+    name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect()
+}
+
+/// `x` with 3 decimals, or "n/a" when it is not a number (e.g. a std over one seed).
+fn fmt3(x: f64) -> String {
+    if x.is_finite() { format!("{x:.3}") } else { "n/a".to_string() }
+}

@@ -1,0 +1,233 @@
+//! PNG figures for the report: density histograms (Fig. 5) and mean ± std curves (training
+//! curves next to Table 2).
+//!
+//! plotters draws into an RGB buffer in memory and `png` encodes it into an [`AtomicFile`], so a
+//! figure appears whole or not at all, like every other pgser output. Text uses the DejaVu Sans
+//! font bundled in `assets/fonts` (registered once with plotters' ab_glyph backend): no system
+//! font library is needed, and the pixels do not depend on the fonts a machine has installed.
+
+use std::io::{BufWriter, Write};
+use std::path::Path;
+use std::sync::Once;
+
+use anyhow::{Context, Result, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+use crate::output::AtomicFile;
+
+/// DejaVu Sans (licence in `assets/fonts/LICENSE`): the only font the figures use.
+static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+/// The family name plotters asks for with `("sans-serif", size)`.
+const FAMILY: &str = "sans-serif";
+
+/// matplotlib's tab10 colours: distinguishable, and familiar from the paper's figures.
+pub const PALETTE: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+fn ensure_font() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        // The font is compiled in, so failing to parse it is a build defect, not a user error.
+        if register_font(FAMILY, FontStyle::Normal, FONT).is_err() {
+            panic!("the bundled font assets/fonts/DejaVuSans.ttf is not a valid TrueType font");
+        }
+    });
+}
+
+/// Draws a `width` × `height` figure with `draw` and writes it to `path` as an RGB PNG.
+fn save_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
+) -> Result<()> {
+    ensure_font();
+    let mut buf = vec![0u8; width as usize * height as usize * 3];
+    let render = |buf: &mut [u8]| -> Result<()> {
+        let root = BitMapBackend::with_buffer(buf, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+        draw(&root)?;
+        root.present().map_err(|e| anyhow!("{e}"))
+    };
+    render(&mut buf).with_context(|| format!("{}: cannot draw the figure", path.display()))?;
+    let file = AtomicFile::create(path)?;
+    {
+        let mut w = BufWriter::new(file.handle()?);
+        let mut enc = png::Encoder::new(&mut w, width, height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let encode = || -> std::result::Result<(), png::EncodingError> {
+            let mut writer = enc.write_header()?;
+            writer.write_image_data(&buf)?;
+            writer.finish()
+        };
+        encode().with_context(|| format!("{}: cannot encode the PNG", path.display()))?;
+        w.flush().with_context(|| format!("{}: write failed", path.display()))?;
+    }
+    file.commit()
+}
+
+/// One histogram of a density plot.
+pub struct HistSeries<'a> {
+    pub label: String,
+    pub values: &'a [f64],
+    pub color: RGBColor,
+}
+
+/// The densities of `values` in `bins` equal bins over `[lo, hi]`. Values outside the range
+/// count in the end bins: Q is clipped to [−1/(1−γ), 0] only in the targets, so a critic may
+/// overshoot a little, and dropping those rows would bias the picture.
+pub fn densities(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<f64> {
+    let width = (hi - lo) / bins as f64;
+    let mut counts = vec![0usize; bins];
+    for &v in values {
+        let b = ((v - lo) / width).floor();
+        let b = if b.is_nan() { 0 } else { (b.max(0.0) as usize).min(bins - 1) };
+        counts[b] += 1;
+    }
+    let n = values.len().max(1) as f64;
+    counts.into_iter().map(|c| c as f64 / (n * width)).collect()
+}
+
+/// Overlaid semi-transparent density histograms over `[lo, hi]` (Fig. 5).
+#[allow(clippy::too_many_arguments)]
+pub fn density_histograms(
+    path: &Path,
+    size: (u32, u32),
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    (lo, hi): (f64, f64),
+    bins: usize,
+    series: &[HistSeries<'_>],
+) -> Result<()> {
+    let dens: Vec<Vec<f64>> = series.iter().map(|s| densities(s.values, lo, hi, bins)).collect();
+    let top = dens.iter().flatten().copied().fold(0.0f64, f64::max);
+    let top = if top > 0.0 { top * 1.1 } else { 1.0 };
+    let width = (hi - lo) / bins as f64;
+    save_png(path, size, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, (FAMILY, 22))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(65)
+            .margin_right(25)
+            .build_cartesian_2d(lo..hi, 0.0..top)
+            .map_err(|e| anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .label_style((FAMILY, 14))
+            .axis_desc_style((FAMILY, 16))
+            .bold_line_style(BLACK.mix(0.12))
+            .light_line_style(TRANSPARENT)
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        for (s, d) in series.iter().zip(&dens) {
+            let style = s.color.mix(0.45).filled();
+            let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
+                let x0 = lo + i as f64 * width;
+                Rectangle::new([(x0, 0.0), (x0 + width, *h)], style)
+            });
+            chart
+                .draw_series(bars)
+                .map_err(|e| anyhow!("{e}"))?
+                .label(s.label.clone())
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 16, y + 6)], style));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font((FAMILY, 15))
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        Ok(())
+    })
+}
+
+/// One curve: mean over seeds at each x, with a ±std band.
+pub struct Curve {
+    pub label: String,
+    pub x: Vec<f64>,
+    pub mean: Vec<f64>,
+    pub std: Vec<f64>,
+}
+
+/// Mean curves with ±std bands (training curves). The y range fits the bands, not a fixed
+/// [0, T], so small differences between variants stay visible.
+pub fn mean_std_curves(
+    path: &Path,
+    size: (u32, u32),
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    curves: &[Curve],
+) -> Result<()> {
+    let xs = curves.iter().flat_map(|c| c.x.iter().copied());
+    let (x0, x1) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    let ys = curves.iter().flat_map(|c| c.mean.iter().zip(&c.std).flat_map(|(m, s)| [m - s, m + s]));
+    let (y0, y1) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+    let (x0, x1) = if x0.is_finite() && x1 > x0 { (x0, x1) } else { (x0.min(0.0), x0.max(0.0) + 1.0) };
+    let pad = if y1 > y0 { 0.05 * (y1 - y0) } else { 1.0 };
+    let (y0, y1) = if y0.is_finite() { (y0 - pad, y1 + pad) } else { (0.0, 1.0) };
+    save_png(path, size, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, (FAMILY, 22))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(65)
+            .margin_right(40)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_label_formatter(&|x| format!("{x:.0}"))
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .label_style((FAMILY, 14))
+            .axis_desc_style((FAMILY, 16))
+            .bold_line_style(BLACK.mix(0.12))
+            .light_line_style(TRANSPARENT)
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        for (i, c) in curves.iter().enumerate() {
+            let color = PALETTE[i % PALETTE.len()];
+            let upper = c.x.iter().zip(c.mean.iter().zip(&c.std)).map(|(x, (m, s))| (*x, m + s));
+            let lower = c.x.iter().zip(c.mean.iter().zip(&c.std)).map(|(x, (m, s))| (*x, m - s)).rev();
+            let band: Vec<(f64, f64)> = upper.chain(lower).collect();
+            chart
+                .draw_series(std::iter::once(Polygon::new(band, color.mix(0.2).filled())))
+                .map_err(|e| anyhow!("{e}"))?;
+            let points: Vec<(f64, f64)> = c.x.iter().copied().zip(c.mean.iter().copied()).collect();
+            chart
+                .draw_series(LineSeries::new(points, color.stroke_width(2)))
+                .map_err(|e| anyhow!("{e}"))?
+                .label(c.label.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font((FAMILY, 15))
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        Ok(())
+    })
+}

@@ -1,0 +1,163 @@
+//! `pgser-etl pipeline run`: a whole (tiny) experiment, then what re-runs after each kind of
+//! change — nothing after a clean finish, only the downstream steps after an edit, the
+//! missing step (and nothing after it, since it is rebuilt byte for byte) after a deletion.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use common::{etl, repo, text};
+
+/// FetchReach from the committed sample pickles, with counts small enough for seconds.
+fn pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
+    let data = repo().join("data");
+    let toml = format!(
+        r#"
+name = "tiny"
+task = "FetchReach"
+out = "out"
+[data]
+pickles = ["{e}", "{r}"]
+episodes = [12, 24]
+[train]
+batch_size = 64
+eval_every = 0
+eval_episodes = 4
+save_every = 0
+log_every = 10
+[pretrain]
+updates = 40
+[score]
+swaps = {swaps}
+[report]
+seed = 1
+[agents]
+seeds = [0, 1]
+updates = {agent_updates}
+"#,
+        e = data.join("fetch_reach_expert_50.pkl").display(),
+        r = data.join("fetch_reach_random_200.pkl").display(),
+    );
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+/// Runs the pipeline; returns step name → status.
+fn run(file: &Path, extra: &[&str]) -> BTreeMap<String, String> {
+    let out = etl().args(["pipeline", "run"]).arg(file).args(["--json", "--threads", "2"]).args(extra).output().unwrap();
+    assert!(out.status.success(), "pipeline failed: {}", text(&out.stderr));
+    let line = text(&out.stdout);
+    let r: serde_json::Value = serde_json::from_str(line.lines().last().unwrap()).unwrap();
+    r["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
+        .collect()
+}
+
+fn ran(s: &BTreeMap<String, String>) -> Vec<&str> {
+    s.iter().filter(|(_, v)| v.as_str() != "up to date").map(|(k, _)| k.as_str()).collect()
+}
+
+#[test]
+fn runs_once_then_only_what_changed() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 30, 4);
+    let out = dir.path().join("out");
+
+    let first = run(&file, &[]);
+    assert_eq!(first.len(), 3 + 6 + 2, "{first:?}");
+    assert!(first.values().all(|s| s == "ran"), "{first:?}");
+    for f in ["results.md", "results.csv", "curves_FetchReach.png", "report/fig5_q_hist.png", "report/table1.md"] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let results = std::fs::read_to_string(out.join("results.md")).unwrap();
+    for v in ["baseline", "swap", "mem"] {
+        assert!(results.contains(v), "{results}");
+    }
+
+    // A clean second run repeats nothing.
+    let again = run(&file, &[]);
+    assert!(ran(&again).is_empty(), "{again:?}");
+
+    // More updates: every agent continues from its checkpoint; data, Q, scores, report stay.
+    let file = pipeline(dir.path(), 40, 4);
+    let more = run(&file, &[]);
+    let mut want: Vec<String> = ["baseline", "swap", "mem"]
+        .iter()
+        .flat_map(|v| (0..2).map(move |s| format!("agent td3bc_{v}_s{s}")))
+        .collect();
+    want.push("results".into());
+    want.sort();
+    assert_eq!(ran(&more), want.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(more.iter().filter(|(k, _)| k.starts_with("agent")).all(|(_, v)| v == "resumed"), "{more:?}");
+
+    // Fewer swaps: the scores change, so the report and the -mem agents rerun, nothing else.
+    let file = pipeline(dir.path(), 40, 2);
+    let swaps = run(&file, &[]);
+    assert_eq!(
+        ran(&swaps),
+        ["agent td3bc_mem_s0", "agent td3bc_mem_s1", "report", "results", "score"],
+        "{swaps:?}"
+    );
+
+    // A lost output is rebuilt identically: the steps that read it stay up to date.
+    let scored = out.join("scored.parquet");
+    let before = std::fs::read(&scored).unwrap();
+    std::fs::remove_file(&scored).unwrap();
+    let rebuilt = run(&file, &[]);
+    assert_eq!(ran(&rebuilt), ["score"], "{rebuilt:?}");
+    assert_eq!(std::fs::read(&scored).unwrap(), before);
+
+    // A corrupted output is not trusted.
+    let ckpt = out.join("agents/td3bc_swap_s1.ckpt");
+    let mut bytes = std::fs::read(&ckpt).unwrap();
+    let k = bytes.len() - 1;
+    bytes[k] ^= 1;
+    std::fs::write(&ckpt, bytes).unwrap();
+    let fixed = run(&file, &[]);
+    assert!(ran(&fixed).contains(&"agent td3bc_swap_s1"), "{fixed:?}");
+}
+
+#[test]
+fn until_stops_and_the_next_run_resumes_there() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 4);
+    let part = run(&file, &["--until", "score"]);
+    assert_eq!(part.keys().map(String::as_str).collect::<Vec<_>>(), ["convert", "pretrain", "score"]);
+    let dry = run(&file, &["--dry-run"]);
+    assert_eq!(dry.values().filter(|s| s.as_str() == "would run").count(), 6 + 2, "{dry:?}");
+    assert!(!dir.path().join("out/agents").exists(), "a dry run wrote agents");
+    let rest = run(&file, &[]);
+    for s in ["convert", "pretrain", "score"] {
+        assert_eq!(rest[s], "up to date");
+    }
+    assert_eq!(ran(&rest).len(), 6 + 2);
+}
+
+#[test]
+fn bad_pipelines_fail_in_one_line_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 4);
+    let good = std::fs::read_to_string(&file).unwrap();
+    for (from, to, says) in [
+        ("batch_size = 64", "batch_sise = 64", "batch_sise"),
+        ("task = \"FetchReach\"", "task = \"FetchNothing\"", "FetchNothing"),
+        ("episodes = [12, 24]", "episodes = [12]", "2 pickles but 1"),
+        ("seeds = [0, 1]", "seeds = []", "must not be empty"),
+    ] {
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, good.replace(from, to)).unwrap();
+        let out = etl().args(["pipeline", "run"]).arg(&bad).output().unwrap();
+        let err = text(&out.stderr);
+        assert!(!out.status.success());
+        assert!(err.contains("bad.toml") && err.contains(says), "{says}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!dir.path().join("out").exists(), "{says}: wrote outputs");
+    }
+    let out = etl().args(["pipeline", "run"]).arg(&file).args(["--until", "nope"]).output().unwrap();
+    assert!(text(&out.stderr).contains("--until nope: no such step"), "{}", text(&out.stderr));
+}

@@ -1,0 +1,221 @@
+//! The report module: Welch's t-test against known values, `pgser-etl report` end to end on a
+//! tiny FetchReach run (Fig. 5 PNG, Table 1 JSON), and Table 2 from hand-written metrics files.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::*;
+use pgser::report::{self, Run};
+
+/// Width and height from a PNG's IHDR chunk (after checking the signature).
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert!(b.len() > 24, "{}: too short for a PNG", path.display());
+    assert_eq!(&b[..8], b"\x89PNG\r\n\x1a\n", "{}: no PNG signature", path.display());
+    assert_eq!(&b[12..16], b"IHDR");
+    let be = |i: usize| u32::from_be_bytes(b[i..i + 4].try_into().unwrap());
+    (be(16), be(20))
+}
+
+#[test]
+fn welch_matches_known_values() {
+    // Hand-computed: means 3 and 6, variances 2.5 and 10 → t = −3/√2.5, df = 6.25/1.0625.
+    let (t, df, p) = report::welch_t_test(&[1.0, 2.0, 3.0, 4.0, 5.0], &[2.0, 4.0, 6.0, 8.0, 10.0]).unwrap();
+    assert!((t + 1.897_366_6).abs() < 1e-6, "t {t}");
+    assert!((df - 5.882_352_9).abs() < 1e-6, "df {df}");
+    assert!((p - 0.107_531).abs() < 1e-4, "p {p}");
+    // Wikipedia's Welch example 1 (t −2.46, df 25.0, p 0.021).
+    let a = [27.5, 21.0, 19.0, 23.6, 17.0, 17.9, 16.9, 20.1, 21.9, 22.6, 23.1, 19.6, 19.0, 21.7, 21.4];
+    let b = [27.1, 22.0, 20.8, 23.4, 23.4, 23.5, 25.8, 22.0, 24.8, 20.2, 21.9, 22.1, 22.9, 20.5, 24.4];
+    let (t, df, p) = report::welch_t_test(&a, &b).unwrap();
+    assert!(
+        (t + 2.455_356).abs() < 1e-5 && (df - 24.988_53).abs() < 1e-3 && (p - 0.021_378).abs() < 1e-4,
+        "{t} {df} {p}"
+    );
+    // Symmetric in its arguments up to the sign of t.
+    let (t2, _, p2) = report::welch_t_test(&b, &a).unwrap();
+    assert!((t2 + t).abs() < 1e-12 && (p2 - p).abs() < 1e-12);
+}
+
+#[test]
+fn welch_is_undefined_without_two_samples_or_any_variance() {
+    assert!(report::welch_t_test(&[1.0], &[1.0, 2.0]).is_none());
+    assert!(report::welch_t_test(&[1.0, 2.0], &[]).is_none());
+    assert!(report::welch_t_test(&[3.0, 3.0, 3.0], &[5.0, 5.0]).is_none());
+    // One side constant is fine: the other carries the variance.
+    assert!(report::welch_t_test(&[3.0, 3.0, 3.0], &[5.0, 6.0]).is_some());
+}
+
+#[test]
+fn report_cli_writes_fig5_and_table1() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let table = d.join("reach.parquet");
+    let data = repo().join("data");
+    convert_ok(&[&data.join("fetch_reach_expert_50.pkl"), &data.join("fetch_reach_random_200.pkl")], &table, &[]);
+    let ckpt = d.join("q.ckpt");
+    let out = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", table.to_str().unwrap(), "-o", ckpt.to_str().unwrap()])
+        .args(["--updates", "300", "--hidden", "32", "--batch-size", "64", "--eval-episodes", "0"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "pgser-train failed: {}", text(&out.stderr));
+    let scored = d.join("scored.parquet");
+    let out = etl()
+        .args(["score", "--q", ckpt.to_str().unwrap(), "--data", table.to_str().unwrap(), "-o"])
+        .arg(&scored)
+        .args(["--swaps", "2"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "score failed: {}", text(&out.stderr));
+
+    let rep = d.join("rep");
+    // A small SVC training set keeps the test fast whatever this tiny critic learned.
+    let args = ["--seed", "3", "--svm-max-train", "500", "--json"];
+    let out = etl().arg("report").arg(&scored).arg("-o").arg(&rep).args(args).output().unwrap();
+    assert!(out.status.success(), "report failed: {}", text(&out.stderr));
+    let printed: serde_json::Value = serde_json::from_str(text(&out.stdout).trim()).unwrap();
+
+    assert_eq!(png_size(&rep.join("fig5_q_hist.png")), report::FIG_SIZE);
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("table1.json")).unwrap()).unwrap();
+    assert_eq!(j, printed, "--json prints what table1.json holds");
+    // The first source (the expert pickle) gave 50 episodes of 49 transitions each.
+    assert_eq!(j["positives"], 50 * 49);
+    assert_eq!(j["negatives"], 50 * 49);
+    assert_eq!(j["negatives_available"], 250 * 49 * 2);
+    assert_eq!(j["task"], "FetchReach");
+    let classifiers = j["classifiers"].as_array().unwrap();
+    assert_eq!(classifiers.len(), 4);
+    for c in classifiers {
+        let a = c["accuracy"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&a), "{c}");
+        assert_eq!(c["test"], 1470, "{c}");
+    }
+    assert_eq!(classifiers[3]["train"], 500, "--svm-max-train caps the SVC's training rows");
+    let md = std::fs::read_to_string(rep.join("table1.md")).unwrap();
+    assert!(md.contains("| classifier | train | test | accuracy |") && md.contains("SVC"), "{md}");
+    let q_pos = j["positive_q_mean"].as_f64().unwrap();
+    assert!((-60.0..=1.0).contains(&q_pos), "{q_pos}");
+
+    // Same seed, same report (the JSON holds no timings).
+    let rep2 = d.join("rep2");
+    let out = etl().arg("report").arg(&scored).arg("-o").arg(&rep2).args(args).output().unwrap();
+    assert!(out.status.success());
+    let j2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep2.join("table1.json")).unwrap()).unwrap();
+    assert_eq!(j["classifiers"], j2["classifiers"]);
+    assert_eq!(
+        std::fs::read(rep.join("fig5_q_hist.png")).unwrap(),
+        std::fs::read(rep2.join("fig5_q_hist.png")).unwrap()
+    );
+
+    // A checkpoint changed since scoring is refused in one line that names it.
+    let mut bytes = std::fs::read(&ckpt).unwrap();
+    bytes.push(0);
+    std::fs::write(&ckpt, bytes).unwrap();
+    let rep3 = d.join("rep3");
+    let out = etl().arg("report").arg(&scored).arg("-o").arg(&rep3).args(args).output().unwrap();
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("q.ckpt") && err.contains("sha256"), "{err}");
+    assert!(!rep3.join("table1.json").exists());
+}
+
+/// A metrics file: a loss line, an early evaluation at 0, and the final evaluation `score`.
+fn metrics(dir: &Path, name: &str, score: f64, success: f64) -> PathBuf {
+    let p = dir.join(name);
+    let eval = |u: u64, s: f64, ok: f64| {
+        format!(
+            "{{\"updates\":{u},\"eval\":{{\"episodes\":10,\"return_mean\":{},\"return_std\":1.0,\"success_rate\":{ok},\"paper_score\":{s}}}}}",
+            s - 50.0
+        )
+    };
+    let text = format!(
+        "{{\"updates\":500,\"critic_loss\":0.5,\"q_mean\":-3.0}}\n{}\n{{\"updates\":1500,\"critic_loss\":0.4}}\n{}\n{{\"updates\":2500,\"critic_loss\":0.3}}\n",
+        eval(1000, 0.0, 0.0),
+        eval(2000, score, success)
+    );
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn run(task: &str, algo: &str, variant: &str, seed: u64, metrics: PathBuf) -> Run {
+    Run { task: task.into(), algo: algo.into(), variant: variant.into(), seed, metrics }
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt())
+}
+
+#[test]
+fn results_table_from_metrics_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cells: [(&str, [f64; 3]); 3] =
+        [("baseline", [10.0, 12.0, 14.0]), ("swap", [11.0, 13.0, 16.0]), ("mem", [30.0, 31.0, 33.0])];
+    let mut runs = Vec::new();
+    for (variant, scores) in &cells {
+        for (seed, s) in scores.iter().enumerate() {
+            let m = metrics(d, &format!("{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
+            runs.push(run("FetchReach", "td3bc", variant, seed as u64, m));
+        }
+    }
+    // A second algorithm with one seed: std and p are undefined.
+    runs.push(run("FetchReach", "td3", "mem", 0, metrics(d, "td3.metrics.jsonl", 20.0, 0.5)));
+    let out = d.join("out");
+    let r = report::results(&runs, &out).unwrap();
+
+    let csv = std::fs::read_to_string(&r.csv).unwrap();
+    let lines: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(lines.len(), 4, "{csv}");
+    assert_eq!(&lines[0][..3], ["FetchReach", "td3", "mem"], "TD3 before TD3+BC");
+    assert_eq!(lines[0][5], "NaN", "one seed has no std: {csv}");
+    assert_eq!(lines[0][7], "", "no baseline for td3: {csv}");
+    let num = |s: &str| s.parse::<f64>().unwrap();
+    for (i, (variant, scores)) in cells.iter().enumerate() {
+        let l = &lines[i + 1];
+        assert_eq!(&l[..4], ["FetchReach", "td3bc", *variant, "3"], "baseline, swap, mem order: {csv}");
+        let (m, s) = mean_std(scores);
+        assert!((num(l[4]) - m).abs() < 1e-12 && (num(l[5]) - s).abs() < 1e-12, "{variant}: {l:?} vs {m} {s}");
+        assert!((num(l[6]) - m / 50.0).abs() < 1e-12, "success mean {l:?}");
+    }
+    let mem = &lines[3];
+    let (_, _, p_base) = report::welch_t_test(&cells[2].1, &cells[0].1).unwrap();
+    assert!((num(mem[7]) - p_base).abs() < 1e-15 && p_base < 0.05, "{mem:?}");
+    assert!(num(mem[8]) < 0.05, "{mem:?}");
+    assert_eq!(lines[1][7], "", "p only for mem");
+
+    let md = std::fs::read_to_string(&r.markdown).unwrap();
+    assert_eq!(md, report::results_markdown(&r));
+    assert!(md.contains("## FetchReach"), "{md}");
+    let mem_row = md.lines().find(|l| l.starts_with("| TD3+BC mem |")).unwrap_or_else(|| panic!("{md}"));
+    assert!(mem_row.contains("31.333 ± 1.528") && mem_row.matches('*').count() == 2, "{mem_row}");
+    assert!(md.lines().any(|l| l.starts_with("| TD3+BC baseline | 12.000 ± 2.000 |")), "{md}");
+    assert_eq!(r.curves, vec![out.join("curves_FetchReach.png")]);
+    assert_eq!(png_size(&r.curves[0]), report::FIG_SIZE);
+}
+
+#[test]
+fn results_refuse_a_run_without_a_final_evaluation() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let good = metrics(d, "good.metrics.jsonl", 10.0, 0.2);
+    let no_eval = d.join("noeval.metrics.jsonl");
+    std::fs::write(&no_eval, "{\"updates\":500,\"critic_loss\":0.5}\n").unwrap();
+    let empty = d.join("empty.metrics.jsonl");
+    std::fs::write(&empty, "").unwrap();
+    let missing = d.join("missing.metrics.jsonl");
+    for bad in [&no_eval, &empty, &missing] {
+        let runs =
+            [run("FetchReach", "td3", "baseline", 0, good.clone()), run("FetchReach", "td3", "swap", 0, bad.clone())];
+        let e = report::results(&runs, &d.join("out")).unwrap_err();
+        let msg = format!("{e:#}");
+        assert!(msg.contains(&bad.display().to_string()), "{msg}");
+        assert!(!d.join("out/results.csv").exists(), "nothing written on error");
+    }
+}
