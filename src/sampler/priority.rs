@@ -47,35 +47,45 @@ impl Default for PriorityConfig {
 }
 
 impl PriorityConfig {
-    /// Priorities of rows with critic values `q`, for a critic trained with discount `gamma`.
-    pub fn priorities(&self, q: &[f32], gamma: f64) -> Vec<f64> {
+    /// Priorities of rows with critic values `q`, for a critic trained with discount `gamma`,
+    /// computed in place: a scored table of 80M rows must not need a second array of them.
+    pub fn priorities(&self, mut q: Vec<f32>, gamma: f64) -> Vec<f32> {
         let a = self.priority_alpha;
         match self.priority {
             PriorityKind::Q => {
                 let lo = -1.0 / (1.0 - gamma);
-                q.iter().map(|&x| ((x as f64).clamp(lo, 0.0) - lo + self.priority_eps).powf(a)).collect()
+                for x in q.iter_mut() {
+                    *x = ((*x as f64).clamp(lo, 0.0) - lo + self.priority_eps).powf(a) as f32;
+                }
             }
             PriorityKind::Rank => {
-                let mut order: Vec<usize> = (0..q.len()).collect();
+                assert!(q.len() <= u32::MAX as usize, "more than 2^32 rows");
+                let mut order: Vec<u32> = (0..q.len() as u32).collect();
                 // Highest q first; ties keep row order so the result is deterministic.
-                order.sort_by(|&i, &j| q[j].total_cmp(&q[i]).then(i.cmp(&j)));
-                let mut p = vec![0.0; q.len()];
+                order.sort_unstable_by(|&i, &j| q[j as usize].total_cmp(&q[i as usize]).then(i.cmp(&j)));
                 for (rank, i) in order.into_iter().enumerate() {
-                    p[i] = ((rank + 1) as f64).powf(-a);
+                    q[i as usize] = ((rank + 1) as f64).powf(-a) as f32;
                 }
-                p
             }
-            PriorityKind::Uniform => vec![1.0; q.len()],
+            PriorityKind::Uniform => q.fill(1.0),
         }
+        q
     }
 }
 
-/// A sum tree over leaf priorities: O(log n) prefix-sum search. Leaves are padded to a power of
-/// two; node i's children are 2i and 2i+1, the root is node 1.
+/// Leaves per block of the sum tree: the tree sums blocks, a draw scans one block's leaves.
+const BLOCK: usize = 64;
+
+/// Priorities with O(log n) prefix-sum search, in 4 bytes a row: the leaves are float32 (the
+/// precision of the q they come from) and the tree above them, in float64 so that sums over
+/// tens of millions of rows keep their small terms, has one leaf per block of `BLOCK` rows.
+/// (A tree over every row, padded to a power of two, took 2.1 GB for 82M rows.) Node i's
+/// children are 2i and 2i+1, the root is node 1.
 #[derive(Debug, Clone)]
 pub struct SumTree {
-    leaves: usize,
-    len: usize,
+    priorities: Vec<f32>,
+    /// Tree leaves (blocks) padded to a power of two.
+    blocks: usize,
     nodes: Vec<f64>,
     min: f64,
 }
@@ -83,26 +93,31 @@ pub struct SumTree {
 impl SumTree {
     /// Panics on a negative or non-finite priority (a caller bug: priorities come from
     /// `PriorityConfig::priorities`, which only makes finite positive values from finite q).
-    pub fn new(priorities: &[f64]) -> SumTree {
-        let leaves = priorities.len().next_power_of_two().max(1);
-        let mut nodes = vec![0.0; 2 * leaves];
-        for (i, &p) in priorities.iter().enumerate() {
-            assert!(p.is_finite() && p >= 0.0, "priority {p} of row {i}");
-            nodes[leaves + i] = p;
+    pub fn new(priorities: Vec<f32>) -> SumTree {
+        let blocks = priorities.len().div_ceil(BLOCK).next_power_of_two().max(1);
+        let mut nodes = vec![0.0; 2 * blocks];
+        let mut min = f64::INFINITY;
+        for (b, chunk) in priorities.chunks(BLOCK).enumerate() {
+            let mut sum = 0.0;
+            for (j, &p) in chunk.iter().enumerate() {
+                assert!(p.is_finite() && p >= 0.0, "priority {p} of row {}", b * BLOCK + j);
+                sum += p as f64;
+                min = min.min(p as f64);
+            }
+            nodes[blocks + b] = sum;
         }
-        for i in (1..leaves).rev() {
+        for i in (1..blocks).rev() {
             nodes[i] = nodes[2 * i] + nodes[2 * i + 1];
         }
-        let min = priorities.iter().copied().fold(f64::INFINITY, f64::min);
-        SumTree { leaves, len: priorities.len(), nodes, min }
+        SumTree { priorities, blocks, nodes, min }
     }
 
     pub fn len(&self) -> usize {
-        self.len
+        self.priorities.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.len == 0
+        self.priorities.is_empty()
     }
 
     pub fn total(&self) -> f64 {
@@ -110,7 +125,7 @@ impl SumTree {
     }
 
     pub fn priority(&self, i: usize) -> f64 {
-        self.nodes[self.leaves + i]
+        self.priorities[i] as f64
     }
 
     /// The probability row i is drawn with.
@@ -121,7 +136,7 @@ impl SumTree {
     /// The row whose cumulative-priority interval contains `mass` ∈ [0, total).
     pub fn find(&self, mut mass: f64) -> usize {
         let mut i = 1;
-        while i < self.leaves {
+        while i < self.blocks {
             let left = self.nodes[2 * i];
             if mass < left {
                 i *= 2;
@@ -130,9 +145,18 @@ impl SumTree {
                 i = 2 * i + 1;
             }
         }
-        // Rounding can walk past the last real leaf by a hair; the last positive row is meant.
-        let mut row = (i - self.leaves).min(self.len - 1);
-        while self.priority(row) == 0.0 && row > 0 {
+        let start = ((i - self.blocks) * BLOCK).min(self.len() - 1);
+        let end = (start + BLOCK).min(self.len());
+        for (r, &p) in self.priorities[start..end].iter().enumerate() {
+            let p = p as f64;
+            if mass < p {
+                return start + r;
+            }
+            mass -= p;
+        }
+        // Rounding can walk past a block's last positive row by a hair: that row is meant.
+        let mut row = end - 1;
+        while self.priorities[row] == 0.0 && row > 0 {
             row -= 1;
         }
         row
@@ -150,7 +174,7 @@ impl SumTree {
     /// Importance-sampling weights (N·P(i))^−β normalised by their maximum, which belongs to
     /// the least likely row: every weight is in (0, 1], so they only ever shrink a loss term.
     pub fn is_weights(&self, rows: &[usize], beta: f64) -> Vec<f32> {
-        let n = self.len as f64;
+        let n = self.len() as f64;
         let max = (n * self.min / self.total()).powf(-beta);
         rows.iter().map(|&i| ((n * self.probability(i)).powf(-beta) / max) as f32).collect()
     }
@@ -169,7 +193,8 @@ mod tests {
     fn draw_frequencies_match_priorities() {
         // 50 rows with priorities over two orders of magnitude; 400k draws in batches of 256.
         let p: Vec<f64> = (0..50).map(|i| 0.1 + (i as f64 * 0.37).sin().abs() * 10.0 + (i % 7) as f64).collect();
-        let tree = SumTree::new(&p);
+        let tree = SumTree::new(p.iter().map(|&x| x as f32).collect());
+        let p: Vec<f64> = (0..p.len()).map(|i| tree.priority(i)).collect();
         let mut rng = NpRandom::new(42);
         let mut counts = vec![0u64; p.len()];
         let mut rows = Vec::new();
@@ -189,8 +214,37 @@ mod tests {
     }
 
     #[test]
+    fn draw_frequencies_match_priorities_across_blocks() {
+        // 300 rows over 5 blocks of the tree (the last one partial), every 7th row at zero.
+        let p: Vec<f32> = (0..300).map(|i| if i % 7 == 3 { 0.0 } else { 0.5 + ((i * 13) % 17) as f32 }).collect();
+        let tree = SumTree::new(p.clone());
+        let mut rng = NpRandom::new(7);
+        let mut counts = vec![0u64; p.len()];
+        let mut rows = Vec::new();
+        for _ in 0..2000 {
+            tree.sample(256, &mut rng, &mut rows);
+            for &r in &rows {
+                counts[r] += 1;
+            }
+        }
+        let draws = 2000.0 * 256.0;
+        let (mut obs, mut exp) = (Vec::new(), Vec::new());
+        for (i, &c) in counts.iter().enumerate() {
+            if p[i] == 0.0 {
+                assert_eq!(c, 0, "row {i} has priority 0");
+            } else {
+                obs.push(c);
+                exp.push(tree.probability(i) * draws);
+            }
+        }
+        // 257 positive rows: df 256, whose 0.999 quantile is ≈ 330 (Wilson–Hilferty).
+        let chi2 = chi_square(&obs, &exp);
+        assert!(chi2 < 330.0, "chi2 {chi2}");
+    }
+
+    #[test]
     fn zero_priority_rows_are_never_drawn() {
-        let tree = SumTree::new(&[0.0, 1.0, 0.0, 3.0, 0.0]);
+        let tree = SumTree::new(vec![0.0, 1.0, 0.0, 3.0, 0.0]);
         let mut rng = NpRandom::new(1);
         let mut rows = Vec::new();
         for _ in 0..1000 {
@@ -201,7 +255,7 @@ mod tests {
 
     #[test]
     fn is_weights_are_normalised_inverse_probabilities() {
-        let tree = SumTree::new(&[1.0, 2.0, 4.0, 1.0]);
+        let tree = SumTree::new(vec![1.0, 2.0, 4.0, 1.0]);
         let w = tree.is_weights(&[0, 1, 2, 3], 1.0);
         // (N·P)^−1 = total/(N·p) = 8/(4p): 2, 1, 0.5, 2; divided by the max 2.
         assert_eq!(w, vec![1.0, 0.5, 0.25, 1.0]);
@@ -212,19 +266,19 @@ mod tests {
     #[test]
     fn q_priorities_follow_q_and_rank_priorities_follow_order() {
         let cfg = PriorityConfig::default(); // q, α = 1, ε = 0.01
-        let p = cfg.priorities(&[0.0, -50.0, -60.0, -25.0], 0.98);
-        for (got, want) in p.iter().zip([50.01, 0.01, 0.01, 25.01]) {
-            assert!((got - want).abs() < 1e-9, "{p:?}");
+        let p = cfg.priorities(vec![0.0, -50.0, -60.0, -25.0], 0.98);
+        for (got, want) in p.iter().zip([50.01f32, 0.01, 0.01, 25.01]) {
+            assert_eq!(*got, want, "{p:?}");
         }
         let rank = PriorityConfig { priority: PriorityKind::Rank, ..cfg.clone() };
-        assert_eq!(rank.priorities(&[-3.0, -1.0, -2.0], 0.98), vec![1.0 / 3.0, 1.0, 0.5]);
+        assert_eq!(rank.priorities(vec![-3.0, -1.0, -2.0], 0.98), vec![1.0 / 3.0, 1.0, 0.5]);
         let alpha0 = PriorityConfig { priority_alpha: 0.0, ..cfg };
-        assert!(alpha0.priorities(&[-3.0, -1.0], 0.98).iter().all(|&x| x == 1.0));
+        assert!(alpha0.priorities(vec![-3.0, -1.0], 0.98).iter().all(|&x| x == 1.0));
     }
 
     #[test]
     fn same_seed_same_rows() {
-        let tree = SumTree::new(&[1.0, 5.0, 2.0, 0.5, 9.0]);
+        let tree = SumTree::new(vec![1.0, 5.0, 2.0, 0.5, 9.0]);
         let draw = |s| {
             let mut rows = Vec::new();
             tree.sample(64, &mut NpRandom::new(s), &mut rows);

@@ -1,12 +1,12 @@
 //! Prioritized batches of scored swapped transitions (β_aug, the output of `pgser-etl score`),
 //! read from memory or straight from the Parquet file.
 //!
-//! Only the priorities (a sum tree, 16 bytes per row) and the row-group index stay in memory.
-//! Rows are drawn in blocks of `BLOCK_BATCHES` batches: a background thread draws a block's row
-//! indices (stratified over the sum tree, seeded by (seed, block)), sorts them, reads each row
-//! group that holds any of them once, scatters the rows into the block's batches and hands them
-//! to the trainer through a bounded channel. One pass over the file then serves a whole block,
-//! so reading keeps ahead of training while memory stays at two blocks, whatever the file size.
+//! Only the priorities (a sum tree, 4 bytes per row) and the row-group index stay in memory.
+//! Rows are drawn in blocks of 256–4096 batches (`block_batches`, larger for larger tables): a
+//! background thread draws a block's row indices (stratified over the sum tree, seeded by
+//! (seed, block)), sorts them, reads each row group that holds any of them once, and hands the
+//! block's batches to the trainer through a bounded channel. One pass over the file then serves
+//! a whole block, so reading keeps ahead of training while memory stays at two blocks of keys.
 //! In memory (`--aug-in-memory`) the same draws are served from arrays, so both modes give the
 //! same batches for the same seed.
 //!
@@ -40,8 +40,10 @@ use crate::env::rng::NpRandom;
 use crate::task::Task;
 use crate::trajectory::Episodes;
 
-/// Batches per block: one read of the file serves this many batches.
+/// Batches per block, at least: one read of the file serves a block (see `block_batches`).
 pub const BLOCK_BATCHES: usize = 256;
+/// Batches per block, at most: 4096 × k keys in flight (28 MB at k = 256), two blocks queued.
+pub const MAX_BLOCK_BATCHES: usize = 4096;
 /// Spawn key of the prioritized draws (the agent and β's sampler use 1–3).
 const STREAM_AUG: u64 = 4;
 /// The columns that name a row's transition and goal.
@@ -215,17 +217,36 @@ pub struct AugBatch {
     pub weights: Vec<f32>,
 }
 
+/// What the worker hands over per batch: rows, their keys and weights (28 bytes a row). The
+/// trainer's thread rebuilds the rows from β (a few memcpys), so a block in flight costs its
+/// keys, not its floats.
+struct Drawn {
+    rows: Vec<usize>,
+    keys: Vec<RowKey>,
+    weights: Vec<f32>,
+}
+
 /// The prioritized sampler: yields batch after batch of `k` rows.
 pub struct ScoredSampler {
-    rx: Receiver<Result<AugBatch>>,
+    rx: Receiver<Result<Drawn>>,
     worker: Option<JoinHandle<()>>,
+    beta: Arc<Episodes>,
     pub tree: Arc<SumTree>,
+    /// Batches per block for this table and batch size.
+    pub block_batches: usize,
 }
 
 /// Where row keys come from.
 enum Rows {
     Memory(Vec<RowKey>),
     Disk(ScoredTable),
+}
+
+/// Batches per block: one pass over the file's row groups serves a block, so a large table
+/// gets large blocks (draws ≈ rows / 8, between `BLOCK_BATCHES` and `MAX_BLOCK_BATCHES`
+/// batches). On 82M rows, 256-batch blocks re-read the whole key columns every 65k draws.
+pub fn block_batches(rows: usize, k: usize) -> usize {
+    (rows / (8 * k.max(1))).clamp(BLOCK_BATCHES, MAX_BLOCK_BATCHES)
 }
 
 impl ScoredSampler {
@@ -241,8 +262,8 @@ impl ScoredSampler {
         in_memory: bool,
     ) -> Result<ScoredSampler> {
         let q = table.read_q()?;
-        let tree = Arc::new(SumTree::new(&cfg.priorities(&q, table.gamma)));
-        drop(q);
+        let tree = Arc::new(SumTree::new(cfg.priorities(q, table.gamma)));
+        let per_block = block_batches(table.rows, k);
         let rows = if in_memory {
             let mut all = Vec::with_capacity(table.rows);
             for rg in 0..table.group_starts.len() - 1 {
@@ -253,21 +274,24 @@ impl ScoredSampler {
         } else {
             Rows::Disk(table)
         };
-        let (tx, rx) = sync_channel(2 * BLOCK_BATCHES);
+        let (tx, rx) = sync_channel(2 * per_block);
         let is_beta = cfg.is_beta;
         let t = tree.clone();
+        let b = beta.clone();
+        let draw = Draw { tree: t, k, seed, per_block, is_beta };
         let worker = std::thread::Builder::new()
             .name("pgser-aug-sampler".into())
-            .spawn(move || produce(&rows, &beta, &t, k, seed, first, is_beta, &tx))
+            .spawn(move || produce(&rows, &b, &draw, first, &tx))
             .context("cannot start the sampler thread")?;
-        Ok(ScoredSampler { rx, worker: Some(worker), tree })
+        Ok(ScoredSampler { rx, worker: Some(worker), beta, tree, block_batches: per_block })
     }
 
     pub fn next_batch(&mut self) -> Result<AugBatch> {
-        match self.rx.recv() {
-            Ok(b) => b,
+        let d = match self.rx.recv() {
+            Ok(d) => d?,
             Err(_) => bail!("the prioritized sampler stopped"),
-        }
+        };
+        Ok(AugBatch { batch: gather(&self.beta, d.keys.into_iter()), rows: d.rows, weights: d.weights })
     }
 }
 
@@ -282,22 +306,21 @@ impl Drop for ScoredSampler {
     }
 }
 
-/// The worker: block after block until the trainer hangs up.
-#[allow(clippy::too_many_arguments)]
-fn produce(
-    rows: &Rows,
-    beta: &Episodes,
-    tree: &SumTree,
+/// How blocks are drawn.
+struct Draw {
+    tree: Arc<SumTree>,
     k: usize,
     seed: u64,
-    first: u64,
+    per_block: usize,
     is_beta: Option<f64>,
-    tx: &SyncSender<Result<AugBatch>>,
-) {
-    let mut block = first / BLOCK_BATCHES as u64;
-    let mut skip = (first % BLOCK_BATCHES as u64) as usize;
+}
+
+/// The worker: block after block until the trainer hangs up.
+fn produce(rows: &Rows, beta: &Episodes, d: &Draw, first: u64, tx: &SyncSender<Result<Drawn>>) {
+    let per_block = d.per_block as u64;
+    let (mut block, mut skip) = (first / per_block, (first % per_block) as usize);
     loop {
-        let batches = match draw_block(rows, beta, tree, k, seed, block, is_beta) {
+        let batches = match draw_block(rows, beta, d, block) {
             Ok(b) => b,
             Err(e) => {
                 let _ = tx.send(Err(e));
@@ -314,42 +337,35 @@ fn produce(
     }
 }
 
-/// Draws block `block`'s `BLOCK_BATCHES` batches and fetches their rows.
-fn draw_block(
-    rows: &Rows,
-    beta: &Episodes,
-    tree: &SumTree,
-    k: usize,
-    seed: u64,
-    block: u64,
-    is_beta: Option<f64>,
-) -> Result<Vec<AugBatch>> {
-    let mut rng = NpRandom::spawned(seed, &[STREAM_AUG, block]);
-    let mut drawn = Vec::with_capacity(BLOCK_BATCHES);
+/// Draws block `block`'s batches (from the stream of (seed, block)) and fetches their keys.
+fn draw_block(rows: &Rows, beta: &Episodes, d: &Draw, block: u64) -> Result<Vec<Drawn>> {
+    let mut rng = NpRandom::spawned(d.seed, &[STREAM_AUG, block]);
+    let mut drawn = Vec::with_capacity(d.per_block);
     let mut buf = Vec::new();
-    for _ in 0..BLOCK_BATCHES {
-        tree.sample(k, &mut rng, &mut buf);
+    for _ in 0..d.per_block {
+        d.tree.sample(d.k, &mut rng, &mut buf);
         drawn.push(buf.clone());
     }
-    let fetched = match rows {
-        Rows::Memory(all) => drawn.iter().map(|rows| gather(beta, rows.iter().map(|&r| all[r]))).collect(),
+    let keys: Vec<Vec<RowKey>> = match rows {
+        Rows::Memory(all) => drawn.iter().map(|rows| rows.iter().map(|&r| all[r]).collect()).collect(),
         Rows::Disk(table) => fetch(table, beta, &drawn)?,
     };
     Ok(drawn
         .into_iter()
-        .zip(fetched)
-        .map(|(rows, batch)| {
-            let weights = match is_beta {
-                Some(beta) => tree.is_weights(&rows, beta),
+        .zip(keys)
+        .map(|(rows, keys)| {
+            let weights = match d.is_beta {
+                Some(beta) => d.tree.is_weights(&rows, beta),
                 None => vec![1.0; rows.len()],
             };
-            AugBatch { rows, batch, weights }
+            Drawn { rows, keys, weights }
         })
         .collect())
 }
 
-/// Reads every row a block needs, one pass over the row groups that hold any (in parallel).
-fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<Vec<Batch>> {
+/// Reads the keys of every row a block needs, one pass over the row groups that hold any (in
+/// parallel), and returns them batch by batch.
+fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<Vec<Vec<RowKey>>> {
     let mut wanted: Vec<usize> = drawn.iter().flatten().copied().collect();
     wanted.sort_unstable();
     wanted.dedup();
@@ -374,5 +390,5 @@ fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<V
         keys.extend(k);
     }
     let key = |r: usize| keys[order.binary_search(&r).expect("every drawn row was fetched")];
-    Ok(drawn.par_iter().map(|rows| gather(beta, rows.iter().map(|&r| key(r)))).collect())
+    Ok(drawn.iter().map(|rows| rows.iter().map(|&r| key(r)).collect()).collect())
 }
