@@ -9,6 +9,13 @@ pub static LONG_VERSION: LazyLock<String> =
 
 /// Run a command's body; print any error as one line `PROGRAM: error: …` and exit 1.
 pub fn main_with(program: &str, body: impl FnOnce() -> anyhow::Result<()>) -> ExitCode {
+    // Rust ignores SIGPIPE, so `println!` into a closed pipe (`pgser-etl inspect f | head`)
+    // panics with a backtrace; like other Unix tools we want to just stop.
+    #[cfg(unix)]
+    // SAFETY: called before any thread exists; SIG_DFL is a valid action for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     match body() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

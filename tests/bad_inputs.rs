@@ -82,3 +82,23 @@ fn missing_input_and_output_folder_are_named() {
     let o = convert(&[&good, &good], &tmp.path().join("o.parquet"), &["--episodes".into(), "1".into()]);
     assert!(text(&o.stderr).contains("one count per input"), "{}", text(&o.stderr));
 }
+
+#[test]
+fn a_closed_stdout_ends_the_command_quietly() {
+    // `pgser-etl inspect t | head -1`: the reader goes away; no panic, no backtrace.
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("t.parquet");
+    let data = repo().join("data");
+    convert_ok(&[&data.join("fetch_reach_expert_50.pkl")], &table, &[]);
+    let mut child = etl()
+        .args(["inspect", "--per-dim"])
+        .arg(&table)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = text(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+}
