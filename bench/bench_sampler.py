@@ -5,7 +5,8 @@
 
     pgser disk     pgser-train bench-sampler --data T --batch-size 256 --batches N --json
                    rows read from the Parquet row groups by pgser's background thread, in
-                   blocks of 256 batches; only the sum tree is in memory
+                   blocks of 256-4096 batches, as keys rebuilt from the original data;
+                   only the sum tree and that data are in memory
     pgser memory   the same with --in-memory (rows loaded into arrays first)
     cpprb          sampler_peer.py: cpprb.PrioritizedReplayBuffer holding every row, the same
                    priorities from q, sample(256, beta) timed (the in-memory peer)

@@ -12,6 +12,7 @@ use std::sync::Once;
 
 use anyhow::{Context, Result, anyhow};
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -44,6 +45,52 @@ fn ensure_font() {
             panic!("the bundled font assets/fonts/DejaVuSans.ttf is not a valid TrueType font");
         }
     });
+}
+
+type Chart<'a, 'b> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// What both figures share: the title, labelled axes over `x` × `y`, a light grid.
+fn frame<'a, 'b>(
+    root: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    title: &str,
+    (x_label, y_label): (&str, &str),
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    margin_right: u32,
+) -> Result<Chart<'a, 'b>> {
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, (FAMILY, 22))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(65)
+        .margin_right(margin_right)
+        .build_cartesian_2d(x, y)
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .label_style((FAMILY, 14))
+        .axis_desc_style((FAMILY, 16))
+        .bold_line_style(BLACK.mix(0.12))
+        .light_line_style(TRANSPARENT)
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    Ok(chart)
+}
+
+/// The series' labels in a framed box at `at`.
+fn legend<'a, 'b: 'a>(chart: &mut Chart<'a, 'b>, at: SeriesLabelPosition) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(at)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FAMILY, 15))
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    Ok(())
 }
 
 /// Draws a `width` × `height` figure with `draw` and writes it to `path` as an RGB PNG.
@@ -117,25 +164,7 @@ pub fn density_histograms(
     let top = if top > 0.0 { top * 1.1 } else { 1.0 };
     let width = (hi - lo) / bins as f64;
     save_png(path, size, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption(title, (FAMILY, 22))
-            .margin(15)
-            .x_label_area_size(45)
-            .y_label_area_size(65)
-            .margin_right(25)
-            .build_cartesian_2d(lo..hi, 0.0..top)
-            .map_err(|e| anyhow!("{e}"))?;
-        chart
-            .configure_mesh()
-            .x_label_formatter(&|x| format!("{x:.0}"))
-            .x_desc(x_label)
-            .y_desc(y_label)
-            .label_style((FAMILY, 14))
-            .axis_desc_style((FAMILY, 16))
-            .bold_line_style(BLACK.mix(0.12))
-            .light_line_style(TRANSPARENT)
-            .draw()
-            .map_err(|e| anyhow!("{e}"))?;
+        let mut chart = frame(root, title, (x_label, y_label), lo..hi, 0.0..top, 25)?;
         for (s, d) in series.iter().zip(&dens) {
             let style = s.color.mix(0.45).filled();
             let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
@@ -148,15 +177,7 @@ pub fn density_histograms(
                 .label(s.label.clone())
                 .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 16, y + 6)], style));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font((FAMILY, 15))
-            .draw()
-            .map_err(|e| anyhow!("{e}"))?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::UpperLeft)
     })
 }
 
@@ -186,25 +207,7 @@ pub fn mean_std_curves(
     let pad = if y1 > y0 { 0.05 * (y1 - y0) } else { 1.0 };
     let (y0, y1) = if y0.is_finite() { (y0 - pad, y1 + pad) } else { (0.0, 1.0) };
     save_png(path, size, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption(title, (FAMILY, 22))
-            .margin(15)
-            .x_label_area_size(45)
-            .y_label_area_size(65)
-            .margin_right(40)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|e| anyhow!("{e}"))?;
-        chart
-            .configure_mesh()
-            .x_label_formatter(&|x| format!("{x:.0}"))
-            .x_desc(x_label)
-            .y_desc(y_label)
-            .label_style((FAMILY, 14))
-            .axis_desc_style((FAMILY, 16))
-            .bold_line_style(BLACK.mix(0.12))
-            .light_line_style(TRANSPARENT)
-            .draw()
-            .map_err(|e| anyhow!("{e}"))?;
+        let mut chart = frame(root, title, (x_label, y_label), x0..x1, y0..y1, 40)?;
         for (i, c) in curves.iter().enumerate() {
             let color = PALETTE[i % PALETTE.len()];
             let upper = c.x.iter().zip(c.mean.iter().zip(&c.std)).map(|(x, (m, s))| (*x, m + s));
@@ -220,14 +223,6 @@ pub fn mean_std_curves(
                 .label(c.label.clone())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font((FAMILY, 15))
-            .draw()
-            .map_err(|e| anyhow!("{e}"))?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::LowerRight)
     })
 }

@@ -121,7 +121,7 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     let footer = score::read_footer(&o.scored)?;
 
     // The checkpoint and β, as the footer recorded them.
-    let ckpt = relative_to_scored(&o.scored, &footer.checkpoint.path);
+    let ckpt = footer.checkpoint_file(&o.scored);
     check_sha(&ckpt, &footer.checkpoint.sha256, &o.scored, "checkpoint")?;
     let beta = footer.source_table(&o.scored);
     check_sha(&beta, &footer.source.sha256, &o.scored, "source table")?;
@@ -211,14 +211,6 @@ pub fn table1_markdown(r: &QReport) -> String {
 }
 
 /// A path from a footer, relative to the scored table's folder (as `Footer::source_table`).
-fn relative_to_scored(scored: &Path, p: &str) -> PathBuf {
-    let p = Path::new(p);
-    match scored.parent() {
-        Some(dir) if p.is_relative() => dir.join(p),
-        _ => p.to_path_buf(),
-    }
-}
-
 fn check_sha(file: &Path, want: &str, scored: &Path, what: &str) -> Result<()> {
     let got = sha256_file(file).with_context(|| format!("{}: the {what} of {}", file.display(), scored.display()))?;
     if got != want {

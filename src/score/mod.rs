@@ -129,11 +129,21 @@ impl Footer {
 
     /// Where the source trajectory table of the transition table at `scored` is.
     pub fn source_table(&self, scored: &Path) -> PathBuf {
-        let p = Path::new(&self.source.path);
-        match scored.parent() {
-            Some(dir) if p.is_relative() => dir.join(p),
-            _ => p.to_path_buf(),
-        }
+        resolve(scored, &self.source.path)
+    }
+
+    /// Where the checkpoint that scored the transition table at `scored` is.
+    pub fn checkpoint_file(&self, scored: &Path) -> PathBuf {
+        resolve(scored, &self.checkpoint.path)
+    }
+}
+
+/// A footer path, relative to the folder of the table at `table` (absolute ones stay).
+fn resolve(table: &Path, recorded: &str) -> PathBuf {
+    let p = Path::new(recorded);
+    match table.parent() {
+        Some(dir) if p.is_relative() => dir.join(p),
+        _ => p.to_path_buf(),
     }
 }
 
