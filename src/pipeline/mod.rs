@@ -331,10 +331,19 @@ fn resumable(out: &Path, cfg: &TrainConfig) -> Result<bool> {
 
 /// The report's one-screen summary: steps, then where the tables are.
 pub fn render(r: &RunReport) -> String {
-    let mut s = String::new();
-    let ran = r.steps.iter().filter(|s| s.status == "ran" || s.status == "resumed").count();
-    s += &format!("pipeline {}: {} steps, {ran} run, {} up to date\n", r.pipeline, r.steps.len(),
-        r.steps.iter().filter(|s| s.status == "up to date").count());
+    let count = |f: &dyn Fn(&str) -> bool| r.steps.iter().filter(|s| f(&s.status)).count();
+    let mut s = format!(
+        "pipeline {}: {} steps, {} run, {} up to date",
+        r.pipeline,
+        r.steps.len(),
+        count(&|s| s == "ran" || s == "resumed"),
+        count(&|s| s == "up to date")
+    );
+    let would = count(&|s| s == "would run");
+    if would > 0 {
+        s += &format!(", {would} would run (dry run)");
+    }
+    s.push('\n');
     if let Some(t) = &r.table1 {
         s += &format!("Fig. 5 and Table 1: {} (and fig5_q_hist.png beside it)\n", t.display());
     }
