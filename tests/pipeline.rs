@@ -46,7 +46,8 @@ updates = {agent_updates}
 
 /// Runs the pipeline; returns step name → status.
 fn run(file: &Path, extra: &[&str]) -> BTreeMap<String, String> {
-    let out = etl().args(["pipeline", "run"]).arg(file).args(["--json", "--threads", "2"]).args(extra).output().unwrap();
+    let out =
+        etl().args(["pipeline", "run"]).arg(file).args(["--json", "--threads", "2"]).args(extra).output().unwrap();
     assert!(out.status.success(), "pipeline failed: {}", text(&out.stderr));
     let line = text(&out.stdout);
     let r: serde_json::Value = serde_json::from_str(line.lines().last().unwrap()).unwrap();
@@ -86,10 +87,8 @@ fn runs_once_then_only_what_changed() {
     // More updates: every agent continues from its checkpoint; data, Q, scores, report stay.
     let file = pipeline(dir.path(), 40, 4);
     let more = run(&file, &[]);
-    let mut want: Vec<String> = ["baseline", "swap", "mem"]
-        .iter()
-        .flat_map(|v| (0..2).map(move |s| format!("agent td3bc_{v}_s{s}")))
-        .collect();
+    let mut want: Vec<String> =
+        ["baseline", "swap", "mem"].iter().flat_map(|v| (0..2).map(move |s| format!("agent td3bc_{v}_s{s}"))).collect();
     want.push("results".into());
     want.sort();
     assert_eq!(ran(&more), want.iter().map(String::as_str).collect::<Vec<_>>());
@@ -98,11 +97,7 @@ fn runs_once_then_only_what_changed() {
     // Fewer swaps: the scores change, so the report and the -mem agents rerun, nothing else.
     let file = pipeline(dir.path(), 40, 2);
     let swaps = run(&file, &[]);
-    assert_eq!(
-        ran(&swaps),
-        ["agent td3bc_mem_s0", "agent td3bc_mem_s1", "report", "results", "score"],
-        "{swaps:?}"
-    );
+    assert_eq!(ran(&swaps), ["agent td3bc_mem_s0", "agent td3bc_mem_s1", "report", "results", "score"], "{swaps:?}");
 
     // A lost output is rebuilt identically: the steps that read it stay up to date.
     let scored = out.join("scored.parquet");

@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
 use pgser::env::policy::{PolicyKind, PolicySpec};
-use anyhow::Context;
 use pgser::{cli, collect, inspect, pipeline, progress, report, score, trajectory};
 
 #[derive(Parser)]
@@ -326,7 +326,10 @@ fn main() -> ExitCode {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
                 for t in [&r.table1, &r.results].into_iter().flatten() {
-                    println!("{}", std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?);
+                    println!(
+                        "{}",
+                        std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?
+                    );
                 }
                 print!("{}", pipeline::render(&r));
             }

@@ -94,7 +94,9 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         Data::Pickles { inputs, episodes } => (inputs.clone(), episodes.clone()),
         Data::Collect { expert, random, seed, noise } => {
             let mut files = Vec::new();
-            for (kind, n, s) in [(PolicyKind::Expert, *expert, *seed), (PolicyKind::Random, *random, seed + *expert as u64)] {
+            for (kind, n, s) in
+                [(PolicyKind::Expert, *expert, *seed), (PolicyKind::Random, *random, seed + *expert as u64)]
+            {
                 let name = format!("collect_{}", kind.name());
                 let file = out.join(format!("data/{}.pkl", kind.name()));
                 let noise = if kind == PolicyKind::Expert { *noise } else { 0.0 };
@@ -240,7 +242,8 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
         bail!("--until {u}: no such step (steps: {})", names.join(", "));
     }
     let mut hashes = Hashes::default();
-    let mut report = RunReport { pipeline: p.name.clone(), out: p.out.clone(), steps: vec![], results: None, table1: None };
+    let mut report =
+        RunReport { pipeline: p.name.clone(), out: p.out.clone(), steps: vec![], results: None, table1: None };
     let n = steps.len();
     for (i, step) in steps.into_iter().enumerate() {
         let head = format!("[{}/{n}] {}", i + 1, step.name);
@@ -258,7 +261,8 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
             // change of settings (another key; `train` refuses what cannot continue), but not when
             // a finished output no longer has its recorded bytes: that one is rebuilt from scratch.
             let resume = state::recorded_key(&p.out, &step) != key;
-            let how = execute(&step, o.device, resume).with_context(|| format!("pipeline {}, step {}", p.name, step.name))?;
+            let how =
+                execute(&step, o.device, resume).with_context(|| format!("pipeline {}, step {}", p.name, step.name))?;
             let secs = t0.elapsed().as_secs_f64();
             let key = hashes.key(&step)?.context("an input vanished while the step ran")?;
             state::record(&p.out, &step, &key, secs, &mut hashes)?;

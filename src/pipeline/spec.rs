@@ -146,7 +146,8 @@ impl Pipeline {
 
     /// Parses `text` as the pipeline file at `path` (paths resolve against its folder).
     pub fn parse(text: &str, path: &Path) -> Result<Pipeline> {
-        let f: File = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim().replace('\n', " ")))?;
+        let f: File =
+            toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim().replace('\n', " ")))?;
         let dir = path.parent().unwrap_or(Path::new(""));
         let resolve = |p: &str| normalize(&dir.join(p));
         if crate::task::Task::known(&f.task).is_none() {
@@ -239,7 +240,8 @@ pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
     for layer in layers {
         for (key, value) in layer.iter() {
             let value = serde_json::to_value(value)?;
-            let group = obj.iter().find(|(_, g)| g.as_object().is_some_and(|g| g.contains_key(key))).map(|(n, _)| n.clone());
+            let group =
+                obj.iter().find(|(_, g)| g.as_object().is_some_and(|g| g.contains_key(key))).map(|(n, _)| n.clone());
             match group {
                 Some(g) => {
                     obj[&g].as_object_mut().expect("a group").insert(key.clone(), value);
