@@ -239,7 +239,7 @@ pub struct ScoredSampler {
 /// Where row keys come from.
 enum Rows {
     Memory(Vec<RowKey>),
-    Disk(ScoredTable),
+    Disk(Box<ScoredTable>),
 }
 
 /// Batches per block: one pass over the file's row groups serves a block, so a large table
@@ -272,7 +272,7 @@ impl ScoredSampler {
             }
             Rows::Memory(all)
         } else {
-            Rows::Disk(table)
+            Rows::Disk(Box::new(table))
         };
         let (tx, rx) = sync_channel(2 * per_block);
         let is_beta = cfg.is_beta;
