@@ -58,10 +58,10 @@ import sys
 import time
 from pathlib import Path
 
+import peer_python
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
-DEFAULT_PYTHON = REPO / "bench-out" / "torch-venv" / "bin" / "python"
-VENV_HINT = "bench-out/torch-venv/bin/pip install cpprb pyarrow"
 TRAIN_BATCH = 512
 AUG_RATIO = 0.5
 MiB = 1 << 20
@@ -143,7 +143,7 @@ def main(argv=None):
     ap.add_argument("--batch-size", type=int, default=256, help="rows per batch (default 256)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per side (default 3)")
     ap.add_argument("--python", default=None,
-                    help=f"interpreter for the peer, with cpprb, pyarrow and numpy (default {DEFAULT_PYTHON.relative_to(REPO)})")
+                    help=f"interpreter for the peer, with cpprb, pyarrow and numpy (default {peer_python.DEFAULT.relative_to(REPO)})")
     ap.add_argument("--pgser-train", default=str(REPO / "target" / "release" / "pgser-train"))
     ap.add_argument("--pgser-etl", default=str(REPO / "target" / "release" / "pgser-etl"),
                     help="only used to build the default table")
@@ -168,13 +168,7 @@ def main(argv=None):
     train = Path(args.pgser_train).resolve()
     if not os.access(train, os.X_OK):
         sys.exit(f"--pgser-train {train} is not an executable file (cargo build --release)")
-    if args.python:
-        python = args.python
-    elif DEFAULT_PYTHON.exists():
-        python = str(DEFAULT_PYTHON)
-    else:
-        sys.exit(f"no interpreter for the peer: {DEFAULT_PYTHON} does not exist.\n"
-                 f"Create it with:\n    python3 -m venv bench-out/torch-venv && {VENV_HINT}\nor pass --python PATH.")
+    python = peer_python.resolve(args.python, "cpprb pyarrow numpy")
     peers = [p.strip() for p in args.peers.split(",") if p.strip()]
     if any(p not in ("cpprb", "numpy") for p in peers):
         ap.error("--peers: cpprb and/or numpy")

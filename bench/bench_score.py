@@ -72,9 +72,10 @@ import sys
 import time
 from pathlib import Path
 
+import peer_python
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
-DEFAULT_PYTHON = REPO / "bench-out" / "torch-venv" / "bin" / "python"
 MiB = 1 << 20
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -317,7 +318,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--pgser-etl", default=str(REPO / "target" / "release" / "pgser-etl"))
     ap.add_argument("--pgser-train", default=str(REPO / "target" / "release" / "pgser-train"))
-    ap.add_argument("--python", default=str(DEFAULT_PYTHON), help="the peer's interpreter (torch, numpy, pyarrow)")
+    ap.add_argument("--python", help="the peer's interpreter (torch, numpy, pyarrow; default bench-out/torch-venv)")
     ap.add_argument("--workdir", default=str(REPO / "bench-out" / "score"),
                     help="inputs, outputs and logs (bench-logs/) (default <repo>/bench-out/score)")
     ap.add_argument("--episodes", type=int, default=2500)
@@ -345,9 +346,7 @@ def main(argv=None):
     for b in (args.pgser_etl, args.pgser_train):
         if not os.access(b, os.X_OK):
             sys.exit(f"{b} is not executable (cargo build --release)")
-    if not Path(args.python).exists():
-        sys.exit(f"no peer interpreter {args.python} (python3 -m venv bench-out/torch-venv && "
-                 f"bench-out/torch-venv/bin/pip install torch numpy pyarrow)")
+    args.python = peer_python.resolve(args.python, "torch numpy pyarrow")
     work = Path(args.workdir).resolve()
     logs = work / "bench-logs"
     logs.mkdir(parents=True, exist_ok=True)

@@ -44,6 +44,8 @@ import sys
 import time
 from pathlib import Path
 
+import peer_python
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 
@@ -57,8 +59,6 @@ TASKS = {
     "FetchPick": (25, 3, 4),
 }
 
-DEFAULT_PYTHON = REPO / "bench-out" / "torch-venv" / "bin" / "python"
-VENV_HINT = "python3 -m venv bench-out/torch-venv && bench-out/torch-venv/bin/pip install torch numpy"
 
 
 def parse_cpu_set(spec: str) -> set[int]:
@@ -118,7 +118,7 @@ def main(argv=None):
     ap.add_argument("--pgser", default=str(REPO / "target" / "release" / "pgser-train"),
                     help="path to the pgser-train binary (default <repo>/target/release/pgser-train)")
     ap.add_argument("--python", default=None,
-                    help=f"interpreter for the peer, with torch and numpy (default {DEFAULT_PYTHON.relative_to(REPO)})")
+                    help=f"interpreter for the peer, with torch and numpy (default {peer_python.DEFAULT.relative_to(REPO)})")
     ap.add_argument("--task", default="FetchPush", choices=sorted(TASKS), help="sets the peer's dims")
     ap.add_argument("--algo", default="td3bc", choices=("td3bc", "td3"))
     ap.add_argument("--batch-size", type=int, default=512)
@@ -142,13 +142,7 @@ def main(argv=None):
     pgser = Path(args.pgser).resolve()
     if not os.access(pgser, os.X_OK):
         sys.exit(f"--pgser {pgser} is not an executable file (cargo build --release --bin pgser-train)")
-    if args.python:
-        python = args.python
-    elif DEFAULT_PYTHON.exists():
-        python = str(DEFAULT_PYTHON)
-    else:
-        sys.exit(f"no interpreter for the PyTorch peer: {DEFAULT_PYTHON} does not exist.\n"
-                 f"Create it (from the repo root) with:\n    {VENV_HINT}\nor pass --python PATH.")
+    python = peer_python.resolve(args.python, "torch numpy")
     cpus = parse_cpu_set(args.cpu_set) if args.cpu_set else None
     if cpus and len(cpus) < args.threads:
         print(f"warning: --cpu-set has {len(cpus)} CPUs for {args.threads} threads: threads will share cores",

@@ -1,0 +1,31 @@
+"""The benchmark peers' interpreter, shared by bench_train.py, bench_sampler.py and bench_score.py.
+
+`make bench` passes `--python bench-out/torch-venv/bin/python`, a path relative to the repo; the
+drivers run some children in other folders (cwd="/" or a work folder), so the path is made
+absolute here once instead of failing with "No such file" in whichever child runs first. (Made
+absolute, not resolved: resolving a venv's python symlink would run the base interpreter, without
+the venv's packages.)
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT = REPO / "bench-out" / "torch-venv" / "bin" / "python"
+
+
+def resolve(arg: str | None, packages: str) -> str:
+    """`arg` (a path, or a command name on PATH) as an absolute path, else the default venv's
+    interpreter; exits with how to create it when there is none. `packages`: what the peer needs."""
+    hint = f"python3 -m venv bench-out/torch-venv && bench-out/torch-venv/bin/pip install {packages}"
+    if arg:
+        found = Path(arg).absolute() if "/" in arg else shutil.which(arg)
+        if found is None or not Path(found).exists():
+            sys.exit(f"--python {arg}: no such interpreter")
+        return str(found)
+    if DEFAULT.exists():
+        return str(DEFAULT)
+    sys.exit(f"no interpreter for the peer: {DEFAULT} does not exist.\n"
+             f"Create it (from the repo root) with:\n    {hint}\nor pass --python PATH.")
