@@ -310,6 +310,13 @@ fn restore(
             serde_json::to_string(cfg)?
         );
     }
+    if agent.updates > cfg.updates {
+        bail!(
+            "{at}: --resume with --updates {} but the checkpoint already has {} updates (a run cannot be shortened)",
+            cfg.updates,
+            agent.updates
+        );
+    }
     if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
         bail!("{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)");
     }

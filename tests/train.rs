@@ -186,6 +186,9 @@ fn bad_runs_fail_in_one_line_and_leave_no_checkpoint() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     let (_, out) = short_run(d, "r.ckpt", "10", &["--resume", "--lr", "0.1"]);
     assert!(one_line_error(&out).contains("differ from the checkpoint"));
+    // --resume with fewer updates than the checkpoint has.
+    let (_, out) = short_run(d, "r.ckpt", "3", &["--resume"]);
+    assert!(one_line_error(&out).contains("already has 5 updates"), "{}", text(&out.stderr));
     // A GPU backend this build does not have.
     let (_, out) = short_run(d, "g.ckpt", "5", &["--device", "cuda"]);
     if !cfg!(feature = "cuda") {

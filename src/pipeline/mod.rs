@@ -300,8 +300,10 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
         Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),
         Action::Train { data, out, cfg } => {
             let command = format!("pgser pipeline step {}", step.name);
+            // `train` refuses to continue a checkpoint of other settings, data or more updates.
             let resumed = resume
-                && resumable(out, cfg)?
+                && out.exists()
+                && checkpoint::resume_path(out).exists()
                 && match crate::train::train(data, out, cfg, true, device.device()?, &command, &bar) {
                     Ok(_) => true,
                     // Settings or data changed since that checkpoint: start over.
@@ -319,18 +321,6 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
     }
     bar.finish_and_clear();
     Ok(how)
-}
-
-/// Whether `out` holds an earlier checkpoint (with its resume state) of no more than
-/// `cfg.updates` updates; `train` itself refuses one of other settings or data.
-fn resumable(out: &Path, cfg: &TrainConfig) -> Result<bool> {
-    if !out.exists() || !checkpoint::resume_path(out).exists() {
-        return Ok(false);
-    }
-    Ok(match checkpoint::load(out, Backend::Cpu.device()?) {
-        Ok((agent, _)) => agent.updates <= cfg.updates,
-        Err(_) => false,
-    })
 }
 
 /// The report's one-screen summary: steps, then where the tables are.
