@@ -1,12 +1,17 @@
 //! The report module: Welch's t-test against known values, `pgser-etl report` end to end on a
-//! tiny FetchReach run (Fig. 5 PNG, Table 1 JSON), and Table 2 from hand-written metrics files.
+//! tiny FetchReach run (Fig. 5 PNG, Table 1 JSON), Table 1's two definitions of negatives on
+//! hand-made scored tables, and Table 2 from hand-written metrics files.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Arc;
 
+use arrow_array::{Float32Array, Int32Array, Int64Array, RecordBatch};
+use arrow_schema::{DataType, Field, Schema};
 use common::*;
+use pgser::env::rng::NpRandom;
 use pgser::report::{self, Run};
 
 /// Width and height from a PNG's IHDR chunk (after checking the signature).
@@ -95,8 +100,25 @@ fn report_cli_writes_fig5_and_table1() {
         assert_eq!(c["test"], 1470, "{c}");
     }
     assert_eq!(classifiers[3]["train"], 500, "--svm-max-train caps the SVC's training rows");
+    // The controlled table: one swapped row of each positive transition, so its pool is the
+    // positives' 2 swaps each, not the whole table's.
+    let c = &j["controlled"];
+    assert_eq!(c["negatives"], 50 * 49);
+    assert_eq!(c["negatives_available"], 50 * 49 * 2);
+    let cc = c["classifiers"].as_array().unwrap();
+    assert_eq!(cc.len(), 4);
+    for (p, k) in classifiers.iter().zip(cc) {
+        assert_eq!((&p["name"], &p["train"], &p["test"]), (&k["name"], &k["train"], &k["test"]), "same classifiers");
+        assert!((0.0..=1.0).contains(&k["accuracy"].as_f64().unwrap()), "{k}");
+    }
+    assert!(c["negative_q_mean"].as_f64().unwrap().is_finite());
     let md = std::fs::read_to_string(rep.join("table1.md")).unwrap();
     assert!(md.contains("| classifier | train | test | accuracy |") && md.contains("SVC"), "{md}");
+    assert_eq!(md.matches("| classifier | train | test | accuracy |").count(), 2, "{md}");
+    assert!(
+        md.contains("## Controlled negatives") && md.contains("of the 4900 swapped rows of those transitions"),
+        "{md}"
+    );
     let q_pos = j["positive_q_mean"].as_f64().unwrap();
     assert!((-60.0..=1.0).contains(&q_pos), "{q_pos}");
 
@@ -107,6 +129,8 @@ fn report_cli_writes_fig5_and_table1() {
     let j2: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(rep2.join("table1.json")).unwrap()).unwrap();
     assert_eq!(j["classifiers"], j2["classifiers"]);
+    assert_eq!(j["controlled"], j2["controlled"]);
+    assert_eq!(std::fs::read(rep.join("table1.md")).unwrap(), std::fs::read(rep2.join("table1.md")).unwrap());
     assert_eq!(
         std::fs::read(rep.join("fig5_q_hist.png")).unwrap(),
         std::fs::read(rep2.join("fig5_q_hist.png")).unwrap()
@@ -123,6 +147,123 @@ fn report_cli_writes_fig5_and_table1() {
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("q.ckpt") && err.contains("sha256"), "{err}");
     assert!(!rep3.join("table1.json").exists());
+}
+
+/// A stand-in scored table with only the columns Table 1's negatives are read from: one row per
+/// (episode, step, goal_step, q).
+fn scored_stub(path: &Path, rows: &[(i64, i32, i32, f32)]) {
+    let schema = Arc::new(Schema::new(vec![
+        Field::new("episode", DataType::Int64, false),
+        Field::new("step", DataType::Int32, false),
+        Field::new("goal_step", DataType::Int32, false),
+        Field::new("q", DataType::Float32, false),
+    ]));
+    let batch = RecordBatch::try_new(
+        schema.clone(),
+        vec![
+            Arc::new(Int64Array::from_iter_values(rows.iter().map(|r| r.0))),
+            Arc::new(Int32Array::from_iter_values(rows.iter().map(|r| r.1))),
+            Arc::new(Int32Array::from_iter_values(rows.iter().map(|r| r.2))),
+            Arc::new(Float32Array::from_iter_values(rows.iter().map(|r| r.3))),
+        ],
+    )
+    .unwrap();
+    let mut w = parquet::arrow::ArrowWriter::try_new(std::fs::File::create(path).unwrap(), schema, None).unwrap();
+    w.write(&batch).unwrap();
+    w.close().unwrap();
+}
+
+/// Each controlled negative is a swapped row of its own positive transition (q encodes the row),
+/// one per positive, drawn among that transition's swaps; the paper's negatives come from all
+/// swapped rows; original rows are never negatives; the draw is the seed's.
+#[test]
+fn controlled_negatives_are_swapped_rows_of_the_positive_transitions() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scored.parquet");
+    let (episodes, t1, swaps) = (10i64, 4i32, 3i32);
+    // q = −(100·episode + step) − swap/100 for a swapped row; original rows (goal_step −1) +0.5.
+    let mut rows = Vec::new();
+    for e in 0..episodes {
+        for s in 0..t1 {
+            rows.push((e, s, -1, 0.5));
+            for j in 0..swaps {
+                rows.push((e, s, j, -((100 * e + i64::from(s)) as f32) - j as f32 / 100.0));
+            }
+        }
+    }
+    scored_stub(&path, &rows);
+    let keys: Vec<(i64, i32)> = (0..4).flat_map(|e| (0..t1).map(move |s| (e, s))).filter(|k| k.1 != 2).collect();
+    let n = report::negatives(&path, &keys, keys.len(), 5).unwrap();
+    assert_eq!(n.controlled.len(), keys.len());
+    assert_eq!(n.controlled_available, keys.len() * swaps as usize);
+    assert_eq!(n.paper.len(), keys.len());
+    assert_eq!(n.paper_available, (episodes * i64::from(t1 * swaps)) as usize);
+    let decode = |q: f64| -> (i64, i32, i32) {
+        let whole = (-q).floor();
+        let j = ((-q - whole) * 100.0).round() as i32;
+        ((whole as i64) / 100, (whole as i64 % 100) as i32, j)
+    };
+    let mut picked = [0usize; 3];
+    for (k, &q) in keys.iter().zip(&n.controlled) {
+        assert!(q < 0.0, "an original row became a negative: {q}");
+        let (e, s, j) = decode(q);
+        assert_eq!((e, s), *k, "q {q} is not a swapped row of {k:?}");
+        picked[j as usize] += 1;
+    }
+    assert!(picked.iter().all(|&c| c > 0), "every swap index drawn at least once: {picked:?}");
+    assert!(n.paper.iter().all(|&q| q < 0.0), "original rows are not negatives");
+    assert!(n.paper.iter().any(|&q| decode(q).0 >= 4), "the paper's negatives come from the whole table");
+    assert_eq!(report::negatives(&path, &keys, keys.len(), 5).unwrap(), n, "same seed, same draw");
+    assert_ne!(report::negatives(&path, &keys, keys.len(), 6).unwrap().controlled, n.controlled);
+
+    // A positive without swapped rows, and positives out of order, are refused in one line.
+    let e = report::negatives(&path, &[(0, 0), (11, 0)], 2, 5).unwrap_err().to_string();
+    assert!(e.contains("scored.parquet") && e.contains("episode 11, step 0") && !e.contains('\n'), "{e}");
+    let e = report::negatives(&path, &[(1, 0), (0, 3)], 2, 5).unwrap_err().to_string();
+    assert!(e.contains("scored.parquet") && e.contains("episode 0, step 3"), "{e}");
+}
+
+/// A table where Q tells expert transitions from random ones but ignores the goal: the paper's
+/// negatives (80 % random transitions) are separated well, the controlled ones are not. Where Q
+/// does depend on the goal, the controlled table sees it.
+#[test]
+fn controlled_table1_is_at_chance_where_only_the_data_source_separates() {
+    let dir = tempfile::tempdir().unwrap();
+    let (expert, random, t1, swaps) = (100i64, 400i64, 10i32, 2i32);
+    let mut rng = NpRandom::new(11);
+    let keys: Vec<(i64, i32)> = (0..expert).flat_map(|e| (0..t1).map(move |s| (e, s))).collect();
+    let positives: Vec<f64> = keys.iter().map(|_| -3.0 + rng.standard_normal()).collect();
+    let opts = report::QReportOptions { svm_max_train: 300, seed: 2, ..Default::default() };
+    for goal_matters in [false, true] {
+        // Swapped rows: random transitions around Q = −25; expert ones like their own goal
+        // (Q ignores the goal) or around −15 (Q knows the goal is not theirs).
+        let mut rows = Vec::new();
+        for e in 0..expert + random {
+            for s in 0..t1 {
+                for j in 0..swaps {
+                    let q = match (e < expert, goal_matters) {
+                        (false, _) => -25.0 + 3.0 * rng.standard_normal(),
+                        (true, false) => -3.0 + rng.standard_normal(),
+                        (true, true) => -15.0 + 3.0 * rng.standard_normal(),
+                    };
+                    rows.push((e, s, j, q as f32));
+                }
+            }
+        }
+        let path = dir.path().join(format!("scored_{goal_matters}.parquet"));
+        scored_stub(&path, &rows);
+        let t = report::table1(&path, &positives, &keys, &opts).unwrap();
+        assert_eq!(t.negatives.controlled_available, keys.len() * swaps as usize);
+        for (paper, controlled) in t.paper.iter().zip(&t.controlled) {
+            assert_eq!((paper.test, controlled.test), (600, 600));
+            assert!(paper.accuracy > 0.85, "{}: paper accuracy {}", paper.name, paper.accuracy);
+            if goal_matters {
+                assert!(controlled.accuracy > 0.95, "{}: controlled accuracy {}", controlled.name, controlled.accuracy);
+            } else {
+                assert!(controlled.accuracy < 0.6, "{}: controlled accuracy {}", controlled.name, controlled.accuracy);
+            }
+        }
+    }
 }
 
 /// A metrics file: a loss line, an early evaluation at 0, and the final evaluation `score`.

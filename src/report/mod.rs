@@ -6,6 +6,8 @@
 //!   transitions with their own goals (positives) against Q of randomly goal-swapped transitions
 //!   (negatives, the `goal_step >= 0` rows of a scored table). The figure overlays the two
 //!   densities; the table reports how well simple classifiers separate the classes from Q alone.
+//!   A second, controlled Table 1 takes its negatives from the positive transitions themselves
+//!   (same s, a; a swapped goal), so that only the goal tells the classes apart.
 //! - **Table 2** collects the final evaluation of every training run (the last `eval` line of
 //!   its metrics file), averages it over seeds per (task, algorithm, variant) and tests whether
 //!   the `mem` variant differs from `baseline` and `swap` (Welch's t-test, unequal variances,
@@ -13,6 +15,8 @@
 //!
 //! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
 
+mod classify;
+mod negatives;
 mod plot;
 mod qreport;
 mod results;
@@ -22,7 +26,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
-pub use qreport::{ClassifierScore, QReport, QReportOptions, q_report, table1_markdown};
+pub use classify::{ClassifierScore, classify};
+pub use negatives::{Negatives, negatives};
+pub use qreport::{ControlledTable1, QReport, QReportOptions, Table1, q_report, table1, table1_markdown};
 pub use results::{ResultRow, Results, Run, results, results_markdown, welch_t_test};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.

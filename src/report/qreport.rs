@@ -5,26 +5,22 @@
 //! Inputs come from one scored table: its footer names the checkpoint that scored it and the
 //! trajectory table β it came from. Positives are re-scored here with that checkpoint (the
 //! scored table holds swapped goals, and own goals only with `--include-original`, so this works
-//! for every scored table); negatives are the table's own `q` of its swapped rows, streamed two
+//! for every scored table); negatives are the table's own `q` of its swapped rows, streamed four
 //! columns at a time. Both sha256s are checked against the footer so the figure cannot silently
 //! mix a retrained checkpoint with old scores.
+//!
+//! Table 1 comes twice (see [`super::negatives`]): with the paper's negatives, swapped rows of
+//! the whole table, and with controlled ones, swapped rows of the positive transitions
+//! themselves. The first is what the paper reports; the second removes what the first owes to
+//! telling expert (s, a) from random (s, a), leaving what Q knows about the goal.
 
-use std::fs::File;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, anyhow, bail};
-use arrow_array::cast::AsArray;
-use arrow_array::types::{Float32Type, Int32Type};
-use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use smartcore::linalg::basic::matrix::DenseMatrix;
-use smartcore::linear::logistic_regression::LogisticRegression;
-use smartcore::naive_bayes::gaussian::{GaussianNB, GaussianNBParameters};
-use smartcore::neighbors::knn_classifier::{KNNClassifier, KNNClassifierParameters};
-use smartcore::svm::Kernels;
-use smartcore::svm::svc::{SVC, SVCParameters};
 
+use super::classify::{ClassifierScore, classify};
+use super::negatives::{Negatives, negatives};
 use super::plot::{self, HistSeries, PALETTE};
 use super::{FIG_SIZE, ensure_dir, write_text};
 use crate::agent::{Backend, checkpoint};
@@ -35,15 +31,9 @@ use crate::trajectory::{self, Episodes};
 
 /// Bins of Fig. 5 over [−1/(1−γ), 0].
 pub const HIST_BINS: usize = 50;
-/// k of the k-NN classifier.
-pub const KNN_K: usize = 5;
-/// At most this many training rows for k-NN: prediction costs a neighbour search per test row,
-/// and on one feature a few thousand neighbours already pin the decision boundary.
-pub const KNN_MAX_TRAIN: usize = 5_000;
-/// Spawn keys of the report's random streams under `seed`.
+/// Spawn key of the positives' subsample under the report's seed (2, 3 and 4: the negatives'
+/// samples and the classifiers' split).
 const STREAM_POSITIVES: u64 = 1;
-const STREAM_NEGATIVES: u64 = 2;
-const STREAM_SPLIT: u64 = 3;
 
 #[derive(Debug, Clone)]
 pub struct QReportOptions {
@@ -79,15 +69,6 @@ impl Default for QReportOptions {
     }
 }
 
-/// One classifier's held-out accuracy at telling positives (1) from negatives (0) by Q alone.
-#[derive(Debug, Clone, Serialize)]
-pub struct ClassifierScore {
-    pub name: String,
-    pub train: usize,
-    pub test: usize,
-    pub accuracy: f64,
-}
-
 /// What `q_report` found and wrote (`--json` prints it; table1.json holds it).
 #[derive(Debug, Clone, Serialize)]
 pub struct QReport {
@@ -103,10 +84,48 @@ pub struct QReport {
     pub positive_q_mean: f64,
     pub negative_q_mean: f64,
     pub gamma: f64,
+    /// The paper's Table 1: negatives drawn from all swapped rows.
     pub classifiers: Vec<ClassifierScore>,
+    /// Table 1 with controlled negatives: the positive transitions with swapped goals.
+    pub controlled: ControlledTable1,
     pub fig5: PathBuf,
     pub table1_md: PathBuf,
     pub json: PathBuf,
+}
+
+/// Table 1 with controlled negatives (the `controlled` key of table1.json): one swapped row of
+/// each positive transition, so positives and negatives share every (s, a) and differ in the
+/// goal alone. Same positives, classifiers, seed and split as the paper's table.
+#[derive(Debug, Clone, Serialize)]
+pub struct ControlledTable1 {
+    pub negatives: usize,
+    /// Swapped rows of the positive transitions (the negatives are drawn from these).
+    pub negatives_available: usize,
+    pub negative_q_mean: f64,
+    pub classifiers: Vec<ClassifierScore>,
+}
+
+/// Both Table 1s for positives already scored, before anything is written.
+#[derive(Debug, Clone)]
+pub struct Table1 {
+    pub negatives: Negatives,
+    /// Classifiers of positives vs the paper's negatives.
+    pub paper: Vec<ClassifierScore>,
+    /// Classifiers of positives vs the controlled negatives.
+    pub controlled: Vec<ClassifierScore>,
+}
+
+/// Draws both sets of negatives from `scored` for the positive transitions `keys` (episode,
+/// step; strictly increasing) whose Q is `positives`, as many of each as there are positives,
+/// and runs the classifiers on each with `o`'s seed, split and SVC size.
+pub fn table1(scored: &Path, positives: &[f64], keys: &[(i64, i32)], o: &QReportOptions) -> Result<Table1> {
+    if positives.len() != keys.len() {
+        bail!("{}: {} positive Q values for {} transitions", scored.display(), positives.len(), keys.len());
+    }
+    let negatives = negatives(scored, keys, positives.len(), o.seed)?;
+    let paper = classify(positives, &negatives.paper, o.test_fraction, o.svm_max_train, o.seed)?;
+    let controlled = classify(positives, &negatives.controlled, o.test_fraction, o.svm_max_train, o.seed)?;
+    Ok(Table1 { negatives, paper, controlled })
 }
 
 /// Writes `out_dir/fig5_q_hist.png`, `out_dir/table1.md` and `out_dir/table1.json`.
@@ -117,7 +136,6 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     if o.max_samples < 10 {
         bail!("max samples {} per class is too few to train and test classifiers (at least 10)", o.max_samples);
     }
-    let at = o.scored.display();
     let footer = score::read_footer(&o.scored)?;
 
     // The checkpoint and β, as the footer recorded them.
@@ -136,16 +154,22 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     let mut rng = NpRandom::spawned(o.seed, &[STREAM_POSITIVES]);
     let chosen = sample_indices(episodes * t1, o.max_samples, &mut rng);
     let positives = positive_q(&agent, &data, &chosen);
+    // Sorted indices give increasing (episode, step), as `negatives` needs.
+    let keys: Vec<(i64, i32)> = chosen
+        .iter()
+        .map(|&i| {
+            let (e, s) = data.transition(i);
+            (e as i64, s as i32)
+        })
+        .collect();
     drop(data);
     if let Some(v) = positives.iter().find(|v| !v.is_finite()) {
         bail!("{}: the critic gives Q = {v} on {}; the checkpoint is damaged", ckpt.display(), beta.display());
     }
 
-    // Negatives: the table's q of its swapped rows, as many as positives.
-    let (negatives, available) = negative_q(&o.scored, positives.len(), o.seed)?;
-    if negatives.is_empty() {
-        bail!("{at}: no goal-swapped rows (goal_step >= 0); score with --swaps of at least 1");
-    }
+    // Negatives: the table's q of its swapped rows, as many as positives, both ways.
+    let t = table1(&o.scored, &positives, &keys, o)?;
+    let negatives = &t.negatives.paper;
 
     ensure_dir(&o.out_dir)?;
     let fig5 = o.out_dir.join("fig5_q_hist.png");
@@ -166,13 +190,12 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
             },
             HistSeries {
                 label: format!("random goal swap (n={})", negatives.len()),
-                values: &negatives,
+                values: negatives,
                 color: PALETTE[1],
             },
         ],
     )?;
 
-    let classifiers = classify(&positives, &negatives, o.test_fraction, o.svm_max_train, o.seed)?;
     let table1_md = o.out_dir.join("table1.md");
     let json = o.out_dir.join("table1.json");
     let report = QReport {
@@ -181,11 +204,17 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
         positive_episodes: episodes,
         positives: positives.len(),
         negatives: negatives.len(),
-        negatives_available: available,
+        negatives_available: t.negatives.paper_available,
         positive_q_mean: mean(&positives),
-        negative_q_mean: mean(&negatives),
+        negative_q_mean: mean(negatives),
         gamma: footer.gamma,
-        classifiers,
+        classifiers: t.paper,
+        controlled: ControlledTable1 {
+            negatives: t.negatives.controlled.len(),
+            negatives_available: t.negatives.controlled_available,
+            negative_q_mean: mean(&t.negatives.controlled),
+            classifiers: t.controlled,
+        },
         fig5,
         table1_md,
         json,
@@ -195,16 +224,40 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     Ok(report)
 }
 
-/// Table 1 as markdown: class counts and Q means, then one row per classifier.
+/// Table 1 as markdown: the positives, then the paper's table and the controlled one, each with
+/// its negatives' counts and Q mean, and a sentence on what their difference means.
 pub fn table1_markdown(r: &QReport) -> String {
+    let c = &r.controlled;
     let mut s = format!("# Table 1: {} — separating own goals from swapped goals by Q\n\n", r.task);
     s += &format!(
-        "Positives: {} transitions of the first {} episodes with their own goals (mean Q {:.3}).  \n\
-         Negatives: {} of {} randomly goal-swapped rows (mean Q {:.3}). Feature: Q(s, g, a) only.\n\n",
-        r.positives, r.positive_episodes, r.positive_q_mean, r.negatives, r.negatives_available, r.negative_q_mean
+        "Positives: {} transitions of the first {} episodes with their own goals (mean Q {:.3}). \
+         Feature: Q(s, g, a) only.\n\n",
+        r.positives, r.positive_episodes, r.positive_q_mean
     );
-    s += "| classifier | train | test | accuracy |\n|---|---:|---:|---:|\n";
-    for c in &r.classifiers {
+    s += &format!(
+        "## The paper's negatives: swapped rows of the whole table\n\n\
+         Negatives: {} of {} randomly goal-swapped rows (mean Q {:.3}).\n\n",
+        r.negatives, r.negatives_available, r.negative_q_mean
+    );
+    s += &classifier_table(&r.classifiers);
+    s += &format!(
+        "\n## Controlled negatives: the same transitions with swapped goals\n\n\
+         Negatives: {} rows, one per positive transition (same s, a; another goal), of the {} swapped rows of \
+         those transitions (mean Q {:.3}).\n\n",
+        c.negatives, c.negatives_available, c.negative_q_mean
+    );
+    s += &classifier_table(&c.classifiers);
+    s += "\nThe paper's negatives are mostly other transitions (in a mix of expert and random data, mostly \
+          random-policy ones), so its accuracy counts both a goal that is not the transition's own and data that \
+          is not expert; the controlled negatives differ from the positives in the goal alone, so the drop from \
+          the first table to the second is the part of the paper's accuracy owed to telling the data sources \
+          apart, and the second table is what Q knows about the goal.\n";
+    s
+}
+
+fn classifier_table(rows: &[ClassifierScore]) -> String {
+    let mut s = String::from("| classifier | train | test | accuracy |\n|---|---:|---:|---:|\n");
+    for c in rows {
         s += &format!("| {} | {} | {} | {:.4} |\n", c.name, c.train, c.test, c.accuracy);
     }
     s
@@ -270,170 +323,13 @@ fn positive_q(agent: &crate::agent::Agent, data: &Episodes, chosen: &[usize]) ->
     q
 }
 
-/// Reservoir sample (Algorithm R) of `k` q values of the rows with goal_step ≥ 0, reading only
-/// those two columns; also returns how many such rows there are.
-fn negative_q(scored: &Path, k: usize, seed: u64) -> Result<(Vec<f64>, usize)> {
-    let at = scored.display();
-    let file = File::open(scored).with_context(|| format!("{at}: cannot open"))?;
-    let b = ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
-    let mask = ProjectionMask::columns(b.parquet_schema(), ["goal_step", "q"]);
-    let reader =
-        b.with_projection(mask).with_batch_size(65_536).build().with_context(|| format!("{at}: cannot read"))?;
-    let mut rng = NpRandom::spawned(seed, &[STREAM_NEGATIVES]);
-    let mut sample = Vec::with_capacity(k);
-    let mut seen = 0usize;
-    for batch in reader {
-        let batch = batch.with_context(|| format!("{at}: cannot read columns goal_step, q"))?;
-        let gs = batch
-            .column_by_name("goal_step")
-            .and_then(|c| c.as_primitive_opt::<Int32Type>())
-            .with_context(|| format!("{at}: no int32 column goal_step"))?;
-        let q = batch
-            .column_by_name("q")
-            .and_then(|c| c.as_primitive_opt::<Float32Type>())
-            .with_context(|| format!("{at}: no float32 column q"))?;
-        for (g, v) in gs.values().iter().zip(q.values().iter()) {
-            if *g < 0 {
-                continue;
-            }
-            if !v.is_finite() {
-                bail!("{at}: row with q = {v}; the table is damaged");
-            }
-            if sample.len() < k {
-                sample.push(f64::from(*v));
-            } else {
-                let j = rng.below(seen + 1);
-                if j < k {
-                    sample[j] = f64::from(*v);
-                }
-            }
-            seen += 1;
-        }
-    }
-    Ok((sample, seen))
-}
-
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
-}
-
-/// Trains the four classifiers on a seeded shuffle-split of (q, label) and scores each on the
-/// held-out part.
-///
-/// The feature is standardized with the training part's mean and std: the accuracy of all four
-/// is invariant to that, but logistic regression's optimiser and the RBF kernel's width
-/// (γ = 1, scikit-learn's `gamma="scale"` for one standardized feature) are not. The SVC uses
-/// an RBF kernel rather than a linear one because Q need not be monotone in "reachability"
-/// everywhere (the positives sit in a band near 0, and a band is what an RBF can carve out).
-pub(crate) fn classify(
-    positives: &[f64],
-    negatives: &[f64],
-    test_fraction: f64,
-    svm_max_train: usize,
-    seed: u64,
-) -> Result<Vec<ClassifierScore>> {
-    let mut rows: Vec<(f64, u32)> =
-        positives.iter().map(|&q| (q, 1)).chain(negatives.iter().map(|&q| (q, 0))).collect();
-    let mut rng = NpRandom::spawned(seed, &[STREAM_SPLIT]);
-    for i in (1..rows.len()).rev() {
-        let j = rng.below(i + 1);
-        rows.swap(i, j);
-    }
-    let n_test = ((rows.len() as f64) * test_fraction).round() as usize;
-    let (test, train) = rows.split_at(n_test.min(rows.len()));
-    for (part, name) in [(train, "training"), (test, "test")] {
-        let pos = part.iter().filter(|r| r.1 == 1).count();
-        if pos == 0 || pos == part.len() {
-            bail!(
-                "the {name} split holds {} rows of only one class ({} positives, {} negatives in all); more samples are needed",
-                part.len(),
-                positives.len(),
-                negatives.len()
-            );
-        }
-    }
-    let m = train.iter().map(|r| r.0).sum::<f64>() / train.len() as f64;
-    let sd = (train.iter().map(|r| (r.0 - m).powi(2)).sum::<f64>() / train.len() as f64).sqrt();
-    let sd = if sd > 0.0 { sd } else { 1.0 };
-    let matrix = |part: &[(f64, u32)]| -> Result<(DenseMatrix<f64>, Vec<u32>)> {
-        let x = DenseMatrix::new(part.len(), 1, part.iter().map(|r| (r.0 - m) / sd).collect(), true)
-            .map_err(|e| anyhow!("{e}"))?;
-        Ok((x, part.iter().map(|r| r.1).collect()))
-    };
-    let (x_test, y_test) = matrix(test)?;
-    let accuracy = |pred: &[f64]| {
-        pred.iter().zip(&y_test).filter(|(p, y)| (**p - f64::from(**y)).abs() < 0.5).count() as f64
-            / y_test.len() as f64
-    };
-    let accuracy_u =
-        |pred: &[u32]| pred.iter().zip(&y_test).filter(|(p, y)| p == y).count() as f64 / y_test.len() as f64;
-    fn fail(name: &'static str) -> impl Fn(smartcore::error::Failed) -> anyhow::Error {
-        move |e| anyhow!("{name}: {e}")
-    }
-    let mut out = Vec::new();
-
-    let (x, y) = matrix(train)?;
-    let lr = LogisticRegression::fit(&x, &y, Default::default()).map_err(fail("logistic regression"))?;
-    let pred: Vec<u32> = lr.predict(&x_test).map_err(fail("logistic regression"))?;
-    out.push(score("logistic regression", train.len(), test.len(), accuracy_u(&pred)));
-
-    let nb = GaussianNB::fit(&x, &y, GaussianNBParameters::default()).map_err(fail("Gaussian naive Bayes"))?;
-    let pred: Vec<u32> = nb.predict(&x_test).map_err(fail("Gaussian naive Bayes"))?;
-    out.push(score("Gaussian naive Bayes", train.len(), test.len(), accuracy_u(&pred)));
-
-    // The training split is already a uniform shuffle, so its head is a uniform subsample.
-    let knn_train = &train[..train.len().min(KNN_MAX_TRAIN)];
-    let (x, y) = matrix(knn_train)?;
-    let knn = KNNClassifier::fit(&x, &y, KNNClassifierParameters::default().with_k(KNN_K)).map_err(fail("k-NN"))?;
-    let pred: Vec<u32> = knn.predict(&x_test).map_err(fail("k-NN"))?;
-    out.push(score(&format!("k-NN (k={KNN_K})"), knn_train.len(), test.len(), accuracy_u(&pred)));
-
-    let svm_train = &train[..train.len().min(svm_max_train.max(2))];
-    if svm_train.iter().all(|r| r.1 == svm_train[0].1) {
-        bail!("SVC: its {} training rows hold one class only; raise the SVM training size", svm_train.len());
-    }
-    let (x, y) = matrix(svm_train)?;
-    let params = SVCParameters::default().with_c(1.0).with_kernel(Kernels::rbf().with_gamma(1.0)).with_seed(Some(seed));
-    let svc = SVC::fit(&x, &y, &params).map_err(fail("SVC"))?;
-    let pred = svc.predict(&x_test).map_err(fail("SVC"))?;
-    out.push(score("SVC (RBF, C=1, γ=1)", svm_train.len(), test.len(), accuracy(&pred)));
-    Ok(out)
-}
-
-fn score(name: &str, train: usize, test: usize, accuracy: f64) -> ClassifierScore {
-    ClassifierScore { name: name.to_string(), train, test, accuracy }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Q of positives around −1, negatives around −30: every classifier must separate them.
-    #[test]
-    fn separable_q_is_classified_almost_perfectly() {
-        let mut rng = NpRandom::new(7);
-        let pos: Vec<f64> = (0..1500).map(|_| -1.0 + 0.5 * rng.standard_normal()).collect();
-        let neg: Vec<f64> = (0..1500).map(|_| -30.0 + 5.0 * rng.standard_normal()).collect();
-        let scores = classify(&pos, &neg, 0.3, 500, 3).unwrap();
-        assert_eq!(scores.len(), 4);
-        for s in &scores {
-            assert!(s.accuracy > 0.95, "{}: accuracy {}", s.name, s.accuracy);
-            assert_eq!(s.test, 900);
-        }
-        assert_eq!(scores.iter().find(|s| s.name.starts_with("SVC")).unwrap().train, 500);
-    }
-
-    /// Identical distributions: no classifier can beat chance by much (guards against a leak of
-    /// the labels into the features).
-    #[test]
-    fn indistinguishable_q_gives_chance_accuracy() {
-        let mut rng = NpRandom::new(8);
-        let pos: Vec<f64> = (0..1000).map(|_| rng.standard_normal()).collect();
-        let neg: Vec<f64> = (0..1000).map(|_| rng.standard_normal()).collect();
-        for s in classify(&pos, &neg, 0.3, 500, 3).unwrap() {
-            assert!(s.accuracy < 0.62, "{}: accuracy {}", s.name, s.accuracy);
-        }
-    }
 
     #[test]
     fn index_samples_are_unique_and_in_range() {
