@@ -42,6 +42,12 @@ fn welch_matches_known_values() {
     // Symmetric in its arguments up to the sign of t.
     let (t2, _, p2) = report::welch_t_test(&b, &a).unwrap();
     assert!((t2 + t).abs() < 1e-12 && (p2 - p).abs() < 1e-12);
+    // One-sided (H1: mean(a) > mean(b)): a's mean is lower, so p is near 1; the other way round
+    // it is half the two-sided p, and the two add up to 1.
+    let up = report::welch_greater(&a, &b).unwrap();
+    let down = report::welch_greater(&b, &a).unwrap();
+    assert!((down - p / 2.0).abs() < 1e-12 && (up - (1.0 - p / 2.0)).abs() < 1e-12, "{up} {down} {p}");
+    assert!(report::welch_greater(&[1.0], &a).is_none());
 }
 
 #[test]
@@ -317,6 +323,7 @@ fn results_table_from_metrics_files() {
     assert_eq!(&lines[0][..3], ["FetchReach", "td3", "mem"], "TD3 before TD3+BC");
     assert_eq!(lines[0][5], "NaN", "one seed has no std: {csv}");
     assert_eq!(lines[0][7], "", "no baseline for td3: {csv}");
+    assert_eq!(lines[0].len(), 11, "two-sided and one-sided p: {csv}");
     let num = |s: &str| s.parse::<f64>().unwrap();
     for (i, (variant, scores)) in cells.iter().enumerate() {
         let l = &lines[i + 1];
@@ -329,13 +336,16 @@ fn results_table_from_metrics_files() {
     let (_, _, p_base) = report::welch_t_test(&cells[2].1, &cells[0].1).unwrap();
     assert!((num(mem[7]) - p_base).abs() < 1e-15 && p_base < 0.05, "{mem:?}");
     assert!(num(mem[8]) < 0.05, "{mem:?}");
+    assert!((num(mem[9]) - p_base / 2.0).abs() < 1e-15, "mem above baseline: one-sided p is half: {mem:?}");
     assert_eq!(lines[1][7], "", "p only for mem");
+    assert_eq!(lines[1][9], "", "p only for mem");
 
     let md = std::fs::read_to_string(&r.markdown).unwrap();
     assert_eq!(md, report::results_markdown(&r));
     assert!(md.contains("## FetchReach"), "{md}");
     let mem_row = md.lines().find(|l| l.starts_with("| TD3+BC mem |")).unwrap_or_else(|| panic!("{md}"));
-    assert!(mem_row.contains("31.333 ± 1.528") && mem_row.matches('*').count() == 2, "{mem_row}");
+    assert!(mem_row.contains("31.333 ± 1.528") && mem_row.matches(report::BETTER).count() == 2, "{mem_row}");
+    assert!(!mem_row.contains('*') && !mem_row.contains(report::WORSE), "{mem_row}");
     assert!(md.lines().any(|l| l.starts_with("| TD3+BC baseline | 12.000 ± 2.000 |")), "{md}");
     assert_eq!(r.curves, vec![out.join("curves_FetchReach.png")]);
     assert_eq!(png_size(&r.curves[0]), report::FIG_SIZE);
@@ -359,4 +369,56 @@ fn results_refuse_a_run_without_a_final_evaluation() {
         assert!(msg.contains(&bad.display().to_string()), "{msg}");
         assert!(!d.join("out/results.csv").exists(), "nothing written on error");
     }
+}
+
+/// A significant difference is marked with its direction, and the CSV's one-sided p (H1: mem
+/// outperforms) tells better from worse: mem clearly above baseline (▲, one-sided p small),
+/// clearly below swap (▼, one-sided p near 1), and level with both on another task (no mark).
+#[test]
+fn results_mark_the_direction_of_a_significant_difference() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cells: [(&str, &str, [f64; 3]); 6] = [
+        ("FetchPush", "baseline", [10.0, 12.0, 14.0]),
+        ("FetchPush", "swap", [40.0, 41.0, 43.0]),
+        ("FetchPush", "mem", [30.0, 31.0, 33.0]),
+        ("FetchReach", "baseline", [20.0, 22.0, 24.0]),
+        ("FetchReach", "swap", [21.0, 22.5, 23.0]),
+        ("FetchReach", "mem", [21.0, 22.0, 23.0]),
+    ];
+    let mut runs = Vec::new();
+    for (task, variant, scores) in &cells {
+        for (seed, s) in scores.iter().enumerate() {
+            let m = metrics(d, &format!("{task}{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
+            runs.push(run(task, "td3bc", variant, seed as u64, m));
+        }
+    }
+    let r = report::results(&runs, &d.join("out")).unwrap();
+    let mem = |task: &str| r.rows.iter().find(|row| row.task == task && row.variant == "mem").unwrap();
+    let push = mem("FetchPush");
+    assert!(push.p_vs_baseline.unwrap() < 0.05 && push.p_one_sided_vs_baseline.unwrap() < 0.025, "{push:?}");
+    assert!(push.p_vs_swap.unwrap() < 0.05 && push.p_one_sided_vs_swap.unwrap() > 0.975, "{push:?}");
+    let reach = mem("FetchReach");
+    assert!(reach.p_vs_baseline.unwrap() > 0.05 && reach.p_vs_swap.unwrap() > 0.05, "{reach:?}");
+    let (p_one, p_two) = (reach.p_one_sided_vs_swap.unwrap(), reach.p_vs_swap.unwrap());
+    assert!((p_one - (1.0 - p_two / 2.0)).abs() < 1e-12, "mem below swap on average: {reach:?}");
+
+    let md = std::fs::read_to_string(&r.markdown).unwrap();
+    let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| TD3+BC mem |")).collect();
+    assert_eq!(rows.len(), 2, "{md}");
+    let cols = |row: &str| row.split('|').map(str::trim).map(String::from).collect::<Vec<_>>();
+    let push_row = cols(rows[0]);
+    assert!(push_row[5].ends_with(report::BETTER) && push_row[6].ends_with(report::WORSE), "{}", rows[0]);
+    let reach_row = cols(rows[1]);
+    for c in &reach_row[5..7] {
+        assert!(!c.contains(report::BETTER) && !c.contains(report::WORSE) && !c.contains('*'), "{}", rows[1]);
+    }
+    assert!(md.contains("Welch's two-sided t-test") && md.contains("one-sided") && md.contains(report::WORSE), "{md}");
+
+    let csv = std::fs::read_to_string(&r.csv).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    assert_eq!(&header[7..], ["p_vs_baseline", "p_vs_swap", "p_one_sided_vs_baseline", "p_one_sided_vs_swap"]);
+    let push_csv: Vec<&str> = csv.lines().find(|l| l.starts_with("FetchPush,td3bc,mem,")).unwrap().split(',').collect();
+    assert_eq!(push_csv[9].parse::<f64>().unwrap(), push.p_one_sided_vs_baseline.unwrap());
+    assert_eq!(push_csv[10].parse::<f64>().unwrap(), push.p_one_sided_vs_swap.unwrap());
 }

@@ -11,7 +11,8 @@
 //! - **Table 2** collects the final evaluation of every training run (the last `eval` line of
 //!   its metrics file), averages it over seeds per (task, algorithm, variant) and tests whether
 //!   the `mem` variant differs from `baseline` and `swap` (Welch's t-test, unequal variances,
-//!   since the variants' spreads over seeds differ).
+//!   since the variants' spreads over seeds differ), marking a significant difference ▲ or ▼ by
+//!   its direction.
 //!
 //! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
 
@@ -29,7 +30,7 @@ use anyhow::{Context, Result};
 pub use classify::{ClassifierScore, classify};
 pub use negatives::{Negatives, negatives};
 pub use qreport::{ControlledTable1, QReport, QReportOptions, Table1, q_report, table1, table1_markdown};
-pub use results::{ResultRow, Results, Run, results, results_markdown, welch_t_test};
+pub use results::{BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_greater, welch_t_test};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.
 pub const FIG_SIZE: (u32, u32) = (900, 600);

@@ -7,6 +7,11 @@
 //! std, n − 1). Whether prioritized swapping (`mem`) beats `baseline` and `swap` is tested with
 //! Welch's t-test on the per-seed scores: the variants' spreads differ, so Student's pooled
 //! variance would be wrong, and with ~10 seeds a rank test has little power.
+//!
+//! The table shows the two-sided p and marks a significant difference with its direction (▲ mem
+//! better, ▼ mem worse): a bare star read as "better" even where mem was significantly worse.
+//! The CSV adds the one-sided p of the paper's claim, "mem outperforms the reference" (H1: mem's
+//! mean > the reference's), which is the test to quote for that claim, decided before the run.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -48,6 +53,10 @@ pub struct ResultRow {
     /// None for other variants, a missing counterpart, or fewer than 2 seeds on either side.
     pub p_vs_baseline: Option<f64>,
     pub p_vs_swap: Option<f64>,
+    /// Welch's one-sided p of the same pairs for H1: mem's mean > the reference's (near 1 when
+    /// mem is clearly worse); None where the two-sided p is.
+    pub p_one_sided_vs_baseline: Option<f64>,
+    pub p_one_sided_vs_swap: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -58,8 +67,12 @@ pub struct Results {
     pub curves: Vec<PathBuf>,
 }
 
-/// Significance level marked with `*` in the markdown.
+/// Significance level of the two-sided test, whose significant differences the markdown marks
+/// with their direction.
 pub const ALPHA: f64 = 0.05;
+/// Marks of a significant difference: the variant's mean above / below the reference's.
+pub const BETTER: &str = "▲";
+pub const WORSE: &str = "▼";
 
 /// A Table 2 group in table order: (task, algo rank, algo, variant rank, variant).
 type GroupKey = (String, usize, String, usize, String);
@@ -94,13 +107,15 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
         let (task, _, algo, _, variant) = key;
         let scores: Vec<f64> = seeds.iter().map(|(_, e)| e.last().expect("checked").paper_score).collect();
         let success: Vec<f64> = seeds.iter().map(|(_, e)| e.last().expect("checked").success_rate).collect();
-        let p_vs = |other: &str| -> Option<f64> {
+        // (two-sided p, one-sided p of H1: mem > other).
+        let p_vs = |other: &str| -> Option<(f64, f64)> {
             if variant != "mem" {
                 return None;
             }
             let theirs = finals(&(task.clone(), key.1, algo.clone(), variant_rank(other), other.to_string()))?;
-            welch_t_test(&scores, &theirs).map(|(_, _, p)| p)
+            Some((welch_t_test(&scores, &theirs)?.2, welch_greater(&scores, &theirs)?))
         };
+        let (vs_baseline, vs_swap) = (p_vs("baseline"), p_vs("swap"));
         let (m, s) = mean_std(&scores);
         rows.push(ResultRow {
             task: task.clone(),
@@ -110,8 +125,10 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
             paper_score_mean: m,
             paper_score_std: s,
             success_mean: mean_std(&success).0,
-            p_vs_baseline: p_vs("baseline"),
-            p_vs_swap: p_vs("swap"),
+            p_vs_baseline: vs_baseline.map(|p| p.0),
+            p_vs_swap: vs_swap.map(|p| p.0),
+            p_one_sided_vs_baseline: vs_baseline.map(|p| p.1),
+            p_one_sided_vs_swap: vs_swap.map(|p| p.1),
         });
     }
 
@@ -165,12 +182,23 @@ pub fn results_markdown(r: &Results) -> String {
             fmt3(row.paper_score_std),
             fmt3(row.success_mean),
             row.seeds,
-            fmt_p(row.p_vs_baseline),
-            fmt_p(row.p_vs_swap)
+            fmt_p(row.p_vs_baseline, row.p_one_sided_vs_baseline),
+            fmt_p(row.p_vs_swap, row.p_one_sided_vs_swap)
         );
     }
-    s += "\np: Welch's two-sided t-test of the per-seed final scores; * marks p < 0.05.\n";
+    s += &legend();
     s
+}
+
+/// What the p columns and marks mean, under every Table 2.
+fn legend() -> String {
+    format!(
+        "\np: Welch's two-sided t-test (unequal variances) of the per-seed final paper scores of mem against \
+         baseline / swap; {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
+         worse (lower mean), no mark no significant difference. results.csv adds the paper's one-sided test, \
+         mem outperforms the reference (Welch, H1: mem mean > reference mean), as p_one_sided_vs_baseline and \
+         p_one_sided_vs_swap.\n"
+    )
 }
 
 /// Welch's t-test (unequal variances) of `a` against `b`: (t, degrees of freedom, two-sided
@@ -193,6 +221,14 @@ pub fn welch_t_test(a: &[f64], b: &[f64]) -> Option<(f64, f64, f64)> {
     // 2·sf(|t|) rather than 2·(1 − cdf): keeps precision for tiny p.
     let p = (2.0 * dist.sf(t.abs())).min(1.0);
     Some((t, df, p))
+}
+
+/// Welch's one-sided p of `a` against `b` for H1: mean(a) > mean(b), i.e. sf(t) on the
+/// Welch–Satterthwaite degrees of freedom: small when `a` is clearly higher, near 1 when it is
+/// clearly lower. None where [`welch_t_test`] is.
+pub fn welch_greater(a: &[f64], b: &[f64]) -> Option<f64> {
+    let (t, df, _) = welch_t_test(a, b)?;
+    Some(StudentsT::new(0.0, 1.0, df).ok()?.sf(t))
 }
 
 /// Mean and sample std (n − 1; NaN for one value).
@@ -255,13 +291,15 @@ fn curve(label: String, seeds: &[(u64, Vec<Eval>)]) -> Curve {
 }
 
 fn csv(rows: &[ResultRow]) -> String {
-    let mut s =
-        String::from("task,algo,variant,seeds,paper_score_mean,paper_score_std,success_mean,p_vs_baseline,p_vs_swap\n");
+    let mut s = String::from(
+        "task,algo,variant,seeds,paper_score_mean,paper_score_std,success_mean,p_vs_baseline,p_vs_swap,\
+         p_one_sided_vs_baseline,p_one_sided_vs_swap\n",
+    );
     let opt = |p: Option<f64>| p.map(|p| p.to_string()).unwrap_or_default();
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{}",
             r.task,
             r.algo,
             r.variant,
@@ -270,19 +308,28 @@ fn csv(rows: &[ResultRow]) -> String {
             r.paper_score_std,
             r.success_mean,
             opt(r.p_vs_baseline),
-            opt(r.p_vs_swap)
+            opt(r.p_vs_swap),
+            opt(r.p_one_sided_vs_baseline),
+            opt(r.p_one_sided_vs_swap)
         );
     }
     s
 }
 
-fn fmt_p(p: Option<f64>) -> String {
-    match p {
-        Some(p) => {
-            let star = if p < ALPHA { "*" } else { "" };
-            if p < 1e-3 { format!("{p:.1e}{star}") } else { format!("{p:.3}{star}") }
+/// The two-sided p with the direction of a significant difference: the one-sided p of "mem is
+/// higher" is below ½ exactly when mem's mean is above the reference's.
+fn fmt_p(two_sided: Option<f64>, one_sided: Option<f64>) -> String {
+    match (two_sided, one_sided) {
+        (Some(p), Some(up)) => {
+            let mark = match (p < ALPHA, up < 0.5) {
+                (false, _) => "",
+                (true, true) => BETTER,
+                (true, false) => WORSE,
+            };
+            let p = if p < 1e-3 { format!("{p:.1e}") } else { format!("{p:.3}") };
+            if mark.is_empty() { p } else { format!("{p} {mark}") }
         }
-        None => "—".to_string(),
+        _ => "—".to_string(),
     }
 }
 
