@@ -422,3 +422,66 @@ fn results_mark_the_direction_of_a_significant_difference() {
     assert_eq!(push_csv[9].parse::<f64>().unwrap(), push.p_one_sided_vs_baseline.unwrap());
     assert_eq!(push_csv[10].parse::<f64>().unwrap(), push.p_one_sided_vs_swap.unwrap());
 }
+
+/// The committed results tables (`results/*/results.md`) are what `results_markdown` makes of
+/// the CSV beside them, and each CSV's p values are Welch's tests of its own means and stds:
+/// the agents' metrics files are not in the repository, so when the table format changes the
+/// markdown is regenerated from the CSV, and this keeps the two from drifting apart.
+#[test]
+fn committed_results_tables_follow_from_their_csv() {
+    let mut checked = 0;
+    for entry in std::fs::read_dir(repo().join("results")).unwrap() {
+        let dir = entry.unwrap().path();
+        let csv_path = dir.join("results.csv");
+        if !csv_path.is_file() {
+            continue;
+        }
+        let csv = std::fs::read_to_string(&csv_path).unwrap();
+        let rows: Vec<report::ResultRow> = csv.lines().skip(1).map(|l| result_row(&csv_path, l)).collect();
+        // Per-seed scores with a group's mean and std: m + s·z with z of sample std 1.
+        let seeds = |r: &report::ResultRow| -> Vec<f64> {
+            let a = ((r.seeds - 1) as f64 / 2.0).sqrt();
+            let mut v = vec![r.paper_score_mean; r.seeds];
+            v[0] -= a * r.paper_score_std;
+            v[r.seeds - 1] += a * r.paper_score_std;
+            v
+        };
+        for r in rows.iter().filter(|r| r.variant == "mem") {
+            for (other, two, one) in
+                [("baseline", r.p_vs_baseline, r.p_one_sided_vs_baseline), ("swap", r.p_vs_swap, r.p_one_sided_vs_swap)]
+            {
+                let o = rows.iter().find(|x| x.task == r.task && x.algo == r.algo && x.variant == other).unwrap();
+                let (_, _, p) = report::welch_t_test(&seeds(r), &seeds(o)).unwrap();
+                let p1 = report::welch_greater(&seeds(r), &seeds(o)).unwrap();
+                let (two, one) = (two.unwrap(), one.unwrap());
+                assert!((p - two).abs() < 1e-9 * two && (p1 - one).abs() < 1e-9 * one, "{}: {r:?}", csv_path.display());
+            }
+        }
+        let results = report::Results { rows, markdown: dir.join("results.md"), csv: csv_path, curves: vec![] };
+        let md = std::fs::read_to_string(&results.markdown).unwrap();
+        assert_eq!(md, report::results_markdown(&results), "{}", results.markdown.display());
+        checked += 1;
+    }
+    assert!(checked >= 1, "no results/*/results.csv");
+}
+
+/// One line of a results.csv as the row that wrote it.
+fn result_row(path: &Path, line: &str) -> report::ResultRow {
+    let f: Vec<&str> = line.split(',').collect();
+    assert_eq!(f.len(), 11, "{}: {line}", path.display());
+    let num = |s: &str| s.parse::<f64>().unwrap_or_else(|e| panic!("{}: {s}: {e}", path.display()));
+    let p = |s: &str| if s.is_empty() { None } else { Some(num(s)) };
+    report::ResultRow {
+        task: f[0].into(),
+        algo: f[1].into(),
+        variant: f[2].into(),
+        seeds: f[3].parse().unwrap(),
+        paper_score_mean: num(f[4]),
+        paper_score_std: num(f[5]),
+        success_mean: num(f[6]),
+        p_vs_baseline: p(f[7]),
+        p_vs_swap: p(f[8]),
+        p_one_sided_vs_baseline: p(f[9]),
+        p_one_sided_vs_swap: p(f[10]),
+    }
+}

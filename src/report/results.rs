@@ -195,7 +195,7 @@ fn legend() -> String {
     format!(
         "\np: Welch's two-sided t-test (unequal variances) of the per-seed final paper scores of mem against \
          baseline / swap; {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
-         worse (lower mean), no mark no significant difference. results.csv adds the paper's one-sided test, \
+         worse (lower mean); no mark: no significant difference. results.csv adds the paper's one-sided test, \
          mem outperforms the reference (Welch, H1: mem mean > reference mean), as p_one_sided_vs_baseline and \
          p_one_sided_vs_swap.\n"
     )
