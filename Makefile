@@ -49,8 +49,15 @@ $(VENV)/.stamp: tests/requirements.txt
 build: deps
 	$(CARGO) build --release
 
+# Real WGCSL pickles written by other people's code (not redistributed here): when a folder of
+# them sits beside the checkout, `make test` also runs the round trip that needs them.
+REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
+
 test: deps venv
 	$(CARGO) test --release
+	@if [ -n "$(REAL_FIXTURES)" ]; then \
+	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
+	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and

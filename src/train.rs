@@ -120,6 +120,7 @@ pub fn train(
     if cfg.batch_size == 0 {
         bail!("--batch-size must be at least 1");
     }
+    cfg.priority.validate()?;
     let scored = match crate::table::read_footer(data_path) {
         Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(data_path)?),
         _ => None,
@@ -287,6 +288,14 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
     Ok(data)
 }
 
+/// `--resume` refused because the checkpoint belongs to another run: other settings, other data,
+/// or more updates than asked for. Only this refusal lets a pipeline start the step over (it keeps
+/// the old checkpoint aside); any other failure while resuming is reported and the checkpoint
+/// left as it is, so no progress is thrown away by an I/O error or a bad read.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct StaleCheckpoint(pub String);
+
 /// Loads checkpoint, resume state and metrics of an interrupted run and checks that it is the
 /// same run: same settings (the number of updates may grow) and the same data file.
 fn restore(
@@ -304,21 +313,25 @@ fn restore(
         .with_context(|| format!("{at}: the checkpoint's train config is not readable"))?;
     let comparable = TrainConfig { updates: cfg.updates, ..saved.clone() };
     if &comparable != cfg {
-        bail!(
+        return Err(StaleCheckpoint(format!(
             "{at}: --resume with settings that differ from the checkpoint's (only --updates may change): saved {}, given {}",
             serde_json::to_string(&saved)?,
             serde_json::to_string(cfg)?
-        );
+        ))
+        .into());
     }
     if agent.updates > cfg.updates {
-        bail!(
+        return Err(StaleCheckpoint(format!(
             "{at}: --resume with --updates {} but the checkpoint already has {} updates (a run cannot be shortened)",
-            cfg.updates,
-            agent.updates
-        );
+            cfg.updates, agent.updates
+        ))
+        .into());
     }
     if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
-        bail!("{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)");
+        return Err(StaleCheckpoint(format!(
+            "{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)"
+        ))
+        .into());
     }
     let resume_meta = checkpoint::load_resume(&mut agent, &checkpoint::resume_path(out))?;
     let words = resume_meta.get("batch_rng").with_context(|| format!("{at}.resume: batch_rng missing"))?;

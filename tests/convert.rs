@@ -47,13 +47,17 @@ fn committed_numpy1_and_numpy2_pickles_round_trip() {
     }
 }
 
-/// The real files other people's code wrote (shared/fixtures), when this checkout has them.
+/// Real WGCSL pickles written by other people's research code (GOAT's `offline_data/`), which
+/// this repository does not redistribute. Ignored by a plain `cargo test`, so it is counted as
+/// not run rather than passed; `make test` runs it with `PGSER_REAL_FIXTURES` set when the files
+/// are there, and says so when they are not. Given the variable, missing files fail the test.
 #[test]
+#[ignore = "needs real WGCSL pickles: PGSER_REAL_FIXTURES=DIR (make test sets it when they are present)"]
 fn real_wgcsl_files_round_trip() {
-    let dir = repo().join("../shared/fixtures/wgcsl");
-    if !dir.exists() {
-        eprintln!("shared fixtures not present; nothing to check");
-        return;
+    let root = std::env::var_os("PGSER_REAL_FIXTURES").expect("PGSER_REAL_FIXTURES is not set");
+    let dir = std::path::PathBuf::from(root).join("wgcsl");
+    for f in ["reach_far_expert_200.pkl", "point_reach_noise_50.pkl"] {
+        assert!(dir.join(f).exists(), "{} is missing", dir.join(f).display());
     }
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out.parquet");

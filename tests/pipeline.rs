@@ -156,3 +156,96 @@ fn bad_pipelines_fail_in_one_line_before_any_work() {
     let out = etl().args(["pipeline", "run"]).arg(&file).args(["--until", "nope"]).output().unwrap();
     assert!(text(&out.stderr).contains("--until nope: no such step"), "{}", text(&out.stderr));
 }
+
+/// Every file under `out` except the step records, by path relative to `out`.
+fn snapshot(out: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, files: &mut BTreeMap<PathBuf, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                if p.file_name().unwrap() != ".pipeline" {
+                    walk(root, &p, files);
+                }
+            } else {
+                files.insert(p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut files = BTreeMap::new();
+    walk(out, out, &mut files);
+    files
+}
+
+#[test]
+fn every_output_is_rebuilt_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 2);
+    let out = dir.path().join("out");
+    run(&file, &[]);
+    let first = snapshot(&out);
+    for kind in [
+        "traj.parquet",
+        "q.ckpt",
+        "q.ckpt.resume",
+        "q.ckpt.metrics.jsonl",
+        "scored.parquet",
+        "agents/td3bc_mem_s1.ckpt",
+        "report/table1.json",
+        "report/fig5_q_hist.png",
+        "results.csv",
+        "curves_FetchReach.png",
+    ] {
+        assert!(first.contains_key(Path::new(kind)), "{kind} missing: {:?}", first.keys());
+    }
+
+    // A lost Q is pre-trained again into the same bytes, so nothing that reads it reruns.
+    std::fs::remove_file(out.join("q.ckpt")).unwrap();
+    let again = run(&file, &[]);
+    assert_eq!(ran(&again), ["pretrain"], "{again:?}");
+    assert!(snapshot(&out) == first, "q.ckpt was not rebuilt byte for byte");
+
+    // A whole second run from nothing writes every file (checkpoints, resume states, metrics,
+    // tables, report, results, figures) byte for byte as the first.
+    std::fs::remove_dir_all(&out).unwrap();
+    run(&file, &[]);
+    let second = snapshot(&out);
+    assert_eq!(second.keys().collect::<Vec<_>>(), first.keys().collect::<Vec<_>>());
+    for (path, bytes) in &first {
+        assert!(&second[path] == bytes, "{} differs between two identical runs", path.display());
+    }
+}
+
+#[test]
+fn a_resume_that_fails_keeps_the_checkpoint_and_only_stale_ones_are_set_aside() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 2);
+    let out = dir.path().join("out");
+    run(&file, &[]);
+    let ckpt = out.join("agents/td3bc_baseline_s0.ckpt");
+    let resume = out.join("agents/td3bc_baseline_s0.ckpt.resume");
+    let (ckpt_bytes, resume_bytes) = (std::fs::read(&ckpt).unwrap(), std::fs::read(&resume).unwrap());
+
+    // An unreadable resume state while continuing to more updates: the step stops with the
+    // cause and the checkpoint stays as it was (it used to be retrained from scratch).
+    std::fs::write(&resume, b"not a safetensors file").unwrap();
+    let file = pipeline(dir.path(), 30, 2);
+    let o = etl().args(["pipeline", "run"]).arg(&file).args(["--threads", "2"]).output().unwrap();
+    let err = text(&o.stderr);
+    assert!(!o.status.success(), "a broken resume state was not reported");
+    assert!(err.contains("td3bc_baseline_s0") && err.contains("left as it was"), "{err}");
+    assert!(std::fs::read(&ckpt).unwrap() == ckpt_bytes, "the checkpoint was overwritten");
+    assert!(!out.join("agents/td3bc_baseline_s0.ckpt.stale").exists());
+
+    // Other settings: the checkpoint cannot be continued, so the agent is trained from scratch
+    // and the old one is kept aside as .stale (with its resume state and metrics).
+    std::fs::write(&resume, &resume_bytes).unwrap();
+    let changed = std::fs::read_to_string(&file).unwrap().replace("updates = 30\n", "updates = 30\ntau = 0.01\n");
+    std::fs::write(&file, changed).unwrap();
+    let statuses = run(&file, &[]);
+    assert_eq!(statuses["agent td3bc_baseline_s0"], "ran", "{statuses:?}");
+    let stale = |ext: &str| out.join(format!("agents/td3bc_baseline_s0.ckpt{ext}.stale"));
+    assert!(std::fs::read(stale("")).unwrap() == ckpt_bytes, "the stale checkpoint was not kept");
+    assert!(std::fs::read(stale(".resume")).unwrap() == resume_bytes);
+    assert!(stale(".metrics.jsonl").exists());
+    assert!(std::fs::read(&ckpt).unwrap() != ckpt_bytes);
+}

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, SafeTensors};
 
 use super::{Agent, AgentConfig, Mlp, Normalizer};
 use crate::env::rng::NpRandom;
@@ -50,17 +50,58 @@ impl Tensors {
     }
 
     fn write(self, path: &Path, metadata: BTreeMap<String, String>) -> Result<()> {
-        let views: Vec<(String, TensorView)> = self
-            .entries
-            .iter()
-            .map(|(n, s, b)| Ok((n.clone(), TensorView::new(Dtype::F32, s.clone(), b)?)))
-            .collect::<Result<_, safetensors::SafeTensorError>>()?;
-        let bytes = safetensors::serialize(views, Some(metadata.into_iter().collect()))
-            .with_context(|| format!("{}: cannot encode the checkpoint", path.display()))?;
+        let bytes = self.encode(&metadata)?;
         let out = AtomicFile::create(path)?;
         std::io::Write::write_all(&mut out.handle()?, &bytes)
             .with_context(|| format!("{}: write failed", path.display()))?;
         out.commit()
+    }
+
+    /// The safetensors bytes, written here rather than by `safetensors::serialize`: that one
+    /// takes the metadata as a `HashMap` and so writes its keys in a different order in every
+    /// process, and a pipeline that rebuilds a lost checkpoint must get the same bytes back
+    /// (otherwise every step downstream of it reruns). Tensors go in name order, metadata keys
+    /// sorted, the header padded with spaces to 8 bytes as the format asks.
+    fn encode(mut self, metadata: &BTreeMap<String, String>) -> Result<Vec<u8>> {
+        self.entries.sort_by(|a, b| a.0.cmp(&b.0));
+        let mut header = String::from("{");
+        if !metadata.is_empty() {
+            header.push_str("\"__metadata__\":{");
+            let pairs: Vec<String> = metadata
+                .iter()
+                .map(|(k, v)| Ok(format!("{}:{}", serde_json::to_string(k)?, serde_json::to_string(v)?)))
+                .collect::<Result<_, serde_json::Error>>()?;
+            header.push_str(&pairs.join(","));
+            header.push('}');
+        }
+        let mut offset = 0;
+        for (name, shape, bytes) in &self.entries {
+            if bytes.len() != shape.iter().product::<usize>() * 4 {
+                bail!("tensor {name}: {} bytes for shape {shape:?}", bytes.len());
+            }
+            if header.len() > 1 {
+                header.push(',');
+            }
+            let dims: Vec<String> = shape.iter().map(usize::to_string).collect();
+            header.push_str(&format!(
+                "{}:{{\"dtype\":\"F32\",\"shape\":[{}],\"data_offsets\":[{offset},{}]}}",
+                serde_json::to_string(name)?,
+                dims.join(","),
+                offset + bytes.len()
+            ));
+            offset += bytes.len();
+        }
+        header.push('}');
+        while header.len() % 8 != 0 {
+            header.push(' ');
+        }
+        let mut out = Vec::with_capacity(8 + header.len() + offset);
+        out.extend_from_slice(&(header.len() as u64).to_le_bytes());
+        out.extend_from_slice(header.as_bytes());
+        for (_, _, bytes) in &self.entries {
+            out.extend_from_slice(bytes);
+        }
+        Ok(out)
     }
 }
 

@@ -169,3 +169,91 @@ fn td3bc_actor_moves_toward_the_data_actions() {
     }
     assert!(last < 0.6 * first, "BC loss {first} -> {last}");
 }
+
+/// The first `k` rows of a batch (noise for them is the first draws of the stream either way).
+fn head(b: &Batch, task: &Task, k: usize) -> Batch {
+    Batch {
+        n: k,
+        obs: b.obs[..k * task.obs_dim].to_vec(),
+        goal: b.goal[..k * task.goal_dim].to_vec(),
+        action: b.action[..k * task.act_dim].to_vec(),
+        reward: b.reward[..k].to_vec(),
+        next_obs: b.next_obs[..k * task.obs_dim].to_vec(),
+        weight: vec![],
+    }
+}
+
+/// All online critic weights, flattened.
+fn critic_params(a: &Agent) -> Vec<f32> {
+    values(&a.critic1).into_iter().chain(values(&a.critic2)).flatten().collect()
+}
+
+#[test]
+fn importance_weights_scale_the_critic_loss() {
+    // Constant weights c: the weighted loss is exactly c times the unweighted one (a loss that
+    // ignored the weights would report the same value, one that inverted them 1/c times it).
+    let task = Task::known("FetchReach").unwrap();
+    let b = random_batch(&task, 32, 11);
+    let loss = |weight: Vec<f32>| {
+        let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 5, device());
+        agent.update(&Batch { weight, ..b.clone() }).read().0
+    };
+    let plain = loss(vec![]);
+    let quarter = loss(vec![0.25; 32]);
+    assert!(plain > 0.0);
+    assert!((quarter - 0.25 * plain).abs() <= 1e-6 * plain, "weighted {quarter} vs 0.25 × {plain}");
+}
+
+#[test]
+fn importance_weights_act_on_the_critic_gradient() {
+    // Weight 0 on the second half of a batch: the critics' step must be the step of the first
+    // half alone (same direction; Adam's first step does not depend on the gradient's scale), and
+    // far from the step the whole batch would give if the weights were ignored.
+    let task = Task::known("FetchReach").unwrap();
+    let full = random_batch(&task, 32, 12);
+    let step = |b: &Batch| {
+        let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 9, device());
+        let before = critic_params(&agent);
+        agent.update(b);
+        critic_params(&agent).iter().zip(&before).map(|(a, b)| a - b).collect::<Vec<f32>>()
+    };
+    let mut weight = vec![1.0; 16];
+    weight.extend(vec![0.0; 16]);
+    let weighted = step(&Batch { weight, ..full.clone() });
+    let half = step(&head(&full, &task, 16));
+    let ignored = step(&full);
+    let dist = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>().sqrt();
+    let (to_half, to_ignored) = (dist(&weighted, &half), dist(&weighted, &ignored));
+    assert!(weighted.iter().all(|x| x.is_finite()));
+    assert!(
+        to_half < 0.01 * to_ignored,
+        "weighted step is {to_half} from the half batch's, {to_ignored} from the whole's"
+    );
+}
+
+#[test]
+fn checkpoint_files_are_the_same_bytes_every_time() {
+    // The metadata has a dozen keys; written through a HashMap they came out in another order
+    // on each write, so a rebuilt checkpoint never matched its record.
+    let task = Task::known("FetchReach").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 4, device());
+    agent.update(&random_batch(&task, 16, 0));
+    let extra: std::collections::BTreeMap<String, String> =
+        (0..8).map(|i| (format!("key{i}"), format!("value \"{i}\""))).collect();
+    let write = |name: &str| {
+        let p = dir.path().join(name);
+        checkpoint::save(&agent, &p, &extra).unwrap();
+        checkpoint::save_resume(&agent, &checkpoint::resume_path(&p), &extra).unwrap();
+        (std::fs::read(&p).unwrap(), std::fs::read(checkpoint::resume_path(&p)).unwrap())
+    };
+    let first = write("a.ckpt");
+    for name in ["b.ckpt", "c.ckpt", "d.ckpt"] {
+        assert!(write(name) == first, "{name} differs from a.ckpt");
+    }
+    // Still a safetensors file any reader opens, with the metadata and tensors it had.
+    let st = safetensors::SafeTensors::deserialize(&first.0).unwrap();
+    assert_eq!(st.tensor("actor.0.weight").unwrap().shape(), [16, task.obs_dim + task.goal_dim]);
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&first.0).unwrap();
+    assert_eq!(meta.metadata().as_ref().unwrap()["key3"], "value \"3\"");
+}

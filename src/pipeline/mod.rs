@@ -13,7 +13,9 @@
 //! Crashes: every output is written atomically, and a record is written only after its step
 //! finished, so an interrupted run is resumed by running it again. A training step interrupted
 //! after a checkpoint continues from it (`pgser-train --resume`), which gives the same weights
-//! as an uninterrupted run; so does raising `updates` on a finished agent.
+//! as an uninterrupted run; so does raising `updates` on a finished agent. Only a checkpoint of
+//! another run (settings, data, a longer run: `train::StaleCheckpoint`) is started over, and it
+//! is kept aside as `.stale`; any other error while resuming stops the step and touches nothing.
 
 mod spec;
 mod state;
@@ -300,27 +302,59 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
         Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),
         Action::Train { data, out, cfg } => {
             let command = format!("pgser pipeline step {}", step.name);
-            // `train` refuses to continue a checkpoint of other settings, data or more updates.
-            let resumed = resume
-                && out.exists()
-                && checkpoint::resume_path(out).exists()
-                && match crate::train::train(data, out, cfg, true, device.device()?, &command, &bar) {
-                    Ok(_) => true,
-                    // Settings or data changed since that checkpoint: start over.
-                    Err(e) => {
-                        eprintln!("pgser pipeline: {}: not resumed ({e:#}); training from scratch", step.name);
-                        false
+            let train = |resume| crate::train::train(data, out, cfg, resume, device.device()?, &command, &bar);
+            if resume && out.exists() && checkpoint::resume_path(out).exists() {
+                match train(true) {
+                    Ok(_) => how = "resumed",
+                    // The checkpoint is of another run (settings, data, a longer run): it cannot be
+                    // continued, so start over, but keep it aside rather than overwrite it.
+                    Err(e) if e.downcast_ref::<crate::train::StaleCheckpoint>().is_some() => {
+                        let kept = set_aside_stale(out)?;
+                        eprintln!(
+                            "pgser pipeline: {}: not resumed ({e:#}); the old checkpoint is kept as {}; training from scratch",
+                            step.name,
+                            kept.display()
+                        );
+                        train(false)?;
                     }
-                };
-            if resumed {
-                how = "resumed";
+                    // Anything else (an unreadable file, a failed read of the data, a diverged loss)
+                    // is reported; the checkpoint and its progress stay as they are.
+                    Err(e) => {
+                        return Err(e.context(format!(
+                            "resuming {} failed; the checkpoint is left as it was",
+                            out.display()
+                        )));
+                    }
+                }
             } else {
-                crate::train::train(data, out, cfg, false, device.device()?, &command, &bar)?;
+                if out.exists() && resume {
+                    // A checkpoint without its resume state cannot be continued; keep it anyway.
+                    set_aside_stale(out)?;
+                }
+                train(false)?;
             }
         }
     }
     bar.finish_and_clear();
     Ok(how)
+}
+
+/// Moves a checkpoint that cannot be continued, with its resume state and metrics, to
+/// `NAME.stale` (`.resume.stale`, `.metrics.jsonl.stale`), replacing an older stale copy; returns
+/// the checkpoint's new path.
+fn set_aside_stale(ckpt: &Path) -> Result<PathBuf> {
+    let stale = |p: &Path| {
+        let mut s = p.as_os_str().to_owned();
+        s.push(".stale");
+        PathBuf::from(s)
+    };
+    for p in [ckpt.to_path_buf(), checkpoint::resume_path(ckpt), metrics_path(ckpt)] {
+        if p.exists() {
+            std::fs::rename(&p, stale(&p))
+                .with_context(|| format!("{}: cannot move aside to {}", p.display(), stale(&p).display()))?;
+        }
+    }
+    Ok(stale(ckpt))
 }
 
 /// The report's one-screen summary: steps, then where the tables are.

@@ -5,6 +5,7 @@
 //! (SPEC §1, Alg. 2). Priorities are computed from the stored `q` column when the sampler is
 //! built, so changing `--priority` or `--priority-alpha` never needs re-scoring.
 
+use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
@@ -47,9 +48,34 @@ impl Default for PriorityConfig {
 }
 
 impl PriorityConfig {
+    /// Settings that would give NaN, negative or all-zero priorities, or meaningless weights,
+    /// are refused up front (a negative ε makes the lowest rows' priorities negative or NaN).
+    pub fn validate(&self) -> Result<()> {
+        let a = self.priority_alpha;
+        if !(a.is_finite() && a >= 0.0) {
+            bail!("--priority-alpha {a}: must be a finite number ≥ 0");
+        }
+        let e = self.priority_eps;
+        if !(e.is_finite() && e >= 0.0) {
+            bail!("--priority-eps {e}: must be a finite number ≥ 0 (it lifts rows at Q's lower bound above 0)");
+        }
+        if let Some(b) = self.is_beta
+            && !(0.0..=1.0).contains(&b)
+        {
+            bail!("--is-beta {b}: must be in [0, 1] (0: no correction, 1: full correction)");
+        }
+        Ok(())
+    }
+
     /// Priorities of rows with critic values `q`, for a critic trained with discount `gamma`,
     /// computed in place: a scored table of 80M rows must not need a second array of them.
-    pub fn priorities(&self, mut q: Vec<f32>, gamma: f64) -> Vec<f32> {
+    /// Fails on invalid settings, on a q that is not a number (naming its row), and when no row
+    /// could ever be drawn (every priority 0, e.g. `--priority-eps 0` with every Q at its bound).
+    pub fn priorities(&self, mut q: Vec<f32>, gamma: f64) -> Result<Vec<f32>> {
+        self.validate()?;
+        if let Some(i) = q.iter().position(|x| x.is_nan()) {
+            bail!("row {i}: q is NaN");
+        }
         let a = self.priority_alpha;
         match self.priority {
             PriorityKind::Q => {
@@ -69,7 +95,14 @@ impl PriorityConfig {
             }
             PriorityKind::Uniform => q.fill(1.0),
         }
-        q
+        if !q.is_empty() && q.iter().all(|&p| p == 0.0) {
+            bail!(
+                "every one of the {} swapped rows has priority 0 (all Q at the lower bound −1/(1−γ) with --priority-eps 0); \
+                 raise --priority-eps",
+                q.len()
+            );
+        }
+        Ok(q)
     }
 }
 
@@ -102,7 +135,11 @@ impl SumTree {
             for (j, &p) in chunk.iter().enumerate() {
                 assert!(p.is_finite() && p >= 0.0, "priority {p} of row {}", b * BLOCK + j);
                 sum += p as f64;
-                min = min.min(p as f64);
+                if p > 0.0 {
+                    // The IS normaliser is the least likely row that can be drawn; a row of
+                    // priority 0 never is, and would make the largest weight infinite.
+                    min = min.min(p as f64);
+                }
             }
             nodes[blocks + b] = sum;
         }
@@ -266,14 +303,46 @@ mod tests {
     #[test]
     fn q_priorities_follow_q_and_rank_priorities_follow_order() {
         let cfg = PriorityConfig::default(); // q, α = 1, ε = 0.01
-        let p = cfg.priorities(vec![0.0, -50.0, -60.0, -25.0], 0.98);
+        let p = cfg.priorities(vec![0.0, -50.0, -60.0, -25.0], 0.98).unwrap();
         for (got, want) in p.iter().zip([50.01f32, 0.01, 0.01, 25.01]) {
             assert_eq!(*got, want, "{p:?}");
         }
         let rank = PriorityConfig { priority: PriorityKind::Rank, ..cfg.clone() };
-        assert_eq!(rank.priorities(vec![-3.0, -1.0, -2.0], 0.98), vec![1.0 / 3.0, 1.0, 0.5]);
+        assert_eq!(rank.priorities(vec![-3.0, -1.0, -2.0], 0.98).unwrap(), vec![1.0 / 3.0, 1.0, 0.5]);
         let alpha0 = PriorityConfig { priority_alpha: 0.0, ..cfg };
-        assert!(alpha0.priorities(vec![-3.0, -1.0], 0.98).iter().all(|&x| x == 1.0));
+        assert!(alpha0.priorities(vec![-3.0, -1.0], 0.98).unwrap().iter().all(|&x| x == 1.0));
+    }
+
+    #[test]
+    fn zero_priority_rows_do_not_break_the_is_weights() {
+        // --priority-eps 0: the rows at Q's lower bound get priority 0 and are never drawn; the
+        // weights are normalised over the rows that can be drawn (here the 1.0 row is the max).
+        let cfg = PriorityConfig { priority_eps: 0.0, is_beta: Some(1.0), ..PriorityConfig::default() };
+        let p = cfg.priorities(vec![-50.0, -49.0, -48.0, -60.0], 0.98).unwrap();
+        assert_eq!(p, vec![0.0, 1.0, 2.0, 0.0]);
+        let tree = SumTree::new(p);
+        let w = tree.is_weights(&[1, 2], 1.0);
+        assert_eq!(w, vec![1.0, 0.5]);
+        assert!(w.iter().all(|x| x.is_finite() && *x > 0.0));
+    }
+
+    #[test]
+    fn bad_priority_settings_and_values_are_refused() {
+        let base = PriorityConfig::default();
+        for (cfg, says) in [
+            (PriorityConfig { priority_eps: -0.5, ..base.clone() }, "--priority-eps -0.5"),
+            (PriorityConfig { priority_eps: f64::NAN, ..base.clone() }, "--priority-eps NaN"),
+            (PriorityConfig { priority_alpha: -1.0, ..base.clone() }, "--priority-alpha -1"),
+            (PriorityConfig { is_beta: Some(1.5), ..base.clone() }, "--is-beta 1.5"),
+        ] {
+            let e = cfg.priorities(vec![-1.0, -2.0], 0.98).unwrap_err().to_string();
+            assert!(e.starts_with(says), "{says}: {e}");
+        }
+        let e = base.priorities(vec![-1.0, f32::NAN], 0.98).unwrap_err().to_string();
+        assert!(e.contains("row 1: q is NaN"), "{e}");
+        let zero = PriorityConfig { priority_eps: 0.0, ..base };
+        let e = zero.priorities(vec![-50.0, -70.0], 0.98).unwrap_err().to_string();
+        assert!(e.contains("priority 0"), "{e}");
     }
 
     #[test]

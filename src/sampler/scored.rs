@@ -262,7 +262,9 @@ impl ScoredSampler {
         in_memory: bool,
     ) -> Result<ScoredSampler> {
         let q = table.read_q()?;
-        let tree = Arc::new(SumTree::new(cfg.priorities(q, table.gamma)));
+        let tree = Arc::new(SumTree::new(
+            cfg.priorities(q, table.gamma).with_context(|| format!("{}", table.path.display()))?,
+        ));
         let per_block = block_batches(table.rows, k);
         let rows = if in_memory {
             let mut all = Vec::with_capacity(table.rows);
