@@ -16,6 +16,9 @@
 //! as an uninterrupted run; so does raising `updates` on a finished agent. Only a checkpoint of
 //! another run (settings, data, a longer run: `train::StaleCheckpoint`) is started over, and it
 //! is kept aside as `.stale`; any other error while resuming stops the step and touches nothing.
+//!
+//! The key includes pgser's version (`state.rs` says why a version rather than a finer code
+//! identity), so upgrading pgser reruns every step once, training from scratch.
 
 mod spec;
 mod state;
@@ -261,8 +264,9 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
             let t0 = Instant::now();
             // A training step may continue from its checkpoint after a crash (no record) or a
             // change of settings (another key; `train` refuses what cannot continue), but not when
-            // a finished output no longer has its recorded bytes: that one is rebuilt from scratch.
-            let resume = state::recorded_key(&p.out, &step) != key;
+            // a finished output no longer has its recorded bytes (that one is rebuilt from scratch)
+            // nor when another pgser version finished it.
+            let resume = state::may_resume(&p.out, &step, key.as_deref());
             let how =
                 execute(&step, o.device, resume).with_context(|| format!("pipeline {}, step {}", p.name, step.name))?;
             let secs = t0.elapsed().as_secs_f64();

@@ -3,6 +3,17 @@
 //! The key hashes the step's name, parameters and its inputs' *contents*, not their dates:
 //! copying an out folder, touching a file or re-creating an identical output changes nothing,
 //! while any changed byte upstream reruns exactly the steps that read it.
+//!
+//! The key also holds pgser's version (`CARGO_PKG_VERSION`), because the code is an input of
+//! every step too: a new pgser may simulate, convert, train or score differently, and a record
+//! written by the old one would otherwise keep its outputs forever. So after an upgrade every
+//! step reruns once, and a training step starts from scratch rather than continuing a
+//! checkpoint the old code wrote ([`may_resume`]). A version string is coarse (a release that
+//! changes only the report reruns the training too) but honest and simple: a finer identity —
+//! a hash of the sources each step depends on — would have to list those sources by hand, and
+//! one missing entry would silently keep stale outputs, while a hash of the whole binary would
+//! rerun days of training after any edit. The price: a developer build whose changed code
+//! writes outputs differently must bump the version in `Cargo.toml` (or delete `OUT/.pipeline`).
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -15,17 +26,21 @@ use sha2::Digest;
 use super::Step;
 use crate::output::{AtomicFile, hex, sha256_file};
 
-/// Bump when the meaning of a key changes, so old records are not trusted.
-const FORMAT: u32 = 1;
+/// Bump when the meaning of a key changes, so old records are not trusted (2: the key holds
+/// pgser's version).
+const FORMAT: u32 = 2;
+
+/// The version every key of this build holds.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 #[derive(Serialize, Deserialize)]
-struct Record {
+pub struct Record {
     format: u32,
-    key: String,
+    pub key: String,
     /// Output path (as planned) → sha256 when the step finished.
-    outputs: BTreeMap<String, String>,
+    pub outputs: BTreeMap<String, String>,
     seconds: f64,
-    pgser_version: String,
+    pub pgser_version: String,
 }
 
 /// sha256 of files, computed once per run per (path, size, mtime).
@@ -57,28 +72,44 @@ impl Hashes {
                 None => return Ok(None),
             }
         }
-        let text = serde_json::to_string(&serde_json::json!({
-            "format": FORMAT, "step": step.name, "params": step.params, "inputs": inputs,
-        }))?;
-        Ok(Some(hex(&sha2::Sha256::digest(text.as_bytes()))))
+        key_of(step, &inputs, VERSION).map(Some)
     }
+}
+
+/// The key of `step` with inputs of these sha256s, as pgser `version` computes it.
+pub fn key_of(step: &Step, inputs: &[String], version: &str) -> Result<String> {
+    let text = serde_json::to_string(&serde_json::json!({
+        "format": FORMAT, "pgser_version": version, "step": step.name, "params": step.params, "inputs": inputs,
+    }))?;
+    Ok(hex(&sha2::Sha256::digest(text.as_bytes())))
 }
 
 fn record_path(out: &Path, step: &Step) -> PathBuf {
     out.join(".pipeline").join(format!("{}.json", step.name.replace(' ', "_")))
 }
 
-/// The key in the step's record, if it has one.
-pub fn recorded_key(out: &Path, step: &Step) -> Option<String> {
+/// The step's record, if it has a readable one of this format.
+pub fn read(out: &Path, step: &Step) -> Option<Record> {
     let text = std::fs::read_to_string(record_path(out, step)).ok()?;
-    serde_json::from_str::<Record>(&text).ok().map(|r| r.key)
+    serde_json::from_str::<Record>(&text).ok().filter(|r| r.format == FORMAT)
+}
+
+/// Whether a training step that is not up to date may continue from the checkpoint in its out
+/// folder: after a crash (no record) or a change of settings by this same pgser (`train` then
+/// refuses what cannot continue), but not when the record has `key` (a finished output lost its
+/// recorded bytes: rebuild it from scratch) nor when another pgser version wrote it (its
+/// checkpoint is the old code's work, and continuing it would keep that).
+pub fn may_resume(out: &Path, step: &Step, key: Option<&str>) -> bool {
+    let Ok(text) = std::fs::read_to_string(record_path(out, step)) else { return true };
+    // An unreadable or older-format record is of an older pgser.
+    let Ok(r) = serde_json::from_str::<Record>(&text) else { return false };
+    r.format == FORMAT && r.pgser_version == VERSION && Some(r.key.as_str()) != key
 }
 
 /// Whether the step's record has `key` and its outputs are the bytes it wrote.
 pub fn up_to_date(out: &Path, step: &Step, key: &str, hashes: &mut Hashes) -> bool {
-    let Ok(text) = std::fs::read_to_string(record_path(out, step)) else { return false };
-    let Ok(r) = serde_json::from_str::<Record>(&text) else { return false };
-    if r.format != FORMAT || r.key != key || r.outputs.len() != step.outputs.len() {
+    let Some(r) = read(out, step) else { return false };
+    if r.key != key || r.outputs.len() != step.outputs.len() {
         return false;
     }
     step.outputs.iter().all(|p| {
@@ -89,18 +120,16 @@ pub fn up_to_date(out: &Path, step: &Step, key: &str, hashes: &mut Hashes) -> bo
 
 /// Writes the step's record once it has finished (atomically, like every output).
 pub fn record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Hashes) -> Result<()> {
+    write_record(out, step, key, seconds, hashes, VERSION)
+}
+
+fn write_record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Hashes, version: &str) -> Result<()> {
     let mut outputs = BTreeMap::new();
     for p in &step.outputs {
         let sha = hashes.sha256(p)?.with_context(|| format!("{}: step {} did not write it", p.display(), step.name))?;
         outputs.insert(p.display().to_string(), sha);
     }
-    let r = Record {
-        format: FORMAT,
-        key: key.to_string(),
-        outputs,
-        seconds,
-        pgser_version: env!("CARGO_PKG_VERSION").to_string(),
-    };
+    let r = Record { format: FORMAT, key: key.to_string(), outputs, seconds, pgser_version: version.to_string() };
     let path = record_path(out, step);
     std::fs::create_dir_all(path.parent().expect("has a folder"))
         .with_context(|| format!("{}: cannot create", out.join(".pipeline").display()))?;
@@ -108,4 +137,46 @@ pub fn record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Has
     std::io::Write::write_all(&mut f.handle()?, serde_json::to_string_pretty(&r)?.as_bytes())
         .with_context(|| format!("{}: write failed", path.display()))?;
     f.commit()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::Action;
+
+    #[test]
+    fn another_pgser_version_makes_a_finished_step_stale() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        let (input, output) = (out.join("in.txt"), out.join("out.txt"));
+        std::fs::write(&input, "x").unwrap();
+        std::fs::write(&output, "y").unwrap();
+        let step = Step {
+            name: "s".into(),
+            inputs: vec![input.clone()],
+            outputs: vec![output],
+            params: serde_json::json!({"a": 1}),
+            action: Action::Results(vec![]),
+        };
+        let mut h = Hashes::default();
+        let inputs = [h.sha256(&input).unwrap().unwrap()];
+        assert_eq!(h.key(&step).unwrap().unwrap(), key_of(&step, &inputs, VERSION).unwrap());
+
+        // Finished by an older pgser: up to date for that version only, and not to be resumed.
+        let old = key_of(&step, &inputs, "0.0.1-old").unwrap();
+        let new = key_of(&step, &inputs, VERSION).unwrap();
+        assert_ne!(old, new);
+        write_record(out, &step, &old, 1.0, &mut h, "0.0.1-old").unwrap();
+        assert!(up_to_date(out, &step, &old, &mut h));
+        assert!(!up_to_date(out, &step, &new, &mut h));
+        assert!(!may_resume(out, &step, Some(&new)));
+
+        // Finished by this pgser: up to date; other settings may continue its checkpoint.
+        record(out, &step, &new, 1.0, &mut h).unwrap();
+        assert!(up_to_date(out, &step, &new, &mut h));
+        assert!(!may_resume(out, &step, Some(&new)));
+        assert!(may_resume(out, &step, Some("another key")));
+        std::fs::remove_file(record_path(out, &step)).unwrap();
+        assert!(may_resume(out, &step, Some(&new)), "no record: a crash, continue");
+    }
 }
