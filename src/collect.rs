@@ -67,8 +67,15 @@ pub struct CollectSummary {
 /// Episodes simulated per chunk, at least: enough to keep every thread busy.
 const MIN_CHUNK: usize = 256;
 
-pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummary> {
-    let started = Instant::now();
+/// Checks everything `collect` checks before it creates its output (the output's type, the
+/// counts, the environment and its assets, the policy), and creates nothing: a pipeline calls
+/// it before any of its steps run.
+pub fn check(opts: &CollectOptions) -> Result<Task> {
+    Ok(prepare(opts)?.1.task().clone())
+}
+
+/// Whether the output is a pickle, and a first environment of the task.
+fn prepare(opts: &CollectOptions) -> Result<(bool, Box<dyn GoalEnv + Send>)> {
     let at = opts.output.display();
     let pickle = match opts.output.extension().and_then(|e| e.to_str()) {
         Some("parquet") => false,
@@ -85,9 +92,16 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
         bail!("--seed {} + {} episodes overflows the 64-bit seed range", opts.seed, opts.episodes);
     }
     let first = env::make(&opts.task)?;
-    let task = first.task().clone();
     // Fails early (no file created) for a policy the task has no expert for.
-    EpisodePolicy::new(opts.policy, &task.name, opts.seed, 0)?;
+    EpisodePolicy::new(opts.policy, &first.task().name, opts.seed, 0)?;
+    Ok((pickle, first))
+}
+
+pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummary> {
+    let started = Instant::now();
+    let at = opts.output.display();
+    let (pickle, first) = prepare(opts)?;
+    let task = first.task().clone();
     let pool = EnvPool { task: task.name.clone(), idle: Mutex::new(vec![first]) };
 
     let float = if opts.float32 { FloatType::Float32 } else { FloatType::Float64 };

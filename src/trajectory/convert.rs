@@ -73,7 +73,31 @@ impl Source<'_> {
     }
 }
 
-pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
+/// What `convert` would write, found by reading and validating its inputs as `convert` does
+/// (keys, dtypes, shapes, the task's dimensions, the episode counts) without writing anything.
+/// The arrays are memory-mapped and only their pickle headers parsed, so this reads a few pages
+/// of each file, not its data: a pipeline calls it before any of its steps run.
+#[derive(Debug, Clone)]
+pub struct ConvertPlan {
+    pub task: Task,
+    pub float_type: FloatType,
+    /// Episodes in each input, and taken from it.
+    pub episodes_in_file: Vec<usize>,
+    pub episodes_taken: Vec<usize>,
+}
+
+pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
+    let maps = open_inputs(opts)?;
+    let (sources, _, float_type, task) = read_sources(opts, &maps)?;
+    Ok(ConvertPlan {
+        task,
+        float_type,
+        episodes_in_file: sources.iter().map(|s| s.episodes).collect(),
+        episodes_taken: sources.iter().map(|s| s.take).collect(),
+    })
+}
+
+fn open_inputs(opts: &ConvertOptions) -> Result<Vec<MappedFile>> {
     if opts.inputs.is_empty() {
         bail!("convert needs at least one input pickle");
     }
@@ -83,39 +107,42 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     {
         bail!("--episodes has {} values for {} input files: give one count per input", ks.len(), opts.inputs.len());
     }
+    opts.inputs.iter().map(|p| MappedFile::open(p).with_context(|| format!("{}: cannot open", p.display()))).collect()
+}
 
-    let maps: Vec<MappedFile> = opts
-        .inputs
-        .iter()
-        .map(|p| MappedFile::open(p).with_context(|| format!("{}: cannot open", p.display())))
-        .collect::<Result<_>>()?;
+/// The validated sources, the keys skipped, the output's float type and the task.
+type Sources<'a> = (Vec<Source<'a>>, Vec<String>, FloatType, Task);
+
+fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<Sources<'a>> {
+    let mut skipped_keys = Vec::new();
+    let mut sources = Vec::with_capacity(maps.len());
+    for (i, (path, map)) in opts.inputs.iter().zip(maps).enumerate() {
+        let (mut src, skipped) = read_wgcsl(path, map.bytes())?;
+        skipped_keys.extend(skipped.into_iter().map(|k| format!("{}: {k}", path.display())));
+        if let Some(ks) = &opts.episodes {
+            if ks[i] > src.episodes {
+                bail!("{}: --episodes asks for {} episodes but the file has {}", path.display(), ks[i], src.episodes);
+            }
+            src.take = ks[i];
+        }
+        sources.push(src);
+    }
+    let float_type = output_float(&sources, opts.float32)?;
+    let task = resolve_task(&sources, opts.task.as_deref(), opts.threshold)?;
+    let total: usize = sources.iter().map(|s| s.take).sum();
+    if total == 0 {
+        bail!("{}: no episodes to write (every input was empty or took 0)", opts.inputs[0].display());
+    }
+    Ok((sources, skipped_keys, float_type, task))
+}
+
+pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
+    let maps = open_inputs(opts)?;
     // Hash the inputs on a thread of their own while we parse, validate and write.
     std::thread::scope(|scope| {
         let hashes = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
-        let mut skipped_keys = Vec::new();
-        let mut sources = Vec::with_capacity(maps.len());
-        for (i, (path, map)) in opts.inputs.iter().zip(&maps).enumerate() {
-            let (mut src, skipped) = read_wgcsl(path, map.bytes())?;
-            skipped_keys.extend(skipped.into_iter().map(|k| format!("{}: {k}", path.display())));
-            if let Some(ks) = &opts.episodes {
-                if ks[i] > src.episodes {
-                    bail!(
-                        "{}: --episodes asks for {} episodes but the file has {}",
-                        path.display(),
-                        ks[i],
-                        src.episodes
-                    );
-                }
-                src.take = ks[i];
-            }
-            sources.push(src);
-        }
-        let float_type = output_float(&sources, opts.float32)?;
-        let task = resolve_task(&sources, opts.task.as_deref(), opts.threshold)?;
+        let (sources, skipped_keys, float_type, task) = read_sources(opts, &maps)?;
         let total: usize = sources.iter().map(|s| s.take).sum();
-        if total == 0 {
-            bail!("{}: no episodes to write (every input was empty or took 0)", opts.inputs[0].display());
-        }
 
         bar.set_length((total * task.t) as u64);
         let mut writer =
