@@ -112,14 +112,19 @@ class Agent:
         self.it = 0
         self.last = {}
 
-    def update(self, batch):
+    def update(self, batch, eps=None):
+        """One critic update (+ actor and targets every POLICY_FREQ-th). `eps`: the standard-normal
+        draw behind the target-policy noise, shape of the batch's actions; None (the benchmark)
+        draws it here. check_stacked_peer.py passes its own so other peers can be fed the same."""
         self.it += 1
         o_raw, g_raw, a, o2_raw, r = batch
         # Normalising the raw batch is part of the update, as in pgser's trainer.
         o, g, o2 = self.o_norm(o_raw), self.g_norm(g_raw), self.o_norm(o2_raw)
 
         with torch.no_grad():
-            noise = (torch.randn_like(a) * POLICY_NOISE).clamp(-NOISE_CLIP, NOISE_CLIP)
+            if eps is None:
+                eps = torch.randn_like(a)
+            noise = (eps * POLICY_NOISE).clamp(-NOISE_CLIP, NOISE_CLIP)
             a2 = (self.actor_t(o2, g) + noise).clamp(-1.0, 1.0)
             tq = torch.min(self.q1_t(o2, g, a2), self.q2_t(o2, g, a2))
             # Goal-conditioned, infinite horizon: no done mask; clip to the reachable returns.
