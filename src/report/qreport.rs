@@ -247,11 +247,11 @@ pub fn table1_markdown(r: &QReport) -> String {
         c.negatives, c.negatives_available, c.negative_q_mean
     );
     s += &classifier_table(&c.classifiers);
-    s += "\nThe paper's negatives are mostly other transitions (in a mix of expert and random data, mostly \
-          random-policy ones), so its accuracy counts both a goal that is not the transition's own and data that \
-          is not expert; the controlled negatives differ from the positives in the goal alone, so the drop from \
-          the first table to the second is the part of the paper's accuracy owed to telling the data sources \
-          apart, and the second table is what Q knows about the goal.\n";
+    s += "\nThe paper's negatives are other transitions as well as other goals (in a mix of expert and random \
+          data, mostly random-policy transitions), so its accuracy can come from the goal or from telling expert \
+          (s, a) from random (s, a); the controlled negatives are the positives' own transitions with another goal, \
+          so the controlled accuracy is what Q knows about the goal alone, and the gap between the two tables is \
+          what the data source adds.\n";
     s
 }
 
