@@ -160,8 +160,8 @@ pub fn train(
         resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&batches.words())?);
         // Both files record their update count and `--resume` refuses a pair whose counts
         // differ, so a crash between these two writes is reported, never continued from.
-        checkpoint::save_resume(agent, &checkpoint::resume_path(out), &resume_extra)?;
-        checkpoint::save(agent, out, &extra)?;
+        checkpoint::save_resume(agent, 0, &checkpoint::resume_path(out), &resume_extra)?;
+        checkpoint::save(agent, 0, out, &extra)?;
         write_metrics(&metrics_path(out), metrics)
     };
     let evaluate = |agent: &Agent| -> Result<Option<EvalReport>> {
@@ -202,12 +202,12 @@ pub fn train(
             }
             batch.append(&a.batch);
         }
-        let stats = agent.update(&batch);
+        let stats = agent.update(std::slice::from_ref(&batch));
         let u = agent.updates;
         let log = cfg.log_every > 0 && u % cfg.log_every == 0;
         let mut line = MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None };
         if log {
-            let (critic, q, actor) = stats.read();
+            let (critic, q, actor) = stats.read()[0];
             if !critic.is_finite() {
                 bail!("update {u}: the critic loss is {critic}; training diverged (try a lower --lr)");
             }
@@ -367,7 +367,8 @@ fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
 }
 
 /// `pgser-train bench`: updates/s of the agent alone on random batches of a task's dimensions,
-/// the figure `make bench` compares with the same update in PyTorch.
+/// the figure `make bench` compares with the same update in PyTorch; with `agents` > 1, a stack
+/// of that many agents trained at once (agent-updates/s = agents × updates/s).
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchReport {
     pub task: String,
@@ -375,11 +376,14 @@ pub struct BenchReport {
     pub backend: String,
     pub threads: usize,
     pub batch_size: usize,
+    pub agents: usize,
     pub updates: u64,
     pub seconds: f64,
     pub updates_per_sec: f64,
+    pub agent_updates_per_sec: f64,
 }
 
+/// One agent (see `bench_agents`).
 pub fn bench(
     task: &crate::task::Task,
     agent_cfg: &AgentConfig,
@@ -389,19 +393,37 @@ pub fn bench(
     device: Device,
     backend: &str,
 ) -> BenchReport {
+    bench_agents(task, agent_cfg, batch_size, updates, warmup, device, backend, 1)
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn bench_agents(
+    task: &crate::task::Task,
+    agent_cfg: &AgentConfig,
+    batch_size: usize,
+    updates: u64,
+    warmup: u64,
+    device: Device,
+    backend: &str,
+    agents: usize,
+) -> BenchReport {
     let mut rng = NpRandom::new(0);
     let mut uniform = |n: usize| (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<f32>>();
     let n = batch_size;
-    // Eight distinct batches, cycled, so data generation is not what is timed.
-    let batches: Vec<Batch> = (0..8)
-        .map(|_| Batch {
-            n,
-            obs: uniform(n * task.obs_dim),
-            goal: uniform(n * task.goal_dim),
-            action: uniform(n * task.act_dim),
-            reward: uniform(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
-            next_obs: uniform(n * task.obs_dim),
-            weight: vec![],
+    // Eight distinct sets of batches (one per agent), cycled, so data generation is not timed.
+    let sets: Vec<Vec<Batch>> = (0..8)
+        .map(|_| {
+            (0..agents)
+                .map(|_| Batch {
+                    n,
+                    obs: uniform(n * task.obs_dim),
+                    goal: uniform(n * task.goal_dim),
+                    action: uniform(n * task.act_dim),
+                    reward: uniform(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
+                    next_obs: uniform(n * task.obs_dim),
+                    weight: vec![],
+                })
+                .collect()
         })
         .collect();
     let zeros = |d| vec![0.0f32; d];
@@ -413,11 +435,12 @@ pub fn bench(
         goal_std: ones(task.goal_dim),
         clip: agent_cfg.norm_clip as f32,
     };
-    let mut agent = Agent::new(agent_cfg.clone(), task.clone(), norm, 0, device);
+    let seeds: Vec<u64> = (0..agents as u64).collect();
+    let mut agent = Agent::stack_new(agent_cfg.clone(), task.clone(), vec![norm; agents], &seeds, device);
     let mut run = |k: u64| {
         let mut last = None;
         for i in 0..k {
-            last = Some(agent.update(&batches[i as usize % batches.len()]));
+            last = Some(agent.update(&sets[i as usize % sets.len()]));
         }
         // Reading the last loss waits for all queued work (asynchronous backends).
         if let Some(s) = last {
@@ -434,9 +457,11 @@ pub fn bench(
         backend: backend.to_string(),
         threads: rayon::current_num_threads(),
         batch_size,
+        agents,
         updates,
         seconds,
         updates_per_sec: updates as f64 / seconds,
+        agent_updates_per_sec: (updates * agents as u64) as f64 / seconds,
     }
 }
 

@@ -2,13 +2,14 @@
 //!
 //! burn ships an Adam, but its state is keyed by parameter ids that are not stable across
 //! processes and its ε default differs from PyTorch's. Ours is the same ten lines of arithmetic
-//! with its moments stored per parameter in `Mlp::tensors()` order, so a resumed run continues
-//! from exactly the state an uninterrupted one would have.
+//! with its moments held as networks of the parameters' own (stacked) shapes, so a resumed run
+//! continues from exactly the state an uninterrupted one would have. Adam is elementwise, so one
+//! optimizer over a stack of agents is each agent's own Adam.
 
 use burn::module::Param;
 use burn::tensor::{Device, Gradients, Tensor};
 
-use super::Mlp;
+use super::{Member, Mlp};
 
 const BETA1: f64 = 0.9;
 const BETA2: f64 = 0.999;
@@ -54,17 +55,20 @@ impl Adam {
         }
     }
 
-    /// The moments as flat host vectors, `m` then `v`, each in `Mlp::tensors()` order.
-    pub fn state(&self) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
-        let flat = |net: &Mlp| net.tensors().into_iter().map(|(_, values)| values).collect();
-        (flat(&self.m), flat(&self.v))
+    /// The moments of member `i` of the stack, `m` then `v`, each as `Mlp::member` gives them.
+    pub fn member(&self, i: usize) -> (Member, Member) {
+        (self.m.member(i), self.v.member(i))
     }
 
-    /// Restores moments saved by `state()`.
-    pub fn set_state(&mut self, step: u64, m: &[Vec<f32>], v: &[Vec<f32>], device: &Device) {
-        self.step = step;
-        self.m.set_tensors(m, device);
-        self.v.set_tensors(v, device);
+    /// An Adam over a stack whose members' moments are given (all at the same `step`).
+    pub fn from_members(lr: f64, step: u64, m: &[Member], v: &[Member], device: &Device) -> Adam {
+        Adam { lr, step, m: Mlp::from_members(m, device), v: Mlp::from_members(v, device) }
+    }
+
+    /// The optimizers of several stacks as one over their concatenation (same lr and step).
+    pub fn concat(parts: &[&Adam]) -> Adam {
+        let (m, v): (Vec<&Mlp>, Vec<&Mlp>) = parts.iter().map(|a| (&a.m, &a.v)).unzip();
+        Adam { lr: parts[0].lr, step: parts[0].step, m: Mlp::concat(&m), v: Mlp::concat(&v) }
     }
 }
 

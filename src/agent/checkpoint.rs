@@ -19,7 +19,7 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use safetensors::tensor::{Dtype, SafeTensors};
 
-use super::{Agent, AgentConfig, Mlp, Normalizer};
+use super::{Adam, Agent, AgentConfig, Member, Mlp, Normalizer, member_of, net_sizes, transpose};
 use crate::env::rng::NpRandom;
 use crate::output::AtomicFile;
 use crate::task::Task;
@@ -38,14 +38,20 @@ impl Tensors {
     }
 
     /// Weights go out as PyTorch's `[out, in]`; ours are `[in, out]`.
-    fn push_net(&mut self, prefix: &str, net: &Mlp) {
-        for (i, (shape, values)) in net.tensors().into_iter().enumerate() {
-            let name = format!("{prefix}.{}.{}", 2 * (i / 2), if i % 2 == 0 { "weight" } else { "bias" });
-            if shape.len() == 2 {
-                self.push(name, vec![shape[1], shape[0]], &transpose(&values, shape[0], shape[1]));
-            } else {
-                self.push(name, shape, &values);
-            }
+    fn push_member(&mut self, prefix: &str, member: &Member) {
+        for (l, (w, b)) in member.iter().enumerate() {
+            let (fan_in, fan_out) = (w.len() / b.len(), b.len());
+            self.push(format!("{prefix}.{}.weight", 2 * l), vec![fan_out, fan_in], &transpose(w, fan_in, fan_out));
+            self.push(format!("{prefix}.{}.bias", 2 * l), vec![fan_out], b);
+        }
+    }
+
+    /// Adam's moments of one member, flat per parameter in `Mlp::tensors()` order.
+    fn push_moments(&mut self, prefix: &str, (m, v): &(Member, Member)) {
+        let flat = |mem: &Member| mem.iter().flat_map(|(w, b)| [w.clone(), b.clone()]).collect::<Vec<_>>();
+        for (k, (m, v)) in flat(m).iter().zip(&flat(v)).enumerate() {
+            self.push(format!("{prefix}.m.{k}"), vec![m.len()], m);
+            self.push(format!("{prefix}.v.{k}"), vec![v.len()], v);
         }
     }
 
@@ -105,16 +111,6 @@ impl Tensors {
     }
 }
 
-fn transpose(values: &[f32], rows: usize, cols: usize) -> Vec<f32> {
-    let mut out = vec![0.0; values.len()];
-    for r in 0..rows {
-        for c in 0..cols {
-            out[c * rows + r] = values[r * cols + c];
-        }
-    }
-    out
-}
-
 /// A safetensors file read back: its tensors by name and its metadata.
 struct Loaded {
     path: PathBuf,
@@ -147,20 +143,32 @@ impl Loaded {
         Ok(view.data().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect())
     }
 
-    /// Fills `net` from `{prefix}.{k}.weight|bias`, transposing back to `[in, out]`.
-    fn net(&self, prefix: &str, net: &mut Mlp, device: &Device) -> Result<()> {
-        let mut values = Vec::new();
-        for (i, (shape, _)) in net.tensors().into_iter().enumerate() {
-            let name = format!("{prefix}.{}.{}", 2 * (i / 2), if i % 2 == 0 { "weight" } else { "bias" });
-            if shape.len() == 2 {
-                let v = self.tensor(&name, &[shape[1], shape[0]])?;
-                values.push(transpose(&v, shape[1], shape[0]));
-            } else {
-                values.push(self.tensor(&name, &shape)?);
-            }
-        }
-        net.set_tensors(&values, device);
-        Ok(())
+    /// A member of layer sizes `sizes` from `{prefix}.{k}.weight|bias`, transposed back to
+    /// `[in, out]`.
+    fn member(&self, prefix: &str, sizes: &[usize]) -> Result<Member> {
+        sizes
+            .windows(2)
+            .enumerate()
+            .map(|(l, io)| {
+                let w = self.tensor(&format!("{prefix}.{}.weight", 2 * l), &[io[1], io[0]])?;
+                Ok((transpose(&w, io[1], io[0]), self.tensor(&format!("{prefix}.{}.bias", 2 * l), &[io[1]])?))
+            })
+            .collect()
+    }
+
+    /// Adam's moments written by `push_moments` for a member of layer sizes `sizes`.
+    fn moments(&self, prefix: &str, sizes: &[usize]) -> Result<(Member, Member)> {
+        let read = |which: &str| -> Result<Member> {
+            sizes
+                .windows(2)
+                .enumerate()
+                .map(|(l, io)| {
+                    let w = self.tensor(&format!("{prefix}.{which}.{}", 2 * l), &[io[0] * io[1]])?;
+                    Ok((w, self.tensor(&format!("{prefix}.{which}.{}", 2 * l + 1), &[io[1]])?))
+                })
+                .collect()
+        };
+        Ok((read("m")?, read("v")?))
     }
 
     fn meta_json<T: serde::de::DeserializeOwned>(&self, meta: &HashMap<String, String>, key: &str) -> Result<T> {
@@ -169,13 +177,15 @@ impl Loaded {
     }
 }
 
-/// Writes the model file. `extra` metadata (the trainer's config, data source) is kept as given.
-pub fn save(agent: &Agent, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
+/// Writes agent `i` of the stack as a model file. `extra` metadata (the trainer's config, data
+/// source) is kept as given.
+pub fn save(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
     let mut t = Tensors::default();
-    t.push_net("actor", &agent.actor);
-    t.push_net("critic1", &agent.critic1);
-    t.push_net("critic2", &agent.critic2);
-    let n = &agent.norm;
+    let critics = agent.critics.tensors();
+    t.push_member("actor", &agent.actor.member(i));
+    t.push_member("critic1", &member_of(&critics, 2 * i));
+    t.push_member("critic2", &member_of(&critics, 2 * i + 1));
+    let n = &agent.norms[i];
     t.push("normalizer.obs_mean".into(), vec![n.obs_mean.len()], &n.obs_mean);
     t.push("normalizer.obs_std".into(), vec![n.obs_std.len()], &n.obs_std);
     t.push("normalizer.goal_mean".into(), vec![n.goal_mean.len()], &n.goal_mean);
@@ -190,8 +200,8 @@ pub fn save(agent: &Agent, path: &Path, extra: &BTreeMap<String, String>) -> Res
     t.write(path, meta)
 }
 
-/// Reads a model file written by `save`: the agent (online networks and normalizer; targets
-/// start as copies, optimizers fresh) and the file's metadata.
+/// Reads a model file written by `save`: a stack of one agent (online networks and normalizer;
+/// targets start as copies, optimizers fresh) and the file's metadata.
 pub fn load(path: &Path, device: Device) -> Result<(Agent, HashMap<String, String>)> {
     let f = Loaded::open(path)?;
     let meta = f.metadata()?;
@@ -208,13 +218,16 @@ pub fn load(path: &Path, device: Device) -> Result<(Agent, HashMap<String, Strin
         goal_std: f.tensor("normalizer.goal_std", &[task.goal_dim])?,
         clip,
     };
+    let (actor_sizes, critic_sizes) = net_sizes(&config, &task);
+    let actor = f.member("actor", &actor_sizes)?;
+    let critics = [f.member("critic1", &critic_sizes)?, f.member("critic2", &critic_sizes)?];
     let mut agent = Agent::new(config, task, norm, 0, device.clone());
-    f.net("actor", &mut agent.actor, &device)?;
-    f.net("critic1", &mut agent.critic1, &device)?;
-    f.net("critic2", &mut agent.critic2, &device)?;
+    agent.actor = Mlp::from_members(&[actor], &device);
+    agent.critics = Mlp::from_members(&critics, &device);
     agent.actor_target = agent.actor.copy();
-    agent.critic1_target = agent.critic1.copy();
-    agent.critic2_target = agent.critic2.copy();
+    agent.critics_target = agent.critics.copy();
+    agent.actor_opt = Adam::new(agent.config.lr(), &agent.actor);
+    agent.critics_opt = Adam::new(agent.config.lr(), &agent.critics);
     agent.updates = f.meta_json(&meta, "updates")?;
     Ok((agent, meta))
 }
@@ -226,30 +239,31 @@ pub fn resume_path(path: &Path) -> PathBuf {
     PathBuf::from(p)
 }
 
-/// Writes the state `load` does not restore: targets, Adam, the noise stream, plus `extra`.
-pub fn save_resume(agent: &Agent, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
+/// Writes the state of agent `i` that `load` does not restore: targets, Adam, the noise stream,
+/// plus `extra`.
+pub fn save_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
     let mut t = Tensors::default();
-    t.push_net("actor_target", &agent.actor_target);
-    t.push_net("critic1_target", &agent.critic1_target);
-    t.push_net("critic2_target", &agent.critic2_target);
+    let targets = agent.critics_target.tensors();
+    t.push_member("actor_target", &agent.actor_target.member(i));
+    t.push_member("critic1_target", &member_of(&targets, 2 * i));
+    t.push_member("critic2_target", &member_of(&targets, 2 * i + 1));
+    t.push_moments("adam.actor", &agent.actor_opt.member(i));
+    t.push_moments("adam.critic1", &agent.critics_opt.member(2 * i));
+    t.push_moments("adam.critic2", &agent.critics_opt.member(2 * i + 1));
     let mut meta = extra.clone();
-    for (name, opt) in [("actor", &agent.actor_opt), ("critic1", &agent.critic1_opt), ("critic2", &agent.critic2_opt)] {
-        let (m, v) = opt.state();
-        for (k, (m, v)) in m.iter().zip(&v).enumerate() {
-            t.push(format!("adam.{name}.m.{k}"), vec![m.len()], m);
-            t.push(format!("adam.{name}.v.{k}"), vec![v.len()], v);
-        }
-        meta.insert(format!("adam.{name}.step"), opt.step.to_string());
-    }
+    meta.insert("adam.actor.step".into(), agent.actor_opt.step.to_string());
+    meta.insert("adam.critic1.step".into(), agent.critics_opt.step.to_string());
+    meta.insert("adam.critic2.step".into(), agent.critics_opt.step.to_string());
     meta.insert("format".into(), format!("{FORMAT}-resume"));
     meta.insert("updates".into(), agent.updates.to_string());
-    meta.insert("noise_rng".into(), serde_json::to_string(&agent.noise_rng.words())?);
+    meta.insert("noise_rng".into(), serde_json::to_string(&agent.noise_rngs[i].words())?);
     t.write(path, meta)
 }
 
-/// Restores what `save_resume` wrote into an agent loaded from the model file of the same
-/// update; returns the resume file's metadata (with the trainer's extra keys).
+/// Restores what `save_resume` wrote into a stack of one agent loaded from the model file of the
+/// same update; returns the resume file's metadata (with the trainer's extra keys).
 pub fn load_resume(agent: &mut Agent, path: &Path) -> Result<HashMap<String, String>> {
+    assert_eq!(agent.agents(), 1, "resume states are restored one agent at a time");
     let f = Loaded::open(path)?;
     let meta = f.metadata()?;
     let updates: u64 = f.meta_json(&meta, "updates")?;
@@ -261,24 +275,22 @@ pub fn load_resume(agent: &mut Agent, path: &Path) -> Result<HashMap<String, Str
         );
     }
     let device = agent.device.clone();
-    f.net("actor_target", &mut agent.actor_target, &device)?;
-    f.net("critic1_target", &mut agent.critic1_target, &device)?;
-    f.net("critic2_target", &mut agent.critic2_target, &device)?;
-    for (name, net, opt) in [
-        ("actor", &agent.actor, &mut agent.actor_opt),
-        ("critic1", &agent.critic1, &mut agent.critic1_opt),
-        ("critic2", &agent.critic2, &mut agent.critic2_opt),
-    ] {
-        let mut m = Vec::new();
-        let mut v = Vec::new();
-        for (k, (shape, _)) in net.tensors().iter().enumerate() {
-            let len = shape.iter().product::<usize>();
-            m.push(f.tensor(&format!("adam.{name}.m.{k}"), &[len])?);
-            v.push(f.tensor(&format!("adam.{name}.v.{k}"), &[len])?);
-        }
-        let step: u64 = f.meta_json(&meta, &format!("adam.{name}.step"))?;
-        opt.set_state(step, &m, &v, &device);
+    let (actor_sizes, critic_sizes) = net_sizes(&agent.config, &agent.task);
+    agent.actor_target = Mlp::from_members(&[f.member("actor_target", &actor_sizes)?], &device);
+    agent.critics_target = Mlp::from_members(
+        &[f.member("critic1_target", &critic_sizes)?, f.member("critic2_target", &critic_sizes)?],
+        &device,
+    );
+    let lr = agent.config.lr();
+    let (am, av) = f.moments("adam.actor", &actor_sizes)?;
+    agent.actor_opt = Adam::from_members(lr, f.meta_json(&meta, "adam.actor.step")?, &[am], &[av], &device);
+    let (c1m, c1v) = f.moments("adam.critic1", &critic_sizes)?;
+    let (c2m, c2v) = f.moments("adam.critic2", &critic_sizes)?;
+    let (s1, s2): (u64, u64) = (f.meta_json(&meta, "adam.critic1.step")?, f.meta_json(&meta, "adam.critic2.step")?);
+    if s1 != s2 {
+        bail!("{}: the two critics' Adam steps differ ({s1} vs {s2})", path.display());
     }
-    agent.noise_rng = NpRandom::from_words(f.meta_json(&meta, "noise_rng")?);
+    agent.critics_opt = Adam::from_members(lr, s1, &[c1m, c2m], &[c1v, c2v], &device);
+    agent.noise_rngs = vec![NpRandom::from_words(f.meta_json(&meta, "noise_rng")?)];
     Ok(meta)
 }

@@ -1,6 +1,12 @@
 //! The agent: a goal-conditioned actor and twin critics (burn modules), their normalizer, and
 //! the TD3 / TD3+BC update (`td3.rs`), Adam (`adam.rs`) and the checkpoint file (`checkpoint.rs`).
 //!
+//! The agent dimension: an `Agent` is a stack of A agents of the same settings, each network
+//! layer one `[A, in, out]` tensor (the twin critics an ensemble of two inside it), so that a
+//! grid of runs trains as one batched job. Each agent keeps its own seed streams, normalizer,
+//! batches and checkpoint file; a stack of one is a single run, and an agent trained in a stack
+//! ends with the same bits as trained alone (`tests.rs`).
+//!
 //! Parameters are kept as plain (non-autodiff) tensors. An update makes autodiff leaves of the
 //! networks it trains (`Mlp::tracked`), reads their gradients, and lets our own Adam write new
 //! plain tensors. That keeps every piece of training state (weights, targets, Adam moments,
@@ -19,7 +25,7 @@ use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
-pub use td3::{Agent, Batch, UpdateStats, td_target};
+pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
 use crate::env::rng::NpRandom;
 
@@ -103,46 +109,83 @@ impl AgentConfig {
     }
 }
 
-/// One fully connected layer. The weight is stored `[in, out]` so the forward pass is `x·W + b`.
+/// One fully connected layer for each of `M` members stacked on the first dimension: the weight
+/// is `[M, in, out]` so the forward pass is one batched `x·W + b` for all members (CORL's
+/// `VectorizedLinear`), and the bias is `[M, 1, out]` so it broadcasts over the batch rows.
 #[derive(Module, Debug)]
 pub struct Dense {
-    pub weight: Param<Tensor<2>>,
-    pub bias: Param<Tensor<1>>,
+    pub weight: Param<Tensor<3>>,
+    pub bias: Param<Tensor<3>>,
 }
 
-/// A ReLU multilayer perceptron with a linear last layer.
+/// `M` ReLU multilayer perceptrons of the same shapes with a linear last layer, held as one
+/// stack: the actors of A agents (M = A), or their twin critics (M = 2A, agent a's critic 1 at
+/// member 2a and critic 2 at 2a + 1). Member m only ever sees row block m of the input, so
+/// members train independently; a stack of one is a plain network.
 #[derive(Module, Debug)]
 pub struct Mlp {
     pub layers: Vec<Dense>,
 }
 
+/// One member's parameters on the host, layer by layer: weight `[in, out]` and bias `[out]`.
+pub type Member = Vec<(Vec<f32>, Vec<f32>)>;
+
+/// PyTorch's default `nn.Linear` initialisation, U(±1/√fan_in) for weights and biases, drawn
+/// from our own seeded stream (in PyTorch's `[out, in]` order, then transposed to ours) so a
+/// seed fixes the initial weights on every backend and whatever stack the network sits in.
+pub fn init_member(sizes: &[usize], rng: &mut NpRandom) -> Member {
+    sizes
+        .windows(2)
+        .map(|io| {
+            let (fan_in, fan_out) = (io[0], io[1]);
+            let bound = 1.0 / (fan_in as f64).sqrt();
+            let mut draw = |n| (0..n).map(|_| rng.uniform(-bound, bound) as f32).collect::<Vec<f32>>();
+            let w = draw(fan_in * fan_out);
+            let b = draw(fan_out);
+            (transpose(&w, fan_out, fan_in), b)
+        })
+        .collect()
+}
+
+/// `values` of a `[rows, cols]` matrix in `[cols, rows]` order.
+pub fn transpose(values: &[f32], rows: usize, cols: usize) -> Vec<f32> {
+    let mut out = vec![0.0; values.len()];
+    for r in 0..rows {
+        for c in 0..cols {
+            out[c * rows + r] = values[r * cols + c];
+        }
+    }
+    out
+}
+
 impl Mlp {
-    /// PyTorch's default `nn.Linear` initialisation, U(±1/√fan_in) for weights and biases, drawn
-    /// from our own seeded stream so a seed fixes the initial weights on every backend.
-    pub fn init(sizes: &[usize], rng: &mut NpRandom, device: &Device) -> Mlp {
-        let layers = sizes
-            .windows(2)
-            .map(|io| {
-                let (fan_in, fan_out) = (io[0], io[1]);
-                let bound = 1.0 / (fan_in as f64).sqrt();
-                let mut draw = |n| (0..n).map(|_| rng.uniform(-bound, bound) as f32).collect::<Vec<f32>>();
-                // Drawn as PyTorch lays the weight out, [out, in], then transposed to ours.
-                let w = draw(fan_in * fan_out);
-                let b = draw(fan_out);
-                let w = Tensor::<2>::from_data(TensorData::new(w, [fan_out, fan_in]), device).transpose();
+    /// A stack of the given members (all of the same shapes).
+    pub fn from_members(members: &[Member], device: &Device) -> Mlp {
+        let m = members.len();
+        let layers = (0..members[0].len())
+            .map(|l| {
+                let (fan_out, fan_in) = (members[0][l].1.len(), members[0][l].0.len() / members[0][l].1.len());
+                let w: Vec<f32> = members.iter().flat_map(|mem| mem[l].0.iter().copied()).collect();
+                let b: Vec<f32> = members.iter().flat_map(|mem| mem[l].1.iter().copied()).collect();
                 Dense {
-                    weight: Param::from_tensor(w),
-                    bias: Param::from_tensor(Tensor::from_data(TensorData::new(b, [fan_out]), device)),
+                    weight: Param::from_tensor(Tensor::from_data(TensorData::new(w, [m, fan_in, fan_out]), device)),
+                    bias: Param::from_tensor(Tensor::from_data(TensorData::new(b, [m, 1, fan_out]), device)),
                 }
             })
             .collect();
         Mlp { layers }
     }
 
-    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+    /// Members in the stack.
+    pub fn members(&self) -> usize {
+        self.layers[0].weight.val().dims()[0]
+    }
+
+    /// `x` is `[M, rows, in]` (row block m goes through member m); returns `[M, rows, out]`.
+    pub fn forward(&self, mut x: Tensor<3>) -> Tensor<3> {
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
-            x = x.matmul(layer.weight.val()) + layer.bias.val().unsqueeze_dim(0);
+            x = x.matmul(layer.weight.val()) + layer.bias.val();
             if i < last {
                 x = relu(x);
             }
@@ -151,7 +194,7 @@ impl Mlp {
     }
 
     /// A network of the same shapes whose weights are `w(weight)` and biases `b(bias)`.
-    fn map(&self, w: impl Fn(Tensor<2>) -> Tensor<2>, b: impl Fn(Tensor<1>) -> Tensor<1>) -> Mlp {
+    fn map(&self, w: impl Fn(Tensor<3>) -> Tensor<3>, b: impl Fn(Tensor<3>) -> Tensor<3>) -> Mlp {
         let layer = |l: &Dense| Dense {
             weight: Param::from_tensor(w(l.weight.val())),
             bias: Param::from_tensor(b(l.bias.val())),
@@ -174,8 +217,29 @@ impl Mlp {
         self.map(|t| t.zeros_like(), |t| t.zeros_like())
     }
 
-    /// Parameters in a fixed order (w0, b0, w1, b1, ...) as flat f32 with their `[in, out]` /
-    /// `[out]` shapes: what the checkpoint, Adam's state and the tests walk over.
+    /// Every `stride`-th member from `offset` on (critic 1 of each agent: stride 2, offset 0), as
+    /// a stack of its own.
+    pub fn every(&self, stride: usize, offset: usize) -> Mlp {
+        let pick = |t: Tensor<3>| {
+            let [m, r, c] = t.dims();
+            t.reshape([m / stride, stride, r, c]).narrow(1, offset, 1).reshape([m / stride, r, c])
+        };
+        self.map(pick, pick)
+    }
+
+    /// The stacks of `parts` one after the other, as one stack.
+    pub fn concat(parts: &[&Mlp]) -> Mlp {
+        let layers = (0..parts[0].layers.len())
+            .map(|l| Dense {
+                weight: Param::from_tensor(Tensor::cat(parts.iter().map(|p| p.layers[l].weight.val()).collect(), 0)),
+                bias: Param::from_tensor(Tensor::cat(parts.iter().map(|p| p.layers[l].bias.val()).collect(), 0)),
+            })
+            .collect();
+        Mlp { layers }
+    }
+
+    /// Parameters in a fixed order (w0, b0, w1, b1, ...) as flat f32 with their stacked
+    /// `[M, in, out]` / `[M, 1, out]` shapes: what Adam's state and the tests walk over.
     pub fn tensors(&self) -> Vec<(Vec<usize>, Vec<f32>)> {
         let mut out = Vec::with_capacity(2 * self.layers.len());
         for l in &self.layers {
@@ -185,13 +249,19 @@ impl Mlp {
         out
     }
 
-    /// Replaces every parameter, in `tensors()` order.
+    /// Member `m`'s parameters on the host (weights `[in, out]`, biases `[out]`).
+    pub fn member(&self, m: usize) -> Member {
+        member_of(&self.tensors(), m)
+    }
+
+    /// Replaces every parameter, in `tensors()` order (stacked shapes).
     pub fn set_tensors(&mut self, values: &[Vec<f32>], device: &Device) {
         for (i, l) in self.layers.iter_mut().enumerate() {
-            let [fin, fout] = l.weight.val().dims();
+            let [m, fin, fout] = l.weight.val().dims();
             l.weight =
-                Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i].clone(), [fin, fout]), device));
-            l.bias = Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i + 1].clone(), [fout]), device));
+                Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i].clone(), [m, fin, fout]), device));
+            l.bias =
+                Param::from_tensor(Tensor::from_data(TensorData::new(values[2 * i + 1].clone(), [m, 1, fout]), device));
         }
     }
 
@@ -202,6 +272,21 @@ impl Mlp {
             t.bias = Param::from_tensor(t.bias.val().mul_scalar(1.0 - tau) + o.bias.val().mul_scalar(tau));
         }
     }
+}
+
+/// Member `m` of stacked tensors in `Mlp::tensors()` layout: each tensor's leading dimension is
+/// the member, so its block is one contiguous slice.
+pub fn member_of(stacked: &[(Vec<usize>, Vec<f32>)], m: usize) -> Member {
+    stacked
+        .chunks(2)
+        .map(|wb| {
+            let slice = |(shape, values): &(Vec<usize>, Vec<f32>)| {
+                let len = values.len() / shape[0];
+                values[m * len..(m + 1) * len].to_vec()
+            };
+            (slice(&wb[0]), slice(&wb[1]))
+        })
+        .collect()
 }
 
 /// A tensor's shape and values on the host.

@@ -7,7 +7,7 @@
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::{Adam, AgentConfig, Algo, Mlp, Normalizer, host};
+use super::{Adam, AgentConfig, Algo, Mlp, Normalizer, host, init_member};
 use crate::env::rng::NpRandom;
 use crate::task::Task;
 
@@ -37,8 +37,8 @@ impl Batch {
     }
 }
 
-/// Losses of one update, left on the device: reading them forces a sync, so the trainer reads
-/// them only when it logs.
+/// Losses of one update per agent (`[A]` tensors), left on the device: reading them forces a
+/// sync, so the trainer reads them only when it logs.
 pub struct UpdateStats {
     pub critic_loss: Tensor<1>,
     pub q_mean: Tensor<1>,
@@ -46,38 +46,53 @@ pub struct UpdateStats {
 }
 
 impl UpdateStats {
-    pub fn read(&self) -> (f64, f64, Option<f64>) {
-        let scalar = |t: &Tensor<1>| host(t.clone()).1[0] as f64;
-        (scalar(&self.critic_loss), scalar(&self.q_mean), self.actor_loss.as_ref().map(scalar))
+    /// (critic loss, mean Q, actor loss if the actor moved) of each agent.
+    pub fn read(&self) -> Vec<(f64, f64, Option<f64>)> {
+        let values = |t: &Tensor<1>| host(t.clone()).1.into_iter().map(f64::from).collect::<Vec<f64>>();
+        let (critic, q) = (values(&self.critic_loss), values(&self.q_mean));
+        let actor = self.actor_loss.as_ref().map(values);
+        (0..critic.len()).map(|i| (critic[i], q[i], actor.as_ref().map(|a| a[i]))).collect()
     }
 }
 
 /// y = clip(r + γ·min(Q1', Q2')(s', g, ã), −1/(1−γ), 0). No (1 − done) factor: reaching a goal
 /// does not end a WGCSL episode, so every transition bootstraps.
-pub fn td_target(c: &AgentConfig, reward: Tensor<2>, next_q: Tensor<2>) -> Tensor<2> {
+pub fn td_target<const D: usize>(c: &AgentConfig, reward: Tensor<D>, next_q: Tensor<D>) -> Tensor<D> {
     let (lo, hi) = c.target_range();
     (reward + next_q.mul_scalar(c.gamma)).clamp(lo, hi)
 }
 
-/// Everything a TD3 learner owns. Field order is the order of the algorithm.
+/// A learners that train side by side in one set of stacked tensors: same settings and task,
+/// each with its own seed (initial weights, target noise), normalizer and batches. Every layer
+/// of every network is one batched matmul over the agents, which is what keeps both CPU cores,
+/// or a GPU, busy with networks this small. A = 1 is a single agent. Field order is the order
+/// of the algorithm.
 pub struct Agent {
     pub config: AgentConfig,
     pub task: Task,
-    pub norm: Normalizer,
+    /// Agent i's input normalizer (fitted on its own data).
+    pub norms: Vec<Normalizer>,
     pub device: Device,
+    /// A actors.
     pub actor: Mlp,
-    pub critic1: Mlp,
-    pub critic2: Mlp,
+    /// 2A critics: agent i's twin critics are members 2i and 2i + 1 (an ensemble of two).
+    pub critics: Mlp,
     pub actor_target: Mlp,
-    pub critic1_target: Mlp,
-    pub critic2_target: Mlp,
+    pub critics_target: Mlp,
     pub actor_opt: Adam,
-    pub critic1_opt: Adam,
-    pub critic2_opt: Adam,
-    /// Critic updates done so far.
+    pub critics_opt: Adam,
+    /// Critic updates done so far (the same for every agent: they move in lockstep).
     pub updates: u64,
-    /// The target-policy smoothing noise stream.
-    pub noise_rng: NpRandom,
+    /// Agent i's target-policy smoothing noise stream.
+    pub noise_rngs: Vec<NpRandom>,
+}
+
+/// Layer sizes of the actor ([s, g] → action) and of each critic ([s, g, a] → Q).
+pub fn net_sizes(config: &AgentConfig, task: &Task) -> (Vec<usize>, Vec<usize>) {
+    let (o, g, a, h) = (task.obs_dim, task.goal_dim, task.act_dim, config.hidden);
+    let actor = [o + g].into_iter().chain(vec![h; config.layers]).chain([a]).collect();
+    let critic = [o + g + a].into_iter().chain(vec![h; config.layers]).chain([1]).collect();
+    (actor, critic)
 }
 
 /// Spawn keys of the agent's random streams under the run's seed.
@@ -85,114 +100,193 @@ const STREAM_INIT: u64 = 1;
 const STREAM_NOISE: u64 = 2;
 
 impl Agent {
+    /// One agent: a stack of one.
     pub fn new(config: AgentConfig, task: Task, norm: Normalizer, seed: u64, device: Device) -> Agent {
-        let (o, g, a, h) = (task.obs_dim, task.goal_dim, task.act_dim, config.hidden);
-        let actor_sizes: Vec<usize> = [o + g].into_iter().chain(vec![h; config.layers]).chain([a]).collect();
-        let critic_sizes: Vec<usize> = [o + g + a].into_iter().chain(vec![h; config.layers]).chain([1]).collect();
-        let mut init = NpRandom::spawned(seed, &[STREAM_INIT]);
-        let actor = Mlp::init(&actor_sizes, &mut init, &device);
-        let critic1 = Mlp::init(&critic_sizes, &mut init, &device);
-        let critic2 = Mlp::init(&critic_sizes, &mut init, &device);
+        Agent::stack_new(config, task, vec![norm], &[seed], device)
+    }
+
+    /// `seeds.len()` agents, agent i with `norms[i]` and `seeds[i]`; each has the initial
+    /// weights and noise it would have alone.
+    pub fn stack_new(config: AgentConfig, task: Task, norms: Vec<Normalizer>, seeds: &[u64], device: Device) -> Agent {
+        assert_eq!(norms.len(), seeds.len(), "one normalizer per agent");
+        let (actor_sizes, critic_sizes) = net_sizes(&config, &task);
+        let (mut actors, mut critics) = (Vec::new(), Vec::new());
+        for &seed in seeds {
+            // Per agent, in this order from its own stream: actor, critic 1, critic 2.
+            let mut init = NpRandom::spawned(seed, &[STREAM_INIT]);
+            actors.push(init_member(&actor_sizes, &mut init));
+            critics.push(init_member(&critic_sizes, &mut init));
+            critics.push(init_member(&critic_sizes, &mut init));
+        }
+        let actor = Mlp::from_members(&actors, &device);
+        let critics = Mlp::from_members(&critics, &device);
         let lr = config.lr();
         Agent {
             actor_opt: Adam::new(lr, &actor),
-            critic1_opt: Adam::new(lr, &critic1),
-            critic2_opt: Adam::new(lr, &critic2),
+            critics_opt: Adam::new(lr, &critics),
             actor_target: actor.copy(),
-            critic1_target: critic1.copy(),
-            critic2_target: critic2.copy(),
+            critics_target: critics.copy(),
             actor,
-            critic1,
-            critic2,
+            critics,
             updates: 0,
-            noise_rng: NpRandom::spawned(seed, &[STREAM_NOISE]),
+            noise_rngs: seeds.iter().map(|&s| NpRandom::spawned(s, &[STREAM_NOISE])).collect(),
             config,
             task,
-            norm,
+            norms,
             device,
         }
     }
 
-    /// One TD3 / TD3+BC update on `b`.
-    pub fn update(&mut self, b: &Batch) -> UpdateStats {
+    /// Agents trained separately (same settings, task and update count) as one stack, in order.
+    pub fn stack(parts: Vec<Agent>) -> Agent {
+        let first = &parts[0];
+        for p in &parts[1..] {
+            assert!(p.config == first.config && p.task == first.task && p.updates == first.updates);
+        }
+        let cat = |f: fn(&Agent) -> &Mlp| Mlp::concat(&parts.iter().map(f).collect::<Vec<_>>());
+        let opt = |f: fn(&Agent) -> &Adam| Adam::concat(&parts.iter().map(f).collect::<Vec<_>>());
+        Agent {
+            actor: cat(|p| &p.actor),
+            critics: cat(|p| &p.critics),
+            actor_target: cat(|p| &p.actor_target),
+            critics_target: cat(|p| &p.critics_target),
+            actor_opt: opt(|p| &p.actor_opt),
+            critics_opt: opt(|p| &p.critics_opt),
+            norms: parts.iter().flat_map(|p| p.norms.clone()).collect(),
+            noise_rngs: parts.iter().flat_map(|p| p.noise_rngs.clone()).collect(),
+            config: first.config.clone(),
+            task: first.task.clone(),
+            updates: first.updates,
+            device: first.device.clone(),
+        }
+    }
+
+    /// Agents in the stack.
+    pub fn agents(&self) -> usize {
+        self.norms.len()
+    }
+
+    /// One TD3 / TD3+BC update of every agent, agent i on `batches[i]` (all of one size).
+    pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
         let c = &self.config;
-        let (n, act_dim) = (b.n, self.task.act_dim);
-        let sg = self.input(&b.obs, &b.goal, n);
-        let next_sg = self.input(&b.next_obs, &b.goal, n);
-        let action = self.tensor(b.action.clone(), [n, act_dim]);
-        let reward = self.tensor(b.reward.clone(), [n, 1]);
+        let (a, n, act_dim) = (self.agents(), batches[0].n, self.task.act_dim);
+        assert_eq!(batches.len(), a, "one batch per agent");
+        assert!(batches.iter().all(|b| b.n == n), "the agents' batches differ in size");
+        let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
+        let next_sg = self.input(batches.iter().map(|b| (&b.next_obs[..], &b.goal[..])), n);
+        let action = self.stacked(batches.iter().map(|b| &b.action[..]), [a, n, act_dim]);
+        let reward = self.stacked(batches.iter().map(|b| &b.reward[..]), [a, n, 1]);
 
         // 1. The TD target, from the target networks with a smoothed target action.
-        let noise: Vec<f32> = (0..n * act_dim)
-            .map(|_| (self.noise_rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32)
+        let noise: Vec<f32> = self
+            .noise_rngs
+            .iter_mut()
+            .flat_map(|rng| {
+                (0..n * act_dim)
+                    .map(|_| (rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32)
+                    .collect::<Vec<f32>>()
+            })
             .collect();
-        let next_action =
-            (tanh(self.actor_target.forward(next_sg.clone())) + self.tensor(noise, [n, act_dim])).clamp(-1.0, 1.0);
-        let next_x = Tensor::cat(vec![next_sg, next_action], 1);
-        let next_q = self.critic1_target.forward(next_x.clone()).min_pair(self.critic2_target.forward(next_x));
-        let target = td_target(c, reward, next_q);
+        let noise = Tensor::from_data(TensorData::new(noise, [a, n, act_dim]), &self.device);
+        let next_action = (tanh(self.actor_target.forward(next_sg.clone())) + noise).clamp(-1.0, 1.0);
+        let next_q = twins(&self.critics_target, Tensor::cat(vec![next_sg, next_action], 2));
+        let [q1n, q2n] = pair(next_q);
+        let target = td_target(c, reward, q1n.min_pair(q2n)).unsqueeze_dim::<4>(1); // [A, 1, n, 1]
 
-        // 2. Both critics regress on the target.
-        let x = Tensor::cat(vec![sg.clone(), action.clone()], 1);
-        let (c1, c2) = (self.critic1.tracked(), self.critic2.tracked());
-        let q1 = c1.forward(x.clone());
-        let q2 = c2.forward(x);
-        let q_mean = q1.clone().detach().mean().without_autodiff();
-        let critic_loss = if b.weight.is_empty() {
-            (q1 - target.clone()).square().mean() + (q2 - target).square().mean()
+        // 2. Both critics of every agent regress on its target: the loss is the sum over agents
+        //    and twins of mean squared errors, so each agent's gradient is its own loss's.
+        let tracked = self.critics.tracked();
+        let q = twins(&tracked, Tensor::cat(vec![sg.clone(), action.clone()], 2)); // [A, 2, n, 1]
+        let q_mean = q.clone().detach().narrow(1, 0, 1).mean_dims(&[1, 2, 3]).reshape([a]).without_autodiff();
+        let sq = (q - target).square();
+        let sq = if batches.iter().all(|b| b.weight.is_empty()) {
+            sq
         } else {
-            // Prioritized rows are over-represented; their weights undo that in expectation.
-            let w = self.tensor(b.weight.clone(), [n, 1]);
-            ((q1 - target.clone()).square() * w.clone()).mean() + ((q2 - target).square() * w).mean()
+            // Prioritized rows are over-represented; their weights undo that in expectation. An
+            // agent without weights (another cell of the grid) gets weight 1 on every row.
+            let ones = vec![1.0f32; n];
+            let w = batches.iter().map(|b| if b.weight.is_empty() { &ones[..] } else { &b.weight[..] });
+            sq * self.stacked(w, [a, n, 1]).unsqueeze_dim::<4>(1)
         };
-        let grads = critic_loss.backward();
-        self.critic1_opt.step(&mut self.critic1, &c1, &grads);
-        self.critic2_opt.step(&mut self.critic2, &c2, &grads);
+        let per_agent = sq.mean_dim(2).sum_dim(1); // [A, 1, 1, 1]
+        let grads = per_agent.clone().sum().backward();
+        self.critics_opt.step(&mut self.critics, &tracked, &grads);
         self.updates += 1;
 
         // 3. Every `policy_delay` updates: the actor ascends Q1 (TD3+BC: plus behaviour
-        //    cloning, with λ = α / mean|Q| so the two terms stay on one scale), then the targets.
+        //    cloning, with λ = α / mean|Q| per agent so the two terms stay on one scale), then
+        //    the targets.
         let mut actor_loss = None;
         if self.updates.is_multiple_of(c.policy_delay) {
             let tracked = self.actor.tracked();
             let pi = tanh(tracked.forward(sg.clone()));
-            // The updated critic, as a constant: no gradient flows into its weights.
-            let q = self.critic1.forward(Tensor::cat(vec![sg, pi.clone()], 1));
+            // The updated critic 1 of each agent, as a constant: no gradient flows into it.
+            let q = self.critics.every(2, 0).forward(Tensor::cat(vec![sg, pi.clone()], 2)); // [A, n, 1]
             let loss = match c.algo {
-                Algo::Td3 => q.mean().neg(),
+                Algo::Td3 => q.mean_dim(1).neg(),
                 Algo::Td3bc => {
-                    let lambda = q.clone().abs().mean().detach().recip().mul_scalar(c.alpha);
-                    (q.mean() * lambda).neg() + (pi - action).square().mean()
+                    let lambda = q.clone().abs().mean_dim(1).detach().recip().mul_scalar(c.alpha);
+                    (q.mean_dim(1) * lambda).neg() + (pi - action).square().mean_dims(&[1, 2])
                 }
-            };
-            let grads = loss.backward();
+            }; // [A, 1, 1]
+            let grads = loss.clone().sum().backward();
             self.actor_opt.step(&mut self.actor, &tracked, &grads);
-            actor_loss = Some(loss.detach().without_autodiff());
+            actor_loss = Some(loss.detach().reshape([a]).without_autodiff());
             self.actor_target.soft_update(&self.actor, c.tau);
-            self.critic1_target.soft_update(&self.critic1, c.tau);
-            self.critic2_target.soft_update(&self.critic2, c.tau);
+            self.critics_target.soft_update(&self.critics, c.tau);
         }
-        UpdateStats { critic_loss: critic_loss.detach().without_autodiff(), q_mean, actor_loss }
+        UpdateStats { critic_loss: per_agent.detach().reshape([a]).without_autodiff(), q_mean, actor_loss }
     }
 
-    /// The deterministic policy π(s, g) for `n` rows of raw observations and goals.
+    /// The deterministic policy π(s, g) of agent 0 for `n` rows of raw observations and goals.
     pub fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32> {
-        host(tanh(self.actor.forward(self.input(obs, goal, n)))).1
+        self.act_all(&vec![(obs, goal); self.agents()], n).swap_remove(0)
     }
 
-    /// min(Q1, Q2)(s, g, a) for `n` rows: the score PGSER's Alg. 2 ranks swapped transitions by.
+    /// Every agent's policy at once, agent i on `rows[i]` = (observations, goals) of `n` rows:
+    /// one forward pass for all agents' environments.
+    pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Vec<Vec<f32>> {
+        let out = host(tanh(self.actor.forward(self.input(rows.iter().copied(), n)))).1;
+        out.chunks(n * self.task.act_dim).map(<[f32]>::to_vec).collect()
+    }
+
+    /// min(Q1, Q2)(s, g, a) of agent 0 for `n` rows: the score PGSER's Alg. 2 ranks swapped
+    /// transitions by.
     pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Vec<f32> {
-        let x = Tensor::cat(vec![self.input(obs, goal, n), self.tensor(action.to_vec(), [n, self.task.act_dim])], 1);
-        host(self.critic1.forward(x.clone()).min_pair(self.critic2.forward(x))).1
+        let a = self.agents();
+        let sg = self.input(std::iter::repeat_n((obs, goal), a), n);
+        let act = self.stacked(std::iter::repeat_n(action, a), [a, n, self.task.act_dim]);
+        let [q1, q2] = pair(twins(&self.critics, Tensor::cat(vec![sg, act], 2)));
+        host(q1.min_pair(q2)).1[..n].to_vec()
     }
 
-    fn input(&self, obs: &[f32], goal: &[f32], n: usize) -> Tensor<2> {
+    /// Normalized [s, g] of each agent's rows, `[A, n, obs + goal]`.
+    fn input<'a>(&self, rows: impl Iterator<Item = (&'a [f32], &'a [f32])>, n: usize) -> Tensor<3> {
+        let width = self.task.obs_dim + self.task.goal_dim;
+        let mut all = Vec::with_capacity(self.agents() * n * width);
         let mut x = Vec::new();
-        self.norm.input(obs, goal, n, &mut x);
-        self.tensor(x, [n, self.task.obs_dim + self.task.goal_dim])
+        for ((obs, goal), norm) in rows.zip(&self.norms) {
+            norm.input(obs, goal, n, &mut x);
+            all.extend_from_slice(&x);
+        }
+        Tensor::from_data(TensorData::new(all, [self.agents(), n, width]), &self.device)
     }
 
-    fn tensor(&self, values: Vec<f32>, shape: [usize; 2]) -> Tensor<2> {
+    fn stacked<'a>(&self, parts: impl Iterator<Item = &'a [f32]>, shape: [usize; 3]) -> Tensor<3> {
+        let values: Vec<f32> = parts.flat_map(|p| p.iter().copied()).collect();
         Tensor::from_data(TensorData::new(values, shape), &self.device)
     }
+}
+
+/// Both critics of every agent on the agent's inputs `x` `[A, n, in]`: returns `[A, 2, n, 1]`.
+fn twins(critics: &Mlp, x: Tensor<3>) -> Tensor<4> {
+    let [a, n, d] = x.dims();
+    let x = x.unsqueeze_dim::<4>(1).expand([a, 2, n, d]).reshape([2 * a, n, d]);
+    critics.forward(x).reshape([a, 2, n, 1])
+}
+
+/// `[A, 2, n, 1]` twin values as (Q1, Q2), each `[A, n, 1]`.
+fn pair(q: Tensor<4>) -> [Tensor<3>; 2] {
+    let [a, _, n, _] = q.dims();
+    [q.clone().narrow(1, 0, 1).reshape([a, n, 1]), q.narrow(1, 1, 1).reshape([a, n, 1])]
 }

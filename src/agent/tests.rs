@@ -44,8 +44,8 @@ fn values(net: &Mlp) -> Vec<Vec<f32>> {
 #[test]
 fn soft_update_is_polyak_averaging() {
     let mut rng = NpRandom::new(1);
-    let mut target = Mlp::init(&[3, 4, 2], &mut rng, &device());
-    let online = Mlp::init(&[3, 4, 2], &mut rng, &device());
+    let mut target = Mlp::from_members(&[init_member(&[3, 4, 2], &mut rng)], &device());
+    let online = Mlp::from_members(&[init_member(&[3, 4, 2], &mut rng)], &device());
     let (t0, o) = (values(&target), values(&online));
     target.soft_update(&online, 0.25);
     for ((t1, t0), o) in values(&target).iter().zip(&t0).zip(&o) {
@@ -94,11 +94,11 @@ fn checkpoint_round_trip_keeps_policy_q_and_normalizer() {
     norm.goal_std[1] = 2.0;
     let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), norm, 7, device());
     for i in 0..3 {
-        agent.update(&random_batch(&task, 32, i));
+        agent.update(&[random_batch(&task, 32, i)]);
     }
-    checkpoint::save(&agent, &path, &Default::default()).unwrap();
+    checkpoint::save(&agent, 0, &path, &Default::default()).unwrap();
     let (back, meta) = checkpoint::load(&path, device()).unwrap();
-    assert_eq!(back.norm, agent.norm);
+    assert_eq!(back.norms, agent.norms);
     assert_eq!(back.config, agent.config);
     assert_eq!(back.task, agent.task);
     assert_eq!(back.updates, 3);
@@ -116,26 +116,25 @@ fn resumed_updates_equal_uninterrupted_ones() {
     let batches: Vec<Batch> = (0..6).map(|i| random_batch(&task, 32, i)).collect();
     let mut straight = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 3, device());
     for b in &batches {
-        straight.update(b);
+        straight.update(std::slice::from_ref(b));
     }
     let mut first = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 3, device());
     for b in &batches[..3] {
-        first.update(b);
+        first.update(std::slice::from_ref(b));
     }
-    checkpoint::save(&first, &path, &Default::default()).unwrap();
-    checkpoint::save_resume(&first, &checkpoint::resume_path(&path), &Default::default()).unwrap();
+    checkpoint::save(&first, 0, &path, &Default::default()).unwrap();
+    checkpoint::save_resume(&first, 0, &checkpoint::resume_path(&path), &Default::default()).unwrap();
     drop(first);
     let (mut resumed, _) = checkpoint::load(&path, device()).unwrap();
     checkpoint::load_resume(&mut resumed, &checkpoint::resume_path(&path)).unwrap();
     for b in &batches[3..] {
-        resumed.update(b);
+        resumed.update(std::slice::from_ref(b));
     }
     for (a, b) in [
         (&straight.actor, &resumed.actor),
-        (&straight.critic1, &resumed.critic1),
-        (&straight.critic2, &resumed.critic2),
+        (&straight.critics, &resumed.critics),
         (&straight.actor_target, &resumed.actor_target),
-        (&straight.critic2_target, &resumed.critic2_target),
+        (&straight.critics_target, &resumed.critics_target),
     ] {
         assert_eq!(values(a), values(b));
     }
@@ -147,9 +146,9 @@ fn a_resume_file_from_another_update_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("a.ckpt");
     let mut agent = Agent::new(small_config(Algo::Td3), task.clone(), unit_norm(&task), 0, device());
-    checkpoint::save_resume(&agent, &checkpoint::resume_path(&path), &Default::default()).unwrap();
-    agent.update(&random_batch(&task, 8, 0));
-    checkpoint::save(&agent, &path, &Default::default()).unwrap();
+    checkpoint::save_resume(&agent, 0, &checkpoint::resume_path(&path), &Default::default()).unwrap();
+    agent.update(&[random_batch(&task, 8, 0)]);
+    checkpoint::save(&agent, 0, &path, &Default::default()).unwrap();
     let (mut back, _) = checkpoint::load(&path, device()).unwrap();
     let err = checkpoint::load_resume(&mut back, &checkpoint::resume_path(&path)).unwrap_err().to_string();
     assert!(err.contains("update 0") && err.contains("update 1"), "{err}");
@@ -162,10 +161,10 @@ fn td3bc_actor_moves_toward_the_data_actions() {
     let cfg = AgentConfig { alpha: 0.0, policy_delay: 1, lr: Some(1e-3), ..small_config(Algo::Td3bc) };
     let mut agent = Agent::new(cfg, task.clone(), unit_norm(&task), 0, device());
     let b = random_batch(&task, 64, 5);
-    let first = agent.update(&b).read().2.unwrap();
+    let first = agent.update(std::slice::from_ref(&b)).read()[0].2.unwrap();
     let mut last = first;
     for _ in 0..200 {
-        last = agent.update(&b).read().2.unwrap();
+        last = agent.update(std::slice::from_ref(&b)).read()[0].2.unwrap();
     }
     assert!(last < 0.6 * first, "BC loss {first} -> {last}");
 }
@@ -185,7 +184,7 @@ fn head(b: &Batch, task: &Task, k: usize) -> Batch {
 
 /// All online critic weights, flattened.
 fn critic_params(a: &Agent) -> Vec<f32> {
-    values(&a.critic1).into_iter().chain(values(&a.critic2)).flatten().collect()
+    values(&a.critics).into_iter().flatten().collect()
 }
 
 #[test]
@@ -196,7 +195,7 @@ fn importance_weights_scale_the_critic_loss() {
     let b = random_batch(&task, 32, 11);
     let loss = |weight: Vec<f32>| {
         let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 5, device());
-        agent.update(&Batch { weight, ..b.clone() }).read().0
+        agent.update(&[Batch { weight, ..b.clone() }]).read()[0].0
     };
     let plain = loss(vec![]);
     let quarter = loss(vec![0.25; 32]);
@@ -214,7 +213,7 @@ fn importance_weights_act_on_the_critic_gradient() {
     let step = |b: &Batch| {
         let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 9, device());
         let before = critic_params(&agent);
-        agent.update(b);
+        agent.update(std::slice::from_ref(b));
         critic_params(&agent).iter().zip(&before).map(|(a, b)| a - b).collect::<Vec<f32>>()
     };
     let mut weight = vec![1.0; 16];
@@ -238,13 +237,13 @@ fn checkpoint_files_are_the_same_bytes_every_time() {
     let task = Task::known("FetchReach").unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut agent = Agent::new(small_config(Algo::Td3bc), task.clone(), unit_norm(&task), 4, device());
-    agent.update(&random_batch(&task, 16, 0));
+    agent.update(&[random_batch(&task, 16, 0)]);
     let extra: std::collections::BTreeMap<String, String> =
         (0..8).map(|i| (format!("key{i}"), format!("value \"{i}\""))).collect();
     let write = |name: &str| {
         let p = dir.path().join(name);
-        checkpoint::save(&agent, &p, &extra).unwrap();
-        checkpoint::save_resume(&agent, &checkpoint::resume_path(&p), &extra).unwrap();
+        checkpoint::save(&agent, 0, &p, &extra).unwrap();
+        checkpoint::save_resume(&agent, 0, &checkpoint::resume_path(&p), &extra).unwrap();
         (std::fs::read(&p).unwrap(), std::fs::read(checkpoint::resume_path(&p)).unwrap())
     };
     let first = write("a.ckpt");
@@ -256,4 +255,96 @@ fn checkpoint_files_are_the_same_bytes_every_time() {
     assert_eq!(st.tensor("actor.0.weight").unwrap().shape(), [16, task.obs_dim + task.goal_dim]);
     let (_, meta) = safetensors::SafeTensors::read_metadata(&first.0).unwrap();
     assert_eq!(meta.metadata().as_ref().unwrap()["key3"], "value \"3\"");
+}
+
+#[test]
+fn agents_in_a_stack_train_as_they_would_alone() {
+    // Three agents (own seeds, normalizers and batches; prioritized weights on one) in one stack
+    // for 6 updates (three actor steps) vs each trained alone: same draws, same weights.
+    let task = Task::known("FetchReach").unwrap();
+    let seeds = [3u64, 8, 21];
+    let norms: Vec<Normalizer> = seeds
+        .iter()
+        .map(|&s| {
+            let mut n = unit_norm(&task);
+            n.obs_mean[1] = s as f32 * 0.01;
+            n.goal_std[2] = 1.0 + s as f32 * 0.1;
+            n
+        })
+        .collect();
+    let batches: Vec<Vec<Batch>> = (0..6)
+        .map(|u| {
+            seeds
+                .iter()
+                .map(|&s| {
+                    let mut b = random_batch(&task, 32, 100 * s + u);
+                    if s == 8 {
+                        b.weight = (0..32).map(|i| 0.25 + (i % 4) as f32 * 0.25).collect();
+                    }
+                    b
+                })
+                .collect()
+        })
+        .collect();
+    let cfg = small_config(Algo::Td3bc);
+    let mut stack = Agent::stack_new(cfg.clone(), task.clone(), norms.clone(), &seeds, device());
+    let mut stack_losses = Vec::new();
+    for b in &batches {
+        stack_losses.push(stack.update(b).read());
+    }
+    let mut worst = 0.0f32;
+    for (i, &seed) in seeds.iter().enumerate() {
+        let mut alone = Agent::new(cfg.clone(), task.clone(), norms[i].clone(), seed, device());
+        for (u, b) in batches.iter().enumerate() {
+            let (c, q, a) = alone.update(std::slice::from_ref(&b[i])).read()[0];
+            let (sc, sq, sa) = stack_losses[u][i];
+            assert!((c - sc).abs() <= 1e-5 * c.abs().max(1.0) && (q - sq).abs() <= 1e-5 * q.abs().max(1.0));
+            assert_eq!(a.is_some(), sa.is_some());
+        }
+        assert_eq!(alone.noise_rngs[0].words(), stack.noise_rngs[i].words(), "agent {i}: noise streams");
+        for (mine, theirs) in [
+            (alone.actor.member(0), stack.actor.member(i)),
+            (alone.critics.member(0), stack.critics.member(2 * i)),
+            (alone.critics.member(1), stack.critics.member(2 * i + 1)),
+            (alone.actor_target.member(0), stack.actor_target.member(i)),
+            (alone.critics_target.member(1), stack.critics_target.member(2 * i + 1)),
+        ] {
+            for ((w1, b1), (w2, b2)) in mine.iter().zip(&theirs) {
+                for (x, y) in w1.iter().chain(b1).zip(w2.iter().chain(b2)) {
+                    worst = worst.max((x - y).abs());
+                }
+            }
+        }
+    }
+    // Bit-identical on the flex backend: each agent's matrices go through the same gemm whether
+    // alone or stacked (gemm's result does not depend on its threading), and Adam and Polyak are
+    // elementwise. A GPU backend may differ by round-off.
+    assert_eq!(worst, 0.0, "largest weight difference between stacked and alone");
+}
+
+#[test]
+fn a_stack_of_separately_trained_agents_continues_each_exactly() {
+    // Agent::stack (what resuming a batched step does) then updates = each agent continuing alone.
+    let task = Task::known("FetchReach").unwrap();
+    let cfg = small_config(Algo::Td3);
+    let (b0, b1) = (random_batch(&task, 16, 1), random_batch(&task, 16, 2));
+    let mut parts = Vec::new();
+    let mut alone = Vec::new();
+    for (seed, b) in [(5u64, &b0), (6, &b1)] {
+        let mut a = Agent::new(cfg.clone(), task.clone(), unit_norm(&task), seed, device());
+        a.update(std::slice::from_ref(b));
+        let mut c = Agent::new(cfg.clone(), task.clone(), unit_norm(&task), seed, device());
+        c.update(std::slice::from_ref(b));
+        parts.push(a);
+        alone.push(c);
+    }
+    let mut stack = Agent::stack(parts);
+    assert_eq!(stack.agents(), 2);
+    stack.update(&[b1.clone(), b0.clone()]);
+    alone[0].update(std::slice::from_ref(&b1));
+    alone[1].update(std::slice::from_ref(&b0));
+    for (i, a) in alone.iter().enumerate() {
+        assert_eq!(a.actor.member(0), stack.actor.member(i));
+        assert_eq!(a.critics.member(1), stack.critics.member(2 * i + 1));
+    }
 }

@@ -97,11 +97,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Time the update alone on random batches (what `make bench` compares with PyTorch).
-    #[command(after_help = "Example:\n  pgser-train bench --task FetchPush --batch-size 512 --updates 300 --json")]
+    /// Time the update alone on random batches (what `make bench` compares with PyTorch); with
+    /// --agents A, A agents trained at once as one stack (agent-updates/s = A × updates/s).
+    #[command(after_help = "Examples:\n  pgser-train bench --task FetchPush --batch-size 512 --updates 300 --json\n  \
+                            pgser-train bench --agents 10 --updates 50 --threads 2")]
     Bench {
         #[arg(long, default_value = "FetchPush")]
         task: String,
+        /// Agents trained at once, each on its own batches (seeds 0..A).
+        #[arg(long, default_value_t = 1)]
+        agents: usize,
         #[arg(long, default_value_t = 512)]
         batch_size: usize,
         #[arg(long, default_value_t = 300)]
@@ -164,15 +169,26 @@ fn main() -> ExitCode {
                     );
                 }
             }
-            Some(Command::Bench { task, batch_size, updates, warmup, agent, json }) => {
+            Some(Command::Bench { task, agents, batch_size, updates, warmup, agent, json }) => {
                 let task = Task::known(&task).ok_or_else(|| anyhow::anyhow!("{task}: unknown task"))?;
-                let r = train::bench(&task, &agent, batch_size, updates, warmup, device, args.run.device.name());
+                if agents == 0 {
+                    anyhow::bail!("--agents must be at least 1");
+                }
+                let name = args.run.device.name();
+                let r = train::bench_agents(&task, &agent, batch_size, updates, warmup, device, name, agents);
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
                 } else {
                     println!(
-                        "{} {:?} batch {} on {} ({} threads): {:.1} updates/s",
-                        r.task, r.algo, r.batch_size, r.backend, r.threads, r.updates_per_sec
+                        "{} {:?} batch {} on {} ({} threads), {} agent(s): {:.1} updates/s, {:.1} agent-updates/s",
+                        r.task,
+                        r.algo,
+                        r.batch_size,
+                        r.backend,
+                        r.threads,
+                        r.agents,
+                        r.updates_per_sec,
+                        r.agent_updates_per_sec
                     );
                 }
             }

@@ -96,5 +96,5 @@ pub fn read_table(path: &Path) -> (arrow_array::RecordBatch, usize) {
 /// A checkpoint's online weights (actor, critic1, critic2), for comparing runs exactly.
 pub fn checkpoint_weights(path: &Path) -> Vec<Vec<f32>> {
     let (agent, _) = pgser::agent::checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
-    [&agent.actor, &agent.critic1, &agent.critic2].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
+    [&agent.actor, &agent.critics].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
 }
