@@ -179,19 +179,25 @@ enum PipelineCommand {
     /// Run the steps of a pipeline file in order, skipping those already up to date.
     #[command(after_help = "Examples:\n  pgser-etl pipeline run pipelines/demo.toml\n  \
         pgser-etl pipeline run pipelines/fetch_push.toml --until score     # data and scored swaps only\n  \
-        pgser-etl pipeline run pipelines/fetch_push.toml --dry-run         # what would run\n\n\
+        pgser-etl pipeline run pipelines/fetch_push.toml --dry-run         # what would run, and its cost\n\n\
+        Before any step runs, the settings, input pickles, out folder and --device are checked, and the\n\
+        cost of the steps to run is printed (updates, a wall time timed on this machine, disk).\n\
         A step is skipped when its record in OUT/.pipeline/ matches the sha256 of its parameters and\n\
-        inputs and its outputs are unchanged; rerun after a crash or an edit and only what changed runs\n\
-        (an interrupted training step continues from its last checkpoint).")]
+        inputs (and pgser's version) and its outputs are unchanged; rerun after a crash or an edit and\n\
+        only what changed runs (an interrupted training step continues from its last checkpoint).")]
     Run {
         /// The pipeline file (TOML; paths in it are relative to its folder).
         file: PathBuf,
         /// Stop after this step (names as printed, e.g. `score`, `report`, `agent td3bc_mem_s0`).
         #[arg(long)]
         until: Option<String>,
-        /// Print which steps are up to date and which would run, and run nothing.
+        /// Print which steps are up to date and which would run, and what they would cost, and run nothing.
         #[arg(long)]
         dry_run: bool,
+        /// Skip the second or two of timing updates, episodes and scoring on this machine: the
+        /// cost then says updates and disk but no wall time.
+        #[arg(long)]
+        no_measure: bool,
         /// Where the networks run.
         #[arg(long, value_enum, default_value = "cpu")]
         device: Backend,
@@ -315,12 +321,12 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Pipeline(PipelineCommand::Run { file, until, dry_run, device, threads, json }) => {
+        Command::Pipeline(PipelineCommand::Run { file, until, dry_run, no_measure, device, threads, json }) => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
             }
             let p = pipeline::Pipeline::load(&file)?;
-            let o = pipeline::RunOptions { until, dry_run, device };
+            let o = pipeline::RunOptions { until, dry_run, device, measure: !no_measure };
             let r = pipeline::run(&p, &o, &mut |line| eprintln!("pipeline {}: {line}", p.name))?;
             if json {
                 println!("{}", serde_json::to_string(&r)?);

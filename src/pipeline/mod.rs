@@ -19,7 +19,15 @@
 //!
 //! The key includes pgser's version (`state.rs` says why a version rather than a finer code
 //! identity), so upgrading pgser reruns every step once, training from scratch.
+//!
+//! Before the first step runs, everything that does not need an earlier step's output is
+//! checked (`check.rs`: settings, input pickles, the report's positives, the out folder, the
+//! device), and the cost of the steps that will run is estimated and printed (`cost.rs`: updates,
+//! a wall time measured on this machine, disk), so a mistake or a run of days shows up in a
+//! second rather than at the end.
 
+mod check;
+mod cost;
 mod spec;
 mod state;
 
@@ -30,6 +38,7 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::json;
 
+pub use cost::{Cost, Measured, StepCost};
 pub use spec::{Data, Pipeline, Variant, normalize, train_config};
 use state::Hashes;
 
@@ -78,6 +87,8 @@ pub struct RunReport {
     /// The results table (Markdown) and the Fig. 5 / Table 1 report, when they were reached.
     pub results: Option<PathBuf>,
     pub table1: Option<PathBuf>,
+    /// What the steps that were to run would cost, foreseen before the first one ran.
+    pub cost: Cost,
 }
 
 #[derive(Debug, Clone)]
@@ -87,6 +98,9 @@ pub struct RunOptions {
     /// Only say which steps would run.
     pub dry_run: bool,
     pub device: Backend,
+    /// Time a few updates, episodes and scores on this machine for the cost estimate (a second
+    /// or two); without it the cost says updates and disk but no wall time.
+    pub measure: bool,
 }
 
 /// The steps of `p`, in the order they run.
@@ -237,30 +251,59 @@ fn train_step(name: &str, data: &Path, ckpt: &Path, cfg: TrainConfig) -> Step {
 }
 
 /// Runs (or with `dry_run` only checks) the steps of `p` in order, skipping those up to date.
-/// `log` receives one line per step.
+/// Before the first step runs, everything that does not need an earlier step's output is
+/// checked (`check.rs`) and the cost of the steps to run is estimated (`cost.rs`). `log`
+/// receives the cost and one line per step.
 pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<RunReport> {
     let steps = plan(p)?;
-    if let Some(u) = &o.until
-        && !steps.iter().any(|s| &s.name == u)
-    {
-        let names: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
-        bail!("--until {u}: no such step (steps: {})", names.join(", "));
-    }
+    let last = match &o.until {
+        None => steps.len() - 1,
+        Some(u) => match steps.iter().position(|s| &s.name == u) {
+            Some(i) => i,
+            None => {
+                let names: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
+                bail!("--until {u}: no such step (steps: {})", names.join(", "));
+            }
+        },
+    };
+    let data = check::check(p, &steps[..=last], o.device)?;
     let mut hashes = Hashes::default();
-    let mut report =
-        RunReport { pipeline: p.name.clone(), out: p.out.clone(), steps: vec![], results: None, table1: None };
+    let forecast = state::forecast(&p.out, &steps[..=last], &mut hashes)?;
+    let cost = cost::estimate(p, &steps[..=last], &forecast, &data, o.measure, o.device)?;
+    for line in cost::render(&cost).lines() {
+        log(line);
+    }
+    let brief = |name: &str| match cost.per_step.iter().find(|c| c.name == name).map(cost::brief) {
+        Some(b) if !b.is_empty() => format!(" ({b})"),
+        _ => String::new(),
+    };
+    let mut report = RunReport {
+        pipeline: p.name.clone(),
+        out: p.out.clone(),
+        steps: vec![],
+        results: None,
+        table1: None,
+        cost: cost.clone(),
+    };
     let n = steps.len();
     for (i, step) in steps.into_iter().enumerate() {
         let head = format!("[{}/{n}] {}", i + 1, step.name);
         let key = hashes.key(&step)?;
-        let status = if key.as_ref().is_some_and(|k| state::up_to_date(&p.out, &step, k, &mut hashes)) {
+        // A dry run reports the forecast: a step after one that would run reads outputs that
+        // do not exist yet.
+        let up = if o.dry_run {
+            !forecast[i].runs
+        } else {
+            key.as_ref().is_some_and(|k| state::up_to_date(&p.out, &step, k, &mut hashes))
+        };
+        let status = if up {
             log(&format!("{head}: up to date"));
             ("up to date".to_string(), 0.0)
         } else if o.dry_run {
-            log(&format!("{head}: would run"));
+            log(&format!("{head}: would run{}", brief(&step.name)));
             ("would run".to_string(), 0.0)
         } else {
-            log(&format!("{head}: running"));
+            log(&format!("{head}: running{}", brief(&step.name)));
             let t0 = Instant::now();
             // A training step may continue from its checkpoint after a crash (no record) or a
             // change of settings (another key; `train` refuses what cannot continue), but not when

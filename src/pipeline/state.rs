@@ -118,6 +118,54 @@ pub fn up_to_date(out: &Path, step: &Step, key: &str, hashes: &mut Hashes) -> bo
     })
 }
 
+/// What a run of the plan will do with one step, foreseen before any step runs.
+#[derive(Debug, Clone)]
+pub struct Forecast {
+    /// Not up to date: the step will run.
+    pub runs: bool,
+    /// The sha256 each input will have when the step's turn comes (None: unknown until the
+    /// step before has run, or missing).
+    pub inputs: Vec<Option<String>>,
+    /// The step's key then, when every input is known.
+    pub key: Option<String>,
+}
+
+/// Which of `steps` a run will run. A step reads the outputs of earlier ones, so its key is
+/// computed with the bytes they will have: those of an up-to-date step now; those recorded for a
+/// step that reruns with its recorded key (every step is deterministic, so a lost output comes
+/// back byte for byte); unknown for one that reruns with another key, which makes the steps
+/// reading it run too.
+pub fn forecast(out: &Path, steps: &[Step], hashes: &mut Hashes) -> Result<Vec<Forecast>> {
+    let mut will_be: HashMap<PathBuf, Option<String>> = HashMap::new();
+    let mut all = Vec::with_capacity(steps.len());
+    for step in steps {
+        let inputs = step
+            .inputs
+            .iter()
+            .map(|p| match will_be.get(p) {
+                Some(sha) => Ok(sha.clone()),
+                None => hashes.sha256(p),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let key = match inputs.iter().cloned().collect::<Option<Vec<String>>>() {
+            Some(shas) => Some(key_of(step, &shas, VERSION)?),
+            None => None,
+        };
+        let runs = !key.as_deref().is_some_and(|k| up_to_date(out, step, k, hashes));
+        let record = read(out, step).filter(|r| Some(&r.key) == key.as_ref());
+        for o in &step.outputs {
+            let sha = match (runs, &record) {
+                (false, _) => hashes.sha256(o)?,
+                (true, Some(r)) => r.outputs.get(&o.display().to_string()).cloned(),
+                (true, None) => None,
+            };
+            will_be.insert(o.clone(), sha);
+        }
+        all.push(Forecast { runs, inputs, key });
+    }
+    Ok(all)
+}
+
 /// Writes the step's record once it has finished (atomically, like every output).
 pub fn record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Hashes) -> Result<()> {
     write_record(out, step, key, seconds, hashes, VERSION)

@@ -1,0 +1,151 @@
+//! What a pipeline checks before its first step runs: everything that does not need an earlier
+//! step's output. A mistake found after days of training — a misspelt setting, a pickle of
+//! another task, a report that cannot tell which episodes are expert, an unbuilt `--device` —
+//! costs those days; found here it costs a second, and nothing has been written (no out folder
+//! is created: its writability is probed in the deepest folder that already exists).
+//!
+//! Each check calls the code the step itself runs (`collect::check`, `trajectory::check_convert`,
+//! `Backend::device`) or repeats a check its step makes before doing any work, so the two cannot
+//! disagree about what is valid. Errors name the pipeline key or the file.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+
+use super::{Action, Data, Pipeline, Step};
+use crate::agent::Backend;
+use crate::task::Task;
+use crate::train::TrainConfig;
+use crate::trajectory::FloatType;
+
+/// What the checks found out about the data, for the cost estimate.
+#[derive(Debug, Clone)]
+pub struct Checked {
+    pub task: Task,
+    /// Episodes of β (the converted table), and bytes per value of its vectors.
+    pub episodes: usize,
+    pub float_bytes: usize,
+}
+
+/// Checks `steps` (the plan of `p`) before any of them runs.
+pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
+    device.device()?;
+    check_writable(&p.out).with_context(|| format!("out = {:?}", p.out.display().to_string()))?;
+    // Simulated data is float64 pickles of the pipeline's task; pickles are read below.
+    let mut beta = match &p.data {
+        Data::Collect { expert, random, .. } => {
+            let task = Task::known(&p.task).context("task")?;
+            Some((task, vec![(PathBuf::from("expert"), *expert), (PathBuf::from("random"), *random)], 8))
+        }
+        Data::Pickles { .. } => None,
+    };
+    for step in steps {
+        let name = &step.name;
+        match &step.action {
+            Action::Collect(o) => {
+                crate::collect::check(o).with_context(|| format!("[data] {} (step {name})", o.policy.kind.name()))?;
+            }
+            Action::Convert(o) if beta.is_none() => {
+                let plan = crate::trajectory::check_convert(o).context("[data] pickles")?;
+                let sources = o.inputs.iter().cloned().zip(plan.episodes_taken.iter().copied()).collect();
+                let bytes = if plan.float_type == FloatType::Float32 { 4 } else { 8 };
+                beta = Some((plan.task, sources, bytes));
+            }
+            Action::Convert(_) => {}
+            Action::Train { data, cfg, .. } => {
+                let section = if name == "pretrain" { "[pretrain]".to_string() } else { format!("[agents] ({name})") };
+                let scored = data.file_name().is_some_and(|f| f == "scored.parquet");
+                check_train(cfg, scored).context(section)?;
+            }
+            Action::Score(o) => {
+                if o.swaps == 0 && !o.include_original {
+                    bail!("[score] swaps = 0 without include_original = true leaves the scored table empty");
+                }
+                if o.chunk_episodes == Some(0) {
+                    bail!("[score] chunk_episodes = 0: must be at least 1");
+                }
+            }
+            Action::Report(_) => {
+                let (_, sources, _) = beta.as_ref().expect("convert comes before the report");
+                positive_episodes(p.report.positive_episodes, sources)?;
+            }
+            Action::Results(_) => {}
+        }
+    }
+    // Every training step evaluates in the task's environment (its model and assets).
+    if steps.iter().any(|s| matches!(&s.action, Action::Train { cfg, .. } if cfg.eval_episodes > 0)) {
+        crate::env::make(&p.task).context("evaluation needs the task's environment")?;
+    }
+    let (task, sources, float_bytes) = beta.expect("a plan of pickles starts with convert");
+    Ok(Checked { task, episodes: sources.iter().map(|s| s.1).sum(), float_bytes })
+}
+
+/// The report's positives: the first `given` episodes of β, by default those of the first of
+/// two or more sources (the expert file, GoFAR's order). With a single source nothing says
+/// which of its episodes are expert, and a guess would silently change what Fig. 5 and Table 1
+/// mean, so the file must say; the report can only take a prefix of β, so "the successful
+/// episodes" is not an option either.
+fn positive_episodes(given: Option<usize>, sources: &[(PathBuf, usize)]) -> Result<usize> {
+    let total: usize = sources.iter().map(|s| s.1).sum();
+    match given {
+        Some(n) if n == 0 || n > total => {
+            bail!("[report] positive_episodes = {n}: must be between 1 and the {total} episodes of the data")
+        }
+        Some(n) => Ok(n),
+        None if sources.len() >= 2 => Ok(sources[0].1),
+        None => bail!(
+            "[report] positive_episodes is required: the data is one pickle ({}, {} episodes taken), so which \
+             episodes are expert is unknown; set positive_episodes = N to make the first N the positives of \
+             Fig. 5 and Table 1 (N = {} if all are expert)",
+            sources[0].0.display(),
+            total,
+            total
+        ),
+    }
+}
+
+/// The settings `train` refuses before any work, and those that would only fail (or give
+/// nonsense) later: a pipeline must not find them after the steps before it ran.
+fn check_train(cfg: &TrainConfig, scored: bool) -> Result<()> {
+    let a = &cfg.agent;
+    if cfg.batch_size == 0 {
+        bail!("batch_size = 0: must be at least 1");
+    }
+    if a.hidden == 0 {
+        bail!("hidden = 0: the networks need at least one unit per layer");
+    }
+    if !(0.0..1.0).contains(&a.gamma) {
+        bail!("gamma = {}: must be in [0, 1)", a.gamma);
+    }
+    if let Some(lr) = a.lr
+        && !(lr.is_finite() && lr > 0.0)
+    {
+        bail!("lr = {lr}: must be a positive number");
+    }
+    if scored && !(0.0..=1.0).contains(&cfg.aug_ratio) {
+        bail!("aug_ratio = {}: must be in [0, 1]", cfg.aug_ratio);
+    }
+    cfg.priority.validate()
+}
+
+/// Whether `out` can be created and written, without creating it: the deepest folder on its path
+/// that exists must be a folder (not a file) in which a file can be created; the probe file is
+/// removed at once.
+fn check_writable(out: &Path) -> Result<()> {
+    let mut at = out;
+    let existing = loop {
+        match std::fs::metadata(at) {
+            Ok(m) if m.is_dir() => break at,
+            Ok(_) => bail!("{} is a file, not a folder", at.display()),
+            Err(_) => match at.parent() {
+                Some(parent) if !parent.as_os_str().is_empty() => at = parent,
+                _ => break Path::new("."),
+            },
+        }
+    };
+    tempfile::Builder::new()
+        .prefix(".pgser-probe-")
+        .tempfile_in(existing)
+        .with_context(|| format!("cannot write in {}", existing.display()))?;
+    Ok(())
+}
