@@ -60,37 +60,70 @@ impl Policy for RandomPolicy {
 
 /// Runs `episodes` episodes of `policy` in `task_name` with seeds `seed`, `seed + 1`, ...
 pub fn evaluate(task_name: &str, policy: &dyn Policy, episodes: usize, seed: u64) -> Result<EvalReport> {
-    let mut envs: Vec<Box<dyn GoalEnv + Send>> = (0..episodes).map(|_| env::make(task_name)).collect::<Result<_>>()?;
+    let act = |rows: &[(&[f32], &[f32])], n: usize| vec![policy.act(rows[0].0, rows[0].1, n)];
+    Ok(run(task_name, 1, episodes, seed, &act)?.remove(0))
+}
+
+/// Every agent of a stack on the same `episodes` episodes (seeds `seed`, `seed + 1`, ...): one
+/// report per agent, each what `evaluate` gives that agent alone, with one forward pass of the
+/// whole stack per environment step.
+pub fn evaluate_stack(agent: &crate::agent::Agent, episodes: usize, seed: u64) -> Result<Vec<EvalReport>> {
+    run(&agent.task.name, agent.agents(), episodes, seed, &|rows, n| agent.act_all(rows, n))
+}
+
+/// Agent i's policy on rows[i] = (observations, desired goals) of n rows each.
+type StackPolicy<'a> = dyn Fn(&[(&[f32], &[f32])], usize) -> Vec<Vec<f32>> + 'a;
+
+/// `members` policies × `episodes` episodes in lockstep; environment `m·episodes + i` is member
+/// m's episode i, reset with seed `seed + i`.
+fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackPolicy) -> Result<Vec<EvalReport>> {
+    let total = members * episodes;
+    let mut envs: Vec<Box<dyn GoalEnv + Send>> = (0..total).map(|_| env::make(task_name)).collect::<Result<_>>()?;
     let task = envs.first().map(|e| e.task().clone());
     let Some(task) = task else {
-        return Ok(EvalReport { episodes: 0, return_mean: 0.0, return_std: 0.0, success_rate: 0.0, paper_score: 0.0 });
+        let empty = EvalReport { episodes: 0, return_mean: 0.0, return_std: 0.0, success_rate: 0.0, paper_score: 0.0 };
+        return Ok(vec![empty; members]);
     };
-    let mut obs: Vec<Obs> = envs.par_iter_mut().enumerate().map(|(i, e)| e.reset(Some(seed + i as u64))).collect();
-    let mut returns = vec![0.0f64; episodes];
-    let mut success = vec![false; episodes];
+    let mut obs: Vec<Obs> =
+        envs.par_iter_mut().enumerate().map(|(j, e)| e.reset(Some(seed + (j % episodes) as u64))).collect();
+    let mut returns = vec![0.0f64; total];
+    let mut success = vec![false; total];
     for _ in 0..task.t {
         let flat =
             |f: fn(&Obs) -> &Vec<f64>| obs.iter().flat_map(|o| f(o).iter().map(|&x| x as f32)).collect::<Vec<f32>>();
-        let actions = policy.act(&flat(|o| &o.observation), &flat(|o| &o.desired_goal), episodes);
+        let (o, g) = (flat(|o| &o.observation), flat(|o| &o.desired_goal));
+        let rows: Vec<(&[f32], &[f32])> = (0..members)
+            .map(|m| {
+                let (od, gd) = (task.obs_dim * episodes, task.goal_dim * episodes);
+                (&o[m * od..(m + 1) * od], &g[m * gd..(m + 1) * gd])
+            })
+            .collect();
+        let actions: Vec<f32> = act(&rows, episodes).concat();
         let steps: Vec<_> = envs
             .par_iter_mut()
             .zip(actions.par_chunks(task.act_dim))
             .map(|(e, a)| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>()))
             .collect();
-        for (i, s) in steps.into_iter().enumerate() {
-            returns[i] += s.reward;
-            success[i] = s.success;
-            obs[i] = s.obs;
+        for (j, s) in steps.into_iter().enumerate() {
+            returns[j] += s.reward;
+            success[j] = s.success;
+            obs[j] = s.obs;
         }
     }
-    let n = episodes as f64;
-    let mean = returns.iter().sum::<f64>() / n;
-    let std = (returns.iter().map(|r| (r - mean) * (r - mean)).sum::<f64>() / n).sqrt();
-    Ok(EvalReport {
-        episodes,
-        return_mean: mean,
-        return_std: std,
-        success_rate: success.iter().filter(|&&s| s).count() as f64 / n,
-        paper_score: task.t as f64 + mean,
-    })
+    Ok(returns
+        .chunks(episodes)
+        .zip(success.chunks(episodes))
+        .map(|(returns, success)| {
+            let n = episodes as f64;
+            let mean = returns.iter().sum::<f64>() / n;
+            let std = (returns.iter().map(|r| (r - mean) * (r - mean)).sum::<f64>() / n).sqrt();
+            EvalReport {
+                episodes,
+                return_mean: mean,
+                return_std: std,
+                success_rate: success.iter().filter(|&&s| s).count() as f64 / n,
+                paper_score: task.t as f64 + mean,
+            }
+        })
+        .collect())
 }

@@ -25,6 +25,7 @@ use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
 use crate::sampler::{self, SamplerConfig};
 use crate::trajectory::Episodes;
+use rayon::prelude::*;
 
 /// The training job's settings; with the agent's, this is everything a run depends on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
@@ -106,7 +107,8 @@ const STREAM_BATCHES: u64 = 3;
 
 /// Trains on `data_path` (a trajectory table, or a scored table for the `-mem` variant) into
 /// the checkpoint `out`; `command` is recorded in the checkpoint (the CLI passes its command line,
-/// a pipeline its step name, so a re-run writes the same bytes however it was invoked).
+/// a pipeline its step name, so a re-run writes the same bytes however it was invoked). A stack
+/// of one cell (`train_stack`).
 pub fn train(
     data_path: &Path,
     out: &Path,
@@ -116,6 +118,225 @@ pub fn train(
     command: &str,
     bar: &ProgressBar,
 ) -> Result<Summary> {
+    let cell = Cell { data: data_path.to_path_buf(), out: out.to_path_buf(), cfg: cfg.clone(), resume };
+    Ok(train_stack(std::slice::from_ref(&cell), device, &[command.to_string()], bar)?.remove(0))
+}
+
+/// One run of a stack: its data, its checkpoint, its settings, and whether it continues from its
+/// checkpoint.
+#[derive(Debug, Clone)]
+pub struct Cell {
+    pub data: PathBuf,
+    pub out: PathBuf,
+    pub cfg: TrainConfig,
+    pub resume: bool,
+}
+
+/// What the cells of one stack must share: the networks' settings and the schedule, since all
+/// agents of a stack take their updates, evaluations and checkpoints together. Seeds, data,
+/// sampling (`--swap`, the scored table's mix and priorities) may differ.
+fn schedule(cfg: &TrainConfig) -> serde_json::Value {
+    serde_json::json!({
+        "agent": cfg.agent, "updates": cfg.updates, "batch_size": cfg.batch_size, "eval_every": cfg.eval_every,
+        "eval_episodes": cfg.eval_episodes, "eval_seed": cfg.eval_seed, "save_every": cfg.save_every,
+        "log_every": cfg.log_every,
+    })
+}
+
+/// A cell's data, batch stream and records while it trains.
+struct Run {
+    cell: Cell,
+    data: Arc<Episodes>,
+    aug: Option<ScoredSampler>,
+    k_aug: usize,
+    batches: NpRandom,
+    metrics: Vec<MetricsLine>,
+    extra: BTreeMap<String, String>,
+    last_eval: Option<EvalReport>,
+}
+
+impl Run {
+    fn next_batch(&mut self) -> Result<Batch> {
+        let cfg = &self.cell.cfg;
+        let mut batch = Batch::default();
+        sampler::sample(&self.data, &cfg.sampler, &mut self.batches, cfg.batch_size - self.k_aug, &mut batch);
+        if let Some(aug) = self.aug.as_mut() {
+            let a = aug.next_batch()?;
+            if cfg.priority.is_beta.is_some() {
+                batch.weight = vec![1.0; batch.n];
+                batch.weight.extend_from_slice(&a.weights);
+            }
+            batch.append(&a.batch);
+        }
+        Ok(batch)
+    }
+
+    fn save(&self, agent: &Agent, i: usize) -> Result<()> {
+        let out = &self.cell.out;
+        let mut resume_extra = BTreeMap::new();
+        resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.words())?);
+        // Both files record their update count and `--resume` refuses a pair whose counts
+        // differ, so a crash between these two writes is reported, never continued from.
+        checkpoint::save_resume(agent, i, &checkpoint::resume_path(out), &resume_extra)?;
+        checkpoint::save(agent, i, out, &self.extra)?;
+        write_metrics(&metrics_path(out), &self.metrics)
+    }
+}
+
+/// Trains the cells as one stack of agents: each cell's agent draws the same batches and noise
+/// and ends with the same checkpoint, metrics and evaluations as when trained alone, while every
+/// network layer runs once for all of them. `commands[i]` is recorded in cell i's checkpoint.
+/// The cells share `schedule`, the task, and the update count they start from.
+pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &ProgressBar) -> Result<Vec<Summary>> {
+    let first = cells.first().context("no cell to train")?;
+    for c in cells {
+        if schedule(&c.cfg) != schedule(&first.cfg) {
+            bail!(
+                "{}: a stack's cells must share the agent settings and schedule; {} has {}, {} has {}",
+                c.out.display(),
+                first.out.display(),
+                schedule(&first.cfg),
+                c.out.display(),
+                schedule(&c.cfg)
+            );
+        }
+    }
+    let mut outs: Vec<&Path> = cells.iter().map(|c| c.out.as_path()).collect();
+    outs.sort();
+    if let Some(w) = outs.windows(2).find(|w| w[0] == w[1]) {
+        bail!("{}: two cells of one stack write the same checkpoint", w[0].display());
+    }
+    let mut runs = Vec::with_capacity(cells.len());
+    let mut agents = Vec::with_capacity(cells.len());
+    for (cell, command) in cells.iter().zip(commands) {
+        let (run, agent) = prepare(cell, command, device.clone())?;
+        if let Some(prev) = agents.first().map(|a: &Agent| (a.task.clone(), a.updates))
+            && (prev.0 != agent.task || prev.1 != agent.updates)
+        {
+            bail!(
+                "{}: a stack's cells must share the task and the update they start from ({} at {} vs {} at {})",
+                cell.out.display(),
+                prev.0.name,
+                prev.1,
+                agent.task.name,
+                agent.updates
+            );
+        }
+        runs.push(run);
+        agents.push(agent);
+    }
+    let mut agent = Agent::stack(agents);
+    let cfg = first.cfg.clone();
+    let evaluate = |agent: &Agent| -> Result<Option<Vec<EvalReport>>> {
+        if cfg.eval_episodes == 0 {
+            return Ok(None);
+        }
+        eval::evaluate_stack(agent, cfg.eval_episodes, cfg.eval_seed).map(Some)
+    };
+
+    bar.set_length(cfg.updates);
+    bar.set_position(agent.updates);
+    let mut update_time = 0.0f64;
+    let start_updates = agent.updates;
+    while agent.updates < cfg.updates {
+        let t0 = Instant::now();
+        // Each cell samples from its own streams, so doing it in parallel changes no draw.
+        let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
+        let stats = agent.update(&batches);
+        let u = agent.updates;
+        let log = cfg.log_every > 0 && u % cfg.log_every == 0;
+        let mut lines: Vec<MetricsLine> = (0..runs.len())
+            .map(|_| MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None })
+            .collect();
+        if log {
+            for ((line, (critic, q, actor)), run) in lines.iter_mut().zip(stats.read()).zip(&runs) {
+                if !critic.is_finite() {
+                    bail!(
+                        "{}: update {u}: the critic loss is {critic}; training diverged (try a lower --lr)",
+                        run.cell.out.display()
+                    );
+                }
+                (line.critic_loss, line.q_mean, line.actor_loss) = (Some(critic), Some(q), actor);
+            }
+        }
+        update_time += t0.elapsed().as_secs_f64();
+        if cfg.eval_every > 0 && u % cfg.eval_every == 0 && u < cfg.updates {
+            for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
+                lines[i].eval = Some(report);
+                runs[i].last_eval = Some(report);
+            }
+        }
+        for (run, line) in runs.iter_mut().zip(lines) {
+            if log || line.eval.is_some() {
+                run.metrics.push(line);
+            }
+        }
+        if cfg.save_every > 0 && u % cfg.save_every == 0 && u < cfg.updates {
+            for (i, run) in runs.iter().enumerate() {
+                run.save(&agent, i)?;
+            }
+        }
+        bar.set_position(u);
+    }
+    // The final evaluation and checkpoint (also when resuming a run that had already finished).
+    if agent.updates > start_updates || runs.iter().any(|r| r.last_eval.is_none()) {
+        let u = agent.updates;
+        for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
+            let run = &mut runs[i];
+            run.last_eval = Some(report);
+            run.metrics.retain(|m| m.updates < u || m.eval.is_none());
+            run.metrics.push(MetricsLine {
+                updates: u,
+                critic_loss: None,
+                actor_loss: None,
+                q_mean: None,
+                eval: Some(report),
+            });
+        }
+    }
+    for (i, run) in runs.iter().enumerate() {
+        run.save(&agent, i)?;
+    }
+    bar.finish_and_clear();
+    let done = agent.updates - start_updates;
+    Ok(runs
+        .iter()
+        .map(|r| Summary {
+            updates: agent.updates,
+            updates_per_sec: if update_time > 0.0 { done as f64 / update_time } else { 0.0 },
+            eval: r.last_eval,
+            checkpoint: r.cell.out.clone(),
+            metrics: metrics_path(&r.cell.out),
+        })
+        .collect())
+}
+
+/// The metrics of a checkpoint at update `u` as an uninterrupted run would have them there: a run
+/// that ended at `u` recorded its final evaluation as a line of its own, which a longer run has
+/// on its loss line when `u` is on the evaluation schedule and does not have at all otherwise.
+/// Returns them with the evaluation at `u`, if one stays.
+fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> (Vec<MetricsLine>, Option<EvalReport>) {
+    let is_final = |m: &MetricsLine| m.updates == u && m.eval.is_some() && m.critic_loss.is_none();
+    let Some(pos) = metrics.iter().position(is_final) else {
+        let last = metrics.iter().rev().find_map(|m| m.eval.filter(|_| m.updates == u));
+        return (metrics, last);
+    };
+    let report = metrics.remove(pos).eval;
+    if eval_every == 0 || u % eval_every != 0 {
+        return (metrics, None);
+    }
+    match metrics.iter_mut().find(|m| m.updates == u) {
+        Some(line) => line.eval = report,
+        None => {
+            metrics.push(MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: report })
+        }
+    }
+    (metrics, report)
+}
+
+/// A cell's data, sampler and agent (a stack of one): fresh, or restored from its checkpoint.
+fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
+    let (data_path, out, cfg) = (&cell.data, &cell.out, &cell.cfg);
     crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
     if cfg.batch_size == 0 {
         bail!("--batch-size must be at least 1");
@@ -140,7 +361,7 @@ pub fn train(
     extra.insert("data_sha256".to_string(), data_sha.clone());
     extra.insert("command".to_string(), command.to_string());
 
-    let (mut agent, mut batches, mut metrics) = if resume {
+    let (agent, batches, metrics): (Agent, NpRandom, Vec<MetricsLine>) = if cell.resume {
         restore(out, cfg, &data_sha, device)?
     } else {
         // The goal normalizer sees achieved goals too: HER and swapping train on them.
@@ -154,25 +375,8 @@ pub fn train(
         let agent = Agent::new(cfg.agent.clone(), data.task.clone(), norm, cfg.seed, device);
         (agent, NpRandom::spawned(cfg.seed, &[STREAM_BATCHES]), Vec::new())
     };
-
-    let save = |agent: &Agent, batches: &NpRandom, metrics: &[MetricsLine]| -> Result<()> {
-        let mut resume_extra = BTreeMap::new();
-        resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&batches.words())?);
-        // Both files record their update count and `--resume` refuses a pair whose counts
-        // differ, so a crash between these two writes is reported, never continued from.
-        checkpoint::save_resume(agent, 0, &checkpoint::resume_path(out), &resume_extra)?;
-        checkpoint::save(agent, 0, out, &extra)?;
-        write_metrics(&metrics_path(out), metrics)
-    };
-    let evaluate = |agent: &Agent| -> Result<Option<EvalReport>> {
-        if cfg.eval_episodes == 0 {
-            return Ok(None);
-        }
-        eval::evaluate(&data.task.name, agent, cfg.eval_episodes, cfg.eval_seed).map(Some)
-    };
-
     let k_aug = if scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
-    let mut aug = match scored {
+    let aug = match scored {
         Some(t) => Some(ScoredSampler::start(
             t,
             data.clone(),
@@ -184,73 +388,8 @@ pub fn train(
         )?),
         None => None,
     };
-
-    bar.set_length(cfg.updates);
-    bar.set_position(agent.updates);
-    let mut batch = Batch::default();
-    let mut update_time = 0.0f64;
-    let start_updates = agent.updates;
-    let mut last_eval = None;
-    while agent.updates < cfg.updates {
-        let t0 = Instant::now();
-        sampler::sample(&data, &cfg.sampler, &mut batches, cfg.batch_size - k_aug, &mut batch);
-        if let Some(aug) = aug.as_mut() {
-            let a = aug.next_batch()?;
-            if cfg.priority.is_beta.is_some() {
-                batch.weight = vec![1.0; batch.n];
-                batch.weight.extend_from_slice(&a.weights);
-            }
-            batch.append(&a.batch);
-        }
-        let stats = agent.update(std::slice::from_ref(&batch));
-        let u = agent.updates;
-        let log = cfg.log_every > 0 && u % cfg.log_every == 0;
-        let mut line = MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None };
-        if log {
-            let (critic, q, actor) = stats.read()[0];
-            if !critic.is_finite() {
-                bail!("update {u}: the critic loss is {critic}; training diverged (try a lower --lr)");
-            }
-            (line.critic_loss, line.q_mean, line.actor_loss) = (Some(critic), Some(q), actor);
-        }
-        update_time += t0.elapsed().as_secs_f64();
-        if cfg.eval_every > 0 && u % cfg.eval_every == 0 && u < cfg.updates {
-            line.eval = evaluate(&agent)?;
-            last_eval = line.eval;
-        }
-        if log || line.eval.is_some() {
-            metrics.push(line);
-        }
-        if cfg.save_every > 0 && u % cfg.save_every == 0 && u < cfg.updates {
-            save(&agent, &batches, &metrics)?;
-        }
-        bar.set_position(u);
-    }
-    // The final evaluation and checkpoint (also when resuming a run that had already finished).
-    if agent.updates > start_updates || last_eval.is_none() {
-        last_eval = evaluate(&agent)?;
-        if last_eval.is_some() {
-            metrics.retain(|m| m.updates < agent.updates || m.eval.is_none());
-            let u = agent.updates;
-            metrics.push(MetricsLine {
-                updates: u,
-                critic_loss: None,
-                actor_loss: None,
-                q_mean: None,
-                eval: last_eval,
-            });
-        }
-    }
-    save(&agent, &batches, &metrics)?;
-    bar.finish_and_clear();
-    let done = agent.updates - start_updates;
-    Ok(Summary {
-        updates: agent.updates,
-        updates_per_sec: if update_time > 0.0 { done as f64 / update_time } else { 0.0 },
-        eval: last_eval,
-        checkpoint: out.to_path_buf(),
-        metrics: metrics_path(out),
-    })
+    let (metrics, last_eval) = continued_metrics(metrics, agent.updates, cfg.eval_every);
+    Ok((Run { cell: cell.clone(), data, aug, k_aug, batches, metrics, extra, last_eval }, agent))
 }
 
 /// The original data β of a scored table: the trajectory table its footer names, checked

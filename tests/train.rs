@@ -207,3 +207,29 @@ fn bad_runs_fail_in_one_line_and_leave_no_checkpoint() {
     let err = one_line_error(&run(&["eval", "--ckpt", data]));
     assert!(err.contains("not a safetensors file"), "{err}");
 }
+
+#[test]
+fn seeds_train_as_one_stack_with_the_weights_of_separate_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let table = reach_table().to_str().unwrap();
+    let common =
+        ["--updates", "12", "--batch-size", "64", "--hidden", "32", "--eval-episodes", "2", "--log-every", "4"];
+    let mut args = vec!["--data", table, "-o", runs.to_str().unwrap(), "--seeds", "4,7", "--json"];
+    args.extend(common);
+    let summary: serde_json::Value = last_json(&run_ok(&args));
+    assert_eq!(summary.as_array().unwrap().len(), 2, "{summary}");
+    for seed in ["4", "7"] {
+        let alone = dir.path().join(format!("alone{seed}.ckpt"));
+        let mut args = vec!["--data", table, "-o", alone.to_str().unwrap(), "--seed", seed];
+        args.extend(common);
+        run_ok(&args);
+        let stacked = runs.join(format!("s{seed}.ckpt"));
+        assert_eq!(checkpoint_weights(&stacked), checkpoint_weights(&alone), "seed {seed}");
+        let metrics = |p: &Path| std::fs::read_to_string(pgser::train::metrics_path(p)).unwrap();
+        assert_eq!(metrics(&stacked), metrics(&alone), "seed {seed}: metrics");
+    }
+    // --seeds and --seed together are refused.
+    let out = run(&["--data", table, "-o", runs.to_str().unwrap(), "--seeds", "1,2", "--seed", "3"]);
+    assert!(!out.status.success() && text(&out.stderr).contains("--seed"), "{}", text(&out.stderr));
+}
