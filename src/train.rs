@@ -135,7 +135,7 @@ pub struct Cell {
 /// What the cells of one stack must share: the networks' settings and the schedule, since all
 /// agents of a stack take their updates, evaluations and checkpoints together. Seeds, data,
 /// sampling (`--swap`, the scored table's mix and priorities) may differ.
-fn schedule(cfg: &TrainConfig) -> serde_json::Value {
+pub fn schedule(cfg: &TrainConfig) -> serde_json::Value {
     serde_json::json!({
         "agent": cfg.agent, "updates": cfg.updates, "batch_size": cfg.batch_size, "eval_every": cfg.eval_every,
         "eval_episodes": cfg.eval_episodes, "eval_seed": cfg.eval_seed, "save_every": cfg.save_every,
@@ -435,8 +435,59 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
 #[error("{0}")]
 pub struct StaleCheckpoint(pub String);
 
+/// Where `cell` would start: `None` without a checkpoint, `Some(updates)` when its checkpoint can
+/// be continued, a `StaleCheckpoint` error when it belongs to another run. What a pipeline asks
+/// before it stacks cells, which must start from the same update.
+pub fn resume_point(cell: &Cell) -> Result<Option<u64>> {
+    if !cell.out.exists() {
+        return Ok(None);
+    }
+    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &sha256_file(&cell.data)?, Device::flex())?;
+    // The resume state must load too, so a stack never starts on a cell it cannot continue.
+    checkpoint::load_resume(&mut agent, &checkpoint::resume_path(&cell.out))?;
+    Ok(Some(agent.updates))
+}
+
+/// The checkpoint at `out`, if it is one `cfg` on the data of `data_sha` may continue: same
+/// settings (the number of updates may grow), same data.
+fn checked_checkpoint(
+    out: &Path,
+    cfg: &TrainConfig,
+    data_sha: &str,
+    device: Device,
+) -> Result<(Agent, std::collections::HashMap<String, String>)> {
+    let at = out.display();
+    if !out.exists() {
+        bail!("{at}: --resume given but there is no checkpoint to resume");
+    }
+    let (agent, meta) = checkpoint::load(out, device)?;
+    let saved: TrainConfig = serde_json::from_str(meta.get("train").context("no train config in metadata")?)
+        .with_context(|| format!("{at}: the checkpoint's train config is not readable"))?;
+    let comparable = TrainConfig { updates: cfg.updates, ..saved.clone() };
+    let stale = |why: String| Err(StaleCheckpoint(why).into());
+    if &comparable != cfg {
+        return stale(format!(
+            "{at}: --resume with settings that differ from the checkpoint's (only --updates may change): saved {}, given {}",
+            serde_json::to_string(&saved)?,
+            serde_json::to_string(cfg)?
+        ));
+    }
+    if agent.updates > cfg.updates {
+        return stale(format!(
+            "{at}: --resume with --updates {} but the checkpoint already has {} updates (a run cannot be shortened)",
+            cfg.updates, agent.updates
+        ));
+    }
+    if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
+        return stale(format!(
+            "{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)"
+        ));
+    }
+    Ok((agent, meta))
+}
+
 /// Loads checkpoint, resume state and metrics of an interrupted run and checks that it is the
-/// same run: same settings (the number of updates may grow) and the same data file.
+/// same run.
 fn restore(
     out: &Path,
     cfg: &TrainConfig,
@@ -444,34 +495,7 @@ fn restore(
     device: Device,
 ) -> Result<(Agent, NpRandom, Vec<MetricsLine>)> {
     let at = out.display();
-    if !out.exists() {
-        bail!("{at}: --resume given but there is no checkpoint to resume");
-    }
-    let (mut agent, meta) = checkpoint::load(out, device)?;
-    let saved: TrainConfig = serde_json::from_str(meta.get("train").context("no train config in metadata")?)
-        .with_context(|| format!("{at}: the checkpoint's train config is not readable"))?;
-    let comparable = TrainConfig { updates: cfg.updates, ..saved.clone() };
-    if &comparable != cfg {
-        return Err(StaleCheckpoint(format!(
-            "{at}: --resume with settings that differ from the checkpoint's (only --updates may change): saved {}, given {}",
-            serde_json::to_string(&saved)?,
-            serde_json::to_string(cfg)?
-        ))
-        .into());
-    }
-    if agent.updates > cfg.updates {
-        return Err(StaleCheckpoint(format!(
-            "{at}: --resume with --updates {} but the checkpoint already has {} updates (a run cannot be shortened)",
-            cfg.updates, agent.updates
-        ))
-        .into());
-    }
-    if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
-        return Err(StaleCheckpoint(format!(
-            "{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)"
-        ))
-        .into());
-    }
+    let (mut agent, _) = checked_checkpoint(out, cfg, data_sha, device)?;
     let resume_meta = checkpoint::load_resume(&mut agent, &checkpoint::resume_path(out))?;
     let words = resume_meta.get("batch_rng").with_context(|| format!("{at}.resume: batch_rng missing"))?;
     let batches = NpRandom::from_words(serde_json::from_str(words)?);

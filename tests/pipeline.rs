@@ -249,3 +249,47 @@ fn a_resume_that_fails_keeps_the_checkpoint_and_only_stale_ones_are_set_aside() 
     assert!(stale(".metrics.jsonl").exists());
     assert!(std::fs::read(&ckpt).unwrap() != ckpt_bytes);
 }
+
+#[test]
+fn a_killed_stack_resumes_every_agent_as_unstacked_uninterrupted_runs_end() {
+    // The six agent cells train as one stack (the default); the run is killed once they have
+    // checkpoints, then run again: every cell resumes, and each ends with the weights and metrics
+    // of the same cell trained alone (batch = 1) without interruption.
+    let stacked = tempfile::tempdir().unwrap();
+    let file = pipeline(stacked.path(), 300, 2);
+    let text_of = std::fs::read_to_string(&file).unwrap().replace("save_every = 0", "save_every = 10");
+    std::fs::write(&file, &text_of).unwrap();
+    run(&file, &["--until", "score"]);
+    let out = stacked.path().join("out");
+    let mut child =
+        etl().args(["pipeline", "run"]).arg(&file).args(["--threads", "2", "--no-measure"]).spawn().unwrap();
+    let last = out.join("agents/td3bc_mem_s1.ckpt");
+    let t0 = std::time::Instant::now();
+    while !last.exists() {
+        assert!(t0.elapsed().as_secs() < 300, "no checkpoint appeared");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!out.join(".pipeline/agent_td3bc_mem_s1.json").exists(), "the stack finished before it was killed");
+    let resumed = run(&file, &[]);
+    for (name, status) in &resumed {
+        if name.starts_with("agent") {
+            assert_eq!(status, "resumed", "{resumed:?}");
+        }
+    }
+
+    let alone = tempfile::tempdir().unwrap();
+    let file = pipeline(alone.path(), 300, 2);
+    std::fs::write(&file, text_of.replace("updates = 300\n", "updates = 300\nbatch = 1\n")).unwrap();
+    run(&file, &[]);
+    for v in ["baseline", "swap", "mem"] {
+        for s in 0..2 {
+            let f = format!("agents/td3bc_{v}_s{s}.ckpt");
+            let (a, b) = (out.join(&f), alone.path().join("out").join(&f));
+            assert_eq!(common::checkpoint_weights(&a), common::checkpoint_weights(&b), "{f}");
+            let metrics = |p: &Path| std::fs::read(pgser::train::metrics_path(p)).unwrap();
+            assert!(metrics(&a) == metrics(&b), "{f}: metrics differ");
+        }
+    }
+}

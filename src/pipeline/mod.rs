@@ -51,7 +51,13 @@ use crate::{collect, progress, report, score, trajectory};
 enum Action {
     Collect(collect::CollectOptions),
     Convert(trajectory::ConvertOptions),
-    Train { data: PathBuf, out: PathBuf, cfg: Box<TrainConfig> },
+    /// `stack`: agent cells of one stack id train at once as one stack of networks.
+    Train {
+        data: PathBuf,
+        out: PathBuf,
+        cfg: Box<TrainConfig>,
+        stack: Option<usize>,
+    },
     Score(score::ScoreOptions),
     Report(report::QReportOptions),
     Results(Vec<report::Run>),
@@ -228,9 +234,38 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         outputs: vec![out.join("results.md"), out.join("results.csv"), out.join(format!("curves_{}.png", p.task))],
         action: Action::Results(runs),
     });
+    assign_stacks(&mut steps, p.agents.batch.unwrap_or(usize::MAX));
     let names: std::collections::HashSet<_> = steps.iter().map(|s| &s.name).collect();
     debug_assert_eq!(names.len(), steps.len());
     Ok(steps)
+}
+
+/// Puts the agent cells into stacks of at most `batch`, in plan order, each stack of cells that
+/// may train together (same networks and schedule: TD3 and TD3+BC cells go to separate stacks).
+fn assign_stacks(steps: &mut [Step], batch: usize) {
+    let mut open: Vec<(serde_json::Value, usize, usize)> = Vec::new(); // (schedule, id, members)
+    for step in steps.iter_mut().filter(|s| s.name.starts_with("agent ")) {
+        let Action::Train { cfg, stack, .. } = &mut step.action else { continue };
+        let key = crate::train::schedule(cfg);
+        let id = match open.iter_mut().find(|(k, _, n)| *k == key && *n < batch) {
+            Some((_, id, n)) => {
+                *n += 1;
+                *id
+            }
+            None => {
+                open.push((key, open.len(), 1));
+                open.len() - 1
+            }
+        };
+        *stack = Some(id);
+    }
+}
+
+fn stack_of(step: &Step) -> Option<usize> {
+    match &step.action {
+        Action::Train { stack, .. } => *stack,
+        _ => None,
+    }
 }
 
 fn algo_name(a: Algo) -> &'static str {
@@ -246,7 +281,7 @@ fn train_step(name: &str, data: &Path, ckpt: &Path, cfg: TrainConfig) -> Step {
         params: json!({ "train": cfg }),
         inputs: vec![data.to_path_buf()],
         outputs: vec![ckpt.to_path_buf(), metrics_path(ckpt)],
-        action: Action::Train { data: data.to_path_buf(), out: ckpt.to_path_buf(), cfg: Box::new(cfg) },
+        action: Action::Train { data: data.to_path_buf(), out: ckpt.to_path_buf(), cfg: Box::new(cfg), stack: None },
     }
 }
 
@@ -286,37 +321,74 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
         cost: cost.clone(),
     };
     let n = steps.len();
-    for (i, step) in steps.into_iter().enumerate() {
+    // Steps already run as members of a stack: their status and seconds.
+    let mut stacked: std::collections::HashMap<usize, (String, f64)> = std::collections::HashMap::new();
+    for (i, step) in steps.iter().enumerate() {
         let head = format!("[{}/{n}] {}", i + 1, step.name);
-        let key = hashes.key(&step)?;
+        let key = hashes.key(step)?;
         // A dry run reports the forecast: a step after one that would run reads outputs that
         // do not exist yet.
         let up = if o.dry_run {
             !forecast[i].runs
         } else {
-            key.as_ref().is_some_and(|k| state::up_to_date(&p.out, &step, k, &mut hashes))
+            key.as_ref().is_some_and(|k| state::up_to_date(&p.out, step, k, &mut hashes))
         };
-        let status = if up {
+        let status = if let Some((how, secs)) = stacked.remove(&i) {
+            log(&format!("{head}: {how} (in a stack) in {secs:.1} s"));
+            (how, secs)
+        } else if up {
             log(&format!("{head}: up to date"));
             ("up to date".to_string(), 0.0)
         } else if o.dry_run {
             log(&format!("{head}: would run{}", brief(&step.name)));
             ("would run".to_string(), 0.0)
         } else {
-            log(&format!("{head}: running{}", brief(&step.name)));
+            // An agent cell runs with the later cells of its stack that must run too.
+            let mut members = vec![i];
+            if let Some(id) = stack_of(step) {
+                for j in i + 1..=last {
+                    if stack_of(&steps[j]) == Some(id) {
+                        let k = hashes.key(&steps[j])?;
+                        if !k.as_ref().is_some_and(|k| state::up_to_date(&p.out, &steps[j], k, &mut hashes)) {
+                            members.push(j);
+                        }
+                    }
+                }
+            }
+            let what = if members.len() > 1 {
+                format!(" with {} more in one stack", members.len() - 1)
+            } else {
+                String::new()
+            };
+            log(&format!("{head}: running{}{what}", brief(&step.name)));
             let t0 = Instant::now();
             // A training step may continue from its checkpoint after a crash (no record) or a
             // change of settings (another key; `train` refuses what cannot continue), but not when
             // a finished output no longer has its recorded bytes (that one is rebuilt from scratch)
             // nor when another pgser version finished it.
-            let resume = state::may_resume(&p.out, &step, key.as_deref());
-            let how =
-                execute(&step, o.device, resume).with_context(|| format!("pipeline {}, step {}", p.name, step.name))?;
+            let resume: Vec<bool> = members
+                .iter()
+                .map(|&j| Ok(state::may_resume(&p.out, &steps[j], hashes.key(&steps[j])?.as_deref())))
+                .collect::<Result<_>>()?;
+            let how: Vec<&str> = if members.len() == 1 {
+                vec![
+                    execute(step, o.device, resume[0])
+                        .with_context(|| format!("pipeline {}, step {}", p.name, step.name))?,
+                ]
+            } else {
+                let group: Vec<&Step> = members.iter().map(|&j| &steps[j]).collect();
+                execute_stack(&group, o.device, &resume).with_context(|| format!("pipeline {}", p.name))?
+            };
             let secs = t0.elapsed().as_secs_f64();
-            let key = hashes.key(&step)?.context("an input vanished while the step ran")?;
-            state::record(&p.out, &step, &key, secs, &mut hashes)?;
-            log(&format!("{head}: {how} in {secs:.1} s"));
-            (how.to_string(), secs)
+            for (&j, how) in members.iter().zip(&how) {
+                let key = hashes.key(&steps[j])?.context("an input vanished while the step ran")?;
+                state::record(&p.out, &steps[j], &key, secs, &mut hashes)?;
+                if j != i {
+                    stacked.insert(j, (how.to_string(), secs));
+                }
+            }
+            log(&format!("{head}: {} in {secs:.1} s", how[0]));
+            (how[0].to_string(), secs)
         };
         match step.action {
             Action::Results(_) if status.0 != "would run" => report.results = Some(step.outputs[0].clone()),
@@ -324,7 +396,12 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
             _ => {}
         }
         let stop = o.until.as_deref() == Some(step.name.as_str());
-        report.steps.push(StepReport { name: step.name, status: status.0, seconds: status.1, outputs: step.outputs });
+        report.steps.push(StepReport {
+            name: step.name.clone(),
+            status: status.0,
+            seconds: status.1,
+            outputs: step.outputs.clone(),
+        });
         if stop {
             break;
         }
@@ -347,40 +424,72 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
         Action::Score(o) => drop(score::score(&score::ScoreOptions { device, ..o.clone() }, &bar)?),
         Action::Report(o) => drop(report::q_report(o)?),
         Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),
-        Action::Train { data, out, cfg } => {
-            let command = format!("pgser pipeline step {}", step.name);
-            let train = |resume| crate::train::train(data, out, cfg, resume, device.device()?, &command, &bar);
-            if resume && out.exists() && checkpoint::resume_path(out).exists() {
-                match train(true) {
-                    Ok(_) => how = "resumed",
-                    // The checkpoint is of another run (settings, data, a longer run): it cannot be
-                    // continued, so start over, but keep it aside rather than overwrite it.
-                    Err(e) if e.downcast_ref::<crate::train::StaleCheckpoint>().is_some() => {
-                        let kept = set_aside_stale(out)?;
-                        eprintln!(
-                            "pgser pipeline: {}: not resumed ({e:#}); the old checkpoint is kept as {}; training from scratch",
-                            step.name,
-                            kept.display()
-                        );
-                        train(false)?;
-                    }
-                    // Anything else (an unreadable file, a failed read of the data, a diverged loss)
-                    // is reported; the checkpoint and its progress stay as they are.
-                    Err(e) => {
-                        return Err(e.context(format!(
-                            "resuming {} failed; the checkpoint is left as it was",
-                            out.display()
-                        )));
-                    }
-                }
-            } else {
-                if out.exists() && resume {
-                    // A checkpoint without its resume state cannot be continued; keep it anyway.
-                    set_aside_stale(out)?;
-                }
-                train(false)?;
+        Action::Train { .. } => how = execute_stack(&[step], device, &[resume])?[0],
+    }
+    bar.finish_and_clear();
+    Ok(how)
+}
+
+/// Runs training steps as one stack of agents (cells that start from different updates — some
+/// continuing a checkpoint, some from scratch — as one stack per starting update); returns
+/// `ran` or `resumed` for each. A cell continues its checkpoint when `resume` allows and the
+/// checkpoint belongs to the same run; a checkpoint of another run is set aside as `.stale` and
+/// the cell starts over; any other failure stops the stack and leaves every checkpoint as it was.
+fn execute_stack(steps: &[&Step], device: Backend, resume: &[bool]) -> Result<Vec<&'static str>> {
+    let mut cells = Vec::with_capacity(steps.len());
+    let mut starts = std::collections::BTreeMap::<u64, Vec<usize>>::new();
+    let mut how = Vec::with_capacity(steps.len());
+    for (i, (step, &resume)) in steps.iter().zip(resume).enumerate() {
+        for o in &step.outputs {
+            if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
             }
         }
+        let Action::Train { data, out, cfg, .. } = &step.action else { bail!("{}: not a training step", step.name) };
+        let mut cell = crate::train::Cell { data: data.clone(), out: out.clone(), cfg: (**cfg).clone(), resume: false };
+        let mut start = 0;
+        if resume && out.exists() && checkpoint::resume_path(out).exists() {
+            match crate::train::resume_point(&cell) {
+                Ok(point) => {
+                    cell.resume = point.is_some();
+                    start = point.unwrap_or(0);
+                }
+                // The checkpoint is of another run (settings, data, a longer run): it cannot be
+                // continued, so start over, but keep it aside rather than overwrite it.
+                Err(e) if e.downcast_ref::<crate::train::StaleCheckpoint>().is_some() => {
+                    let kept = set_aside_stale(out)?;
+                    eprintln!(
+                        "pgser pipeline: {}: not resumed ({e:#}); the old checkpoint is kept as {}; training from scratch",
+                        step.name,
+                        kept.display()
+                    );
+                }
+                // Anything else (an unreadable file, a failed read of the data) is reported; the
+                // checkpoint and its progress stay as they are.
+                Err(e) => {
+                    return Err(e.context(format!(
+                        "step {}: resuming {} failed; the checkpoint is left as it was",
+                        step.name,
+                        out.display()
+                    )));
+                }
+            }
+        } else if resume && out.exists() {
+            // A checkpoint without its resume state cannot be continued; keep it anyway.
+            set_aside_stale(out)?;
+        }
+        how.push(if cell.resume { "resumed" } else { "ran" });
+        starts.entry(start).or_default().push(i);
+        cells.push(cell);
+    }
+    let bar = progress::bar("agents", "updates");
+    for members in starts.values() {
+        let stack: Vec<crate::train::Cell> = members.iter().map(|&i| cells[i].clone()).collect();
+        let commands: Vec<String> = members.iter().map(|&i| format!("pgser pipeline step {}", steps[i].name)).collect();
+        let names: Vec<&str> = members.iter().map(|&i| steps[i].name.as_str()).collect();
+        crate::train::train_stack(&stack, device.device()?, &commands, &bar).with_context(|| {
+            format!("training {} (one stack); checkpoints are left as they were at their last save", names.join(", "))
+        })?;
     }
     bar.finish_and_clear();
     Ok(how)

@@ -98,6 +98,9 @@ pub struct Agents {
     pub algos: Vec<Algo>,
     pub variants: Vec<Variant>,
     pub seeds: Vec<u64>,
+    /// Agents trained at once as one stack of networks (`[agents] batch`, default: all the
+    /// cells of a learner). 1 trains them one after another.
+    pub batch: Option<usize>,
     pub train: toml::Table,
 }
 
@@ -180,6 +183,10 @@ impl Pipeline {
         let variants: Vec<Variant> =
             take(&mut agents, "variants")?.unwrap_or(vec![Variant::Baseline, Variant::Swap, Variant::Mem]);
         let seeds: Vec<u64> = take(&mut agents, "seeds")?.unwrap_or(vec![0]);
+        let batch: Option<usize> = take(&mut agents, "batch")?;
+        if batch == Some(0) {
+            bail!("[agents] batch = 0: must be at least 1 (1 trains the agents one after another)");
+        }
         if algos.is_empty() || variants.is_empty() || seeds.is_empty() {
             bail!("[agents]: algos, variants and seeds must not be empty");
         }
@@ -192,7 +199,7 @@ impl Pipeline {
             pretrain: f.pretrain,
             score: f.score,
             report: f.report,
-            agents: Agents { algos, variants, seeds, train: agents },
+            agents: Agents { algos, variants, seeds, batch, train: agents },
         };
         // Fail now, not after an hour of training, on a misspelt setting.
         p.pretrain_config()?;
