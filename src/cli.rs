@@ -16,6 +16,16 @@ pub fn main_with(program: &str, body: impl FnOnce() -> anyhow::Result<()>) -> Ex
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Training allocates and frees tensors of a few MB many times per update. glibc serves those
+    // with mmap and gives them back on free, so every update paid for page faults and zeroing
+    // of fresh pages (15 % of a stacked update's time in a profile). Kept on the heap, freed
+    // blocks are reused instead.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; called before any thread exists.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
     match body() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
