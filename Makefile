@@ -73,14 +73,20 @@ bench: build venv
 	$(PY) bench/bench_train.py --python $(BENCH_PY) --json bench-out/train.json
 	$(PY) bench/bench_sampler.py --python $(BENCH_PY) --json bench-out/sampler.json
 	$(PY) bench/bench_score.py --python $(BENCH_PY) --threads 2 --swaps 4 --repeat 3 --json bench-out/score.json
+	$(PY) bench/bench_grid.py --python $(BENCH_PY) --jax-python $(JAX_PY) --threads 2 --json bench-out/grid.json
 
 # The benchmark peers' interpreter: PyTorch (a large download), cpprb, pyarrow. Kept apart from
 # the test venv so `make test` never downloads torch.
 BENCH_PY = bench-out/torch-venv/bin/python
-bench-venv: $(BENCH_PY)
+# The JAX peer of the many-agents grid (bench/train_peer_jax.py), in a venv of its own.
+JAX_PY = bench-out/jax-venv/bin/python
+bench-venv: $(BENCH_PY) $(JAX_PY)
 $(BENCH_PY):
 	python3 -m venv bench-out/torch-venv
 	bench-out/torch-venv/bin/pip install --quiet torch numpy pyarrow cpprb
+$(JAX_PY):
+	python3 -m venv bench-out/jax-venv
+	bench-out/jax-venv/bin/pip install --quiet jax numpy
 
 # Needs cargo-fuzz (cargo install cargo-fuzz); stable Rust works with RUSTC_BOOTSTRAP=1.
 fuzz: deps

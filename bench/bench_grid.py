@@ -4,6 +4,9 @@
 For each A (default 1,3,10,30 on CPU; 1,10,30,60 with --device cuda) it measures, each peer in
 its own child process:
 
+  pgser         `pgser-train bench --agents A` (--pgser, default target/release/pgser-train): the A
+                agents as one stack of networks (one batched matmul per layer for all of them);
+                on --device cuda it runs with --pgser-device (wgpu, if pgser was built with it).
   single        train_peer.py, one agent per update call; A agents are trained one after
                 another, so its agent-updates/s do not depend on A. On CPU it is measured two ways
                 and the faster is used for each A: 1 process x T threads (the figure as is), and
@@ -69,8 +72,8 @@ TASKS = {  # as bench_train.py
     "FetchPickAndPlace": (25, 3, 4),
     "FetchPick": (25, 3, 4),
 }
-ALL_PEERS = ("single", "stacked", "stacked-vmap", "stacked-graph", "jax")
-LABELS = {"single": "train_peer.py", "stacked": "stacked bmm", "stacked-vmap": "stacked vmap",
+ALL_PEERS = ("pgser", "single", "stacked", "stacked-vmap", "stacked-graph", "jax")
+LABELS = {"pgser": "pgser stack", "single": "train_peer.py", "stacked": "stacked bmm", "stacked-vmap": "stacked vmap",
           "stacked-graph": "stacked bmm+graph", "jax": "jax jit(vmap)"}
 
 
@@ -180,6 +183,9 @@ def main(argv=None):
     ap.add_argument("--timeout", type=float, default=300, help="seconds before a child is killed (default 300)")
     ap.add_argument("--jax-pin", action="store_true", help="CPU: pin the JAX peer to --threads CPUs")
     ap.add_argument("--tf32", action="store_true", help="GPU: let stacked and JAX peers use TF32 matmuls")
+    ap.add_argument("--pgser", default=str(REPO / "target" / "release" / "pgser-train"),
+                    help="pgser-train binary (default target/release/pgser-train)")
+    ap.add_argument("--pgser-device", default=None, help="pgser's --device (default cpu; on cuda: wgpu)")
     ap.add_argument("--workdir", default=str(REPO / "bench-out"))
     ap.add_argument("--json", help="write all figures to this file")
     a = ap.parse_args(argv)
@@ -188,7 +194,7 @@ def main(argv=None):
     gpu = a.device == "cuda"
     agents = [int(x) for x in (a.agents or ("1,10,30,60" if gpu else "1,3,10,30")).split(",")]
     if a.peers in (None, ""):
-        peers = ["single", "stacked"] + (["stacked-graph"] if gpu else []) + ["jax"]
+        peers = ["pgser", "single", "stacked"] + (["stacked-graph"] if gpu else []) + ["jax"]
     elif a.peers == "all":
         peers = [p for p in ALL_PEERS if gpu or p != "stacked-graph"]
     else:
@@ -218,7 +224,7 @@ def main(argv=None):
 
     # Which interpreters can run which peers (checked once, so a missing framework is one line).
     missing = {}
-    if any(p != "jax" for p in peers):
+    if any(p not in ("jax", "pgser") for p in peers):
         missing["torch"] = has_module(py, "torch")
     if "jax" in peers:
         missing["jax"] = has_module(jpy, "jax")
@@ -313,9 +319,34 @@ def main(argv=None):
                 print(f"single {k:10s} " + (f"{v['report']['agent_updates_per_sec']:10.1f} agent-updates/s"
                                             if v.get("ok") else f"FAILED ({v.get('why')})"), flush=True)
 
+    # ---- pgser: the stacked agent of pgser-train ----------------------------------------------------
+    if "pgser" in peers:
+        dev = a.pgser_device or ("wgpu" if gpu else "cpu")
+        for A in agents:
+            if not Path(a.pgser).exists():
+                cells["pgser"][A] = {"ok": False, "why": f"{a.pgser} not built", "missing": True}
+                continue
+            base = [a.pgser, "bench", "--task", a.task, "--algo", a.algo, "--agents", str(A), "--batch-size",
+                    str(a.batch_size), "--hidden", str(a.hidden), "--threads", t, "--device", dev, "--json"]
+            n = a.updates
+            if not n:  # probe the rate for --seconds
+                pr = runner.run(f"pgser_probe_A{A}", [*base, "--updates", "3", "--warmup", "1"])
+                n = max(3, int(pr["report"]["updates_per_sec"] * a.seconds)) if pr["ok"] else None
+                if not pr["ok"]:
+                    cells["pgser"][A] = pr
+                    continue
+            runs = [runner.run(f"pgser_A{A}", [*base, "--updates", str(n), "--warmup", str(a.warmup)])
+                    for _ in range(a.repeat)]
+            x = med(runs)
+            if x["ok"]:
+                x["agent_updates_per_sec"] = x["report"]["agent_updates_per_sec"]
+            cells["pgser"][A] = x
+            print(f"{'pgser':14s} A={A:<4d} " + (f"{x['agent_updates_per_sec']:10.1f} agent-updates/s"
+                                                if x["ok"] else f"FAILED ({x['why']})"), flush=True)
+
     # ---- many-agent peers -------------------------------------------------------------------------
     for p in peers:
-        if p == "single":
+        if p in ("single", "pgser"):
             continue
         fw = "jax" if p == "jax" else "torch"
         for A in agents:
