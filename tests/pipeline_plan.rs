@@ -125,8 +125,8 @@ fn missing_or_foreign_pickles_an_unbuilt_device_and_an_unwritable_out_fail_first
     fails_before_any_work(&file, &[], "fetch_reach_expert_50.pkl: dimension mismatch");
 
     let file = pipeline(dir.path(), "device.toml", &[EXPERT, RANDOM], &[12, 24], "");
-    if !cfg!(feature = "cuda") {
-        fails_before_any_work(&file, &["--device", "cuda"], "--device cuda: this pgser was built without that backend");
+    if !cfg!(feature = "wgpu") {
+        fails_before_any_work(&file, &["--device", "wgpu"], "--device wgpu: this pgser was built without that backend");
     }
     if !cfg!(feature = "wgpu") {
         fails_before_any_work(&file, &["--device", "wgpu"], "--device wgpu: this pgser was built without that backend");

@@ -254,8 +254,8 @@ fn bad_inputs_fail_in_one_line_and_leave_no_file() {
     fails(&["--q", p(ckpt), "--data", p(table), "-o", p(&out), "--swaps", "0"], &["no rows"]);
     let nowhere = dir.path().join("missing/s.parquet");
     fails(&["--q", p(ckpt), "--data", p(table), "-o", p(&nowhere)], &["does not exist"]);
-    if !cfg!(feature = "cuda") {
-        fails(&["--q", p(ckpt), "--data", p(table), "-o", p(&out), "--device", "cuda"], &["--features cuda"]);
+    if !cfg!(feature = "wgpu") {
+        fails(&["--q", p(ckpt), "--data", p(table), "-o", p(&out), "--device", "wgpu"], &["--features wgpu"]);
     }
     // --include-original with no swaps is a table of the original transitions, scored.
     score_ok(&["--q", p(ckpt), "--data", p(table), "-o", p(&out), "--swaps", "0", "--include-original"]);

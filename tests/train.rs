@@ -190,9 +190,9 @@ fn bad_runs_fail_in_one_line_and_leave_no_checkpoint() {
     let (_, out) = short_run(d, "r.ckpt", "3", &["--resume"]);
     assert!(one_line_error(&out).contains("already has 5 updates"), "{}", text(&out.stderr));
     // A GPU backend this build does not have.
-    let (_, out) = short_run(d, "g.ckpt", "5", &["--device", "cuda"]);
-    if !cfg!(feature = "cuda") {
-        assert!(one_line_error(&out).contains("--features cuda"));
+    let (_, out) = short_run(d, "g.ckpt", "5", &["--device", "wgpu"]);
+    if !cfg!(feature = "wgpu") {
+        assert!(one_line_error(&out).contains("--features wgpu"));
     }
     // Writing over the input is refused.
     let data = reach_table().to_str().unwrap();

@@ -363,13 +363,12 @@ fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
 }
 
 /// Where the networks run. `cpu` is burn's flex backend (the fastest CPU backend that builds
-/// everywhere, see BENCHMARKS.md); GPU backends exist when pgser is built with the cargo
-/// feature of the same name.
+/// everywhere, see BENCHMARKS.md); `wgpu` (Vulkan, Metal, DX12) exists when pgser is built with
+/// `--features wgpu`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
     Cpu,
-    Cuda,
     Wgpu,
 }
 
@@ -377,8 +376,6 @@ impl Backend {
     pub fn device(self) -> anyhow::Result<Device> {
         match self {
             Backend::Cpu => Ok(Device::flex()),
-            #[cfg(feature = "cuda")]
-            Backend::Cuda => Ok(Device::cuda(0usize)),
             #[cfg(feature = "wgpu")]
             Backend::Wgpu => Ok(Device::wgpu(burn::tensor::DeviceKind::default())),
             #[allow(unreachable_patterns)]
@@ -393,7 +390,6 @@ impl Backend {
     pub fn name(self) -> &'static str {
         match self {
             Backend::Cpu => "cpu",
-            Backend::Cuda => "cuda",
             Backend::Wgpu => "wgpu",
         }
     }
