@@ -175,11 +175,17 @@ impl Run {
         let out = &self.cell.out;
         let mut resume_extra = BTreeMap::new();
         resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.words())?);
-        // Both files record their update count and `--resume` refuses a pair whose counts
-        // differ, so a crash between these two writes is reported, never continued from.
-        checkpoint::save_resume(agent, i, &checkpoint::resume_path(out), &resume_extra)?;
-        checkpoint::save(agent, i, out, &self.extra)?;
-        write_metrics(&metrics_path(out), &self.metrics)
+        // All three are written first, then put in place one right after the other, checkpoint
+        // last: a checkpoint in place always has its metrics (later lines are dropped on resume)
+        // and its resume state. Both record their update count and `--resume` refuses a pair
+        // whose counts differ, so the microseconds between the last two renames are reported
+        // if a crash hits them, never continued from.
+        let metrics = stage_metrics(&metrics_path(out), &self.metrics)?;
+        let resume = checkpoint::stage_resume(agent, i, &checkpoint::resume_path(out), &resume_extra)?;
+        let model = checkpoint::stage(agent, i, out, &self.extra)?;
+        metrics.commit()?;
+        resume.commit()?;
+        model.commit()
     }
 }
 
@@ -503,7 +509,7 @@ fn restore(
     Ok((agent, batches, metrics))
 }
 
-fn write_metrics(path: &Path, lines: &[MetricsLine]) -> Result<()> {
+fn stage_metrics(path: &Path, lines: &[MetricsLine]) -> Result<AtomicFile> {
     let mut text = String::new();
     for l in lines {
         text.push_str(&serde_json::to_string(l)?);
@@ -512,7 +518,7 @@ fn write_metrics(path: &Path, lines: &[MetricsLine]) -> Result<()> {
     let out = AtomicFile::create(path)?;
     std::io::Write::write_all(&mut out.handle()?, text.as_bytes())
         .with_context(|| format!("{}: write failed", path.display()))?;
-    out.commit()
+    Ok(out)
 }
 
 fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
@@ -546,19 +552,6 @@ pub struct BenchReport {
     pub agent_updates_per_sec: f64,
 }
 
-/// One agent (see `bench_agents`).
-pub fn bench(
-    task: &crate::task::Task,
-    agent_cfg: &AgentConfig,
-    batch_size: usize,
-    updates: u64,
-    warmup: u64,
-    device: Device,
-    backend: &str,
-) -> BenchReport {
-    bench_agents(task, agent_cfg, batch_size, updates, warmup, device, backend, 1)
-}
-
 #[allow(clippy::too_many_arguments)]
 pub fn bench_agents(
     task: &crate::task::Task,
@@ -589,15 +582,7 @@ pub fn bench_agents(
                 .collect()
         })
         .collect();
-    let zeros = |d| vec![0.0f32; d];
-    let ones = |d| vec![1.0f32; d];
-    let norm = Normalizer {
-        obs_mean: zeros(task.obs_dim),
-        obs_std: ones(task.obs_dim),
-        goal_mean: zeros(task.goal_dim),
-        goal_std: ones(task.goal_dim),
-        clip: agent_cfg.norm_clip as f32,
-    };
+    let norm = Normalizer::identity(task, agent_cfg.norm_clip);
     let seeds: Vec<u64> = (0..agents as u64).collect();
     let mut agent = Agent::stack_new(agent_cfg.clone(), task.clone(), vec![norm; agents], &seeds, device);
     let mut run = |k: u64| {

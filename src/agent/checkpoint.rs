@@ -55,12 +55,13 @@ impl Tensors {
         }
     }
 
-    fn write(self, path: &Path, metadata: BTreeMap<String, String>) -> Result<()> {
+    /// Writes the file beside `path`, not yet in place: the caller commits it.
+    fn stage(self, path: &Path, metadata: BTreeMap<String, String>) -> Result<AtomicFile> {
         let bytes = self.encode(&metadata)?;
         let out = AtomicFile::create(path)?;
         std::io::Write::write_all(&mut out.handle()?, &bytes)
             .with_context(|| format!("{}: write failed", path.display()))?;
-        out.commit()
+        Ok(out)
     }
 
     /// The safetensors bytes, written here rather than by `safetensors::serialize`: that one
@@ -180,6 +181,12 @@ impl Loaded {
 /// Writes agent `i` of the stack as a model file. `extra` metadata (the trainer's config, data
 /// source) is kept as given.
 pub fn save(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
+    stage(agent, i, path, extra)?.commit()
+}
+
+/// `save`, written beside `path` but not yet moved into place, so that a trainer can put a
+/// checkpoint, its resume state and its metrics in place one right after the other.
+pub fn stage(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<AtomicFile> {
     let mut t = Tensors::default();
     let critics = agent.critics.tensors();
     t.push_member("actor", &agent.actor.member(i));
@@ -197,7 +204,7 @@ pub fn save(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, Strin
     meta.insert("normalizer_clip".into(), n.clip.to_string());
     meta.insert("updates".into(), agent.updates.to_string());
     meta.insert("pgser_version".into(), env!("CARGO_PKG_VERSION").into());
-    t.write(path, meta)
+    t.stage(path, meta)
 }
 
 /// Reads a model file written by `save`: a stack of one agent (online networks and normalizer;
@@ -242,6 +249,11 @@ pub fn resume_path(path: &Path) -> PathBuf {
 /// Writes the state of agent `i` that `load` does not restore: targets, Adam, the noise stream,
 /// plus `extra`.
 pub fn save_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<()> {
+    stage_resume(agent, i, path, extra)?.commit()
+}
+
+/// `save_resume`, not yet moved into place (see `stage`).
+pub fn stage_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<AtomicFile> {
     let mut t = Tensors::default();
     let targets = agent.critics_target.tensors();
     t.push_member("actor_target", &agent.actor_target.member(i));
@@ -257,7 +269,7 @@ pub fn save_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String
     meta.insert("format".into(), format!("{FORMAT}-resume"));
     meta.insert("updates".into(), agent.updates.to_string());
     meta.insert("noise_rng".into(), serde_json::to_string(&agent.noise_rngs[i].words())?);
-    t.write(path, meta)
+    t.stage(path, meta)
 }
 
 /// Restores what `save_resume` wrote into a stack of one agent loaded from the model file of the

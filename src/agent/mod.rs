@@ -311,6 +311,19 @@ pub struct Normalizer {
     pub clip: f32,
 }
 
+impl Normalizer {
+    /// No normalization (mean 0, std 1) but the clip: for benchmarks and tests on random data.
+    pub fn identity(task: &crate::task::Task, clip: f64) -> Normalizer {
+        Normalizer {
+            obs_mean: vec![0.0; task.obs_dim],
+            obs_std: vec![1.0; task.obs_dim],
+            goal_mean: vec![0.0; task.goal_dim],
+            goal_std: vec![1.0; task.goal_dim],
+            clip: clip as f32,
+        }
+    }
+}
+
 /// GoFAR's normalizer floors the std at 0.01 so constant dimensions do not blow up.
 const MIN_STD: f64 = 1e-2;
 

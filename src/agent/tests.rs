@@ -14,13 +14,7 @@ fn small_config(algo: Algo) -> AgentConfig {
 }
 
 fn unit_norm(task: &Task) -> Normalizer {
-    Normalizer {
-        obs_mean: vec![0.0; task.obs_dim],
-        obs_std: vec![1.0; task.obs_dim],
-        goal_mean: vec![0.0; task.goal_dim],
-        goal_std: vec![1.0; task.goal_dim],
-        clip: 5.0,
-    }
+    Normalizer::identity(task, 5.0)
 }
 
 fn random_batch(task: &Task, n: usize, seed: u64) -> Batch {

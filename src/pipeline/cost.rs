@@ -242,7 +242,7 @@ fn measure_rates(
             Some(&s) => s,
             None => {
                 let bench = |n, warmup| {
-                    crate::train::bench(task, &cfg.agent, cfg.batch_size, n, warmup, device.clone(), backend.name())
+                    crate::train::bench_agents(task, &cfg.agent, cfg.batch_size, n, warmup, device.clone(), backend.name(), 1)
                 };
                 let probe = bench(2, 1).updates_per_sec;
                 let n = (probe * UPDATE_SECONDS).clamp(3.0, 2000.0) as u64;
@@ -270,7 +270,7 @@ fn measure_rates(
         (None, None)
     };
     let scored_rows_per_sec = if cost.scored_rows > 0 {
-        let agent = Agent::new(p.pretrain_config()?.agent, task.clone(), identity(task), 0, device);
+        let agent = Agent::new(p.pretrain_config()?.agent, task.clone(), Normalizer::identity(task, 5.0), 0, device);
         let n = crate::score::Q_BATCH;
         let rows = random_episodes(task, n.div_ceil(task.t - 1));
         let calls = 4 * rayon::current_num_threads();
@@ -329,15 +329,6 @@ fn random_episodes(task: &Task, n: usize) -> Episodes {
     }
 }
 
-fn identity(task: &Task) -> Normalizer {
-    Normalizer {
-        obs_mean: vec![0.0; task.obs_dim],
-        obs_std: vec![1.0; task.obs_dim],
-        goal_mean: vec![0.0; task.goal_dim],
-        goal_std: vec![1.0; task.goal_dim],
-        clip: 5.0,
-    }
-}
 
 /// The cost in two lines: the headline ("16 steps, 290k updates ≈ 1.9 h on this machine (55
 /// updates/s measured)"), then environment steps, scored rows and disk.
