@@ -242,7 +242,16 @@ fn measure_rates(
             Some(&s) => s,
             None => {
                 let bench = |n, warmup| {
-                    crate::train::bench_agents(task, &cfg.agent, cfg.batch_size, n, warmup, device.clone(), backend.name(), 1)
+                    crate::train::bench_agents(
+                        task,
+                        &cfg.agent,
+                        cfg.batch_size,
+                        n,
+                        warmup,
+                        device.clone(),
+                        backend.name(),
+                        1,
+                    )
                 };
                 let probe = bench(2, 1).updates_per_sec;
                 let n = (probe * UPDATE_SECONDS).clamp(3.0, 2000.0) as u64;
@@ -328,7 +337,6 @@ fn random_episodes(task: &Task, n: usize) -> Episodes {
         u: noise(n * (t - 1) * task.act_dim),
     }
 }
-
 
 /// The cost in two lines: the headline ("16 steps, 290k updates ≈ 1.9 h on this machine (55
 /// updates/s measured)"), then environment steps, scored rows and disk.
