@@ -250,7 +250,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
         let stats = agent.update(&batches);
         let u = agent.updates;
-        let log = cfg.log_every > 0 && u % cfg.log_every == 0;
+        let log = cfg.log_every > 0 && u.is_multiple_of(cfg.log_every);
         let mut lines: Vec<MetricsLine> = (0..runs.len())
             .map(|_| MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None })
             .collect();
@@ -266,7 +266,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
             }
         }
         update_time += t0.elapsed().as_secs_f64();
-        if cfg.eval_every > 0 && u % cfg.eval_every == 0 && u < cfg.updates {
+        if cfg.eval_every > 0 && u.is_multiple_of(cfg.eval_every) && u < cfg.updates {
             for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
                 lines[i].eval = Some(report);
                 runs[i].last_eval = Some(report);
@@ -277,7 +277,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
                 run.metrics.push(line);
             }
         }
-        if cfg.save_every > 0 && u % cfg.save_every == 0 && u < cfg.updates {
+        if cfg.save_every > 0 && u.is_multiple_of(cfg.save_every) && u < cfg.updates {
             for (i, run) in runs.iter().enumerate() {
                 run.save(&agent, i)?;
             }
@@ -328,7 +328,7 @@ fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> 
         return (metrics, last);
     };
     let report = metrics.remove(pos).eval;
-    if eval_every == 0 || u % eval_every != 0 {
+    if eval_every == 0 || !u.is_multiple_of(eval_every) {
         return (metrics, None);
     }
     match metrics.iter_mut().find(|m| m.updates == u) {

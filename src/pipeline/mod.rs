@@ -346,10 +346,10 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
             // An agent cell runs with the later cells of its stack that must run too.
             let mut members = vec![i];
             if let Some(id) = stack_of(step) {
-                for j in i + 1..=last {
-                    if stack_of(&steps[j]) == Some(id) {
-                        let k = hashes.key(&steps[j])?;
-                        if !k.as_ref().is_some_and(|k| state::up_to_date(&p.out, &steps[j], k, &mut hashes)) {
+                for (j, later) in steps.iter().enumerate().take(last + 1).skip(i + 1) {
+                    if stack_of(later) == Some(id) {
+                        let k = hashes.key(later)?;
+                        if !k.as_ref().is_some_and(|k| state::up_to_date(&p.out, later, k, &mut hashes)) {
                             members.push(j);
                         }
                     }
