@@ -1,6 +1,6 @@
 # pgser set-up: `make demo` runs the main job on data/, `make test` runs every test.
 # Each target installs what it needs: MuJoCo's shared library from the mujoco==3.17.0 wheel
-# (SPEC §4.2), the Fetch model assets from the gymnasium-robotics==1.4.2 wheel, and a Python venv
+# (docs/domain.md), the Fetch model assets from the gymnasium-robotics==1.4.2 wheel, and a Python venv
 # for cross-checks. Nothing outside the repo is touched.
 
 PYTHON ?= python3
@@ -15,7 +15,7 @@ ASSETS_DIR := $(DEPS)/gymnasium_robotics/assets
 ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 CARGO ?= cargo
 
-.PHONY: all build test demo bench bench-venv deps venv fuzz clean
+.PHONY: all build test check-wgpu demo bench bench-venv deps venv fuzz clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP)
@@ -58,6 +58,12 @@ test: deps venv
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
 	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
+	$(MAKE) check-wgpu
+
+# The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
+# wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).
+check-wgpu:
+	$(CARGO) check --release --features wgpu --lib --bins
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and
