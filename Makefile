@@ -53,12 +53,11 @@ build: deps
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-test: deps venv
+test: deps venv check-wgpu
 	$(CARGO) test --release
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
 	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
-	$(MAKE) check-wgpu
 
 # The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
 # wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).

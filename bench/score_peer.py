@@ -13,7 +13,7 @@ score each row with a checkpoint's twin critics, the way a researcher would writ
     fastest tried on the 2-core benchmark machine: ~230 GFLOP/s, vs ~145 at 8192 and ~107 for all
     490k rows at once, whose activations fall out of cache); the weights come
     from the safetensors file through numpy (no safetensors package, as tests/py/check_checkpoint.py);
-  - pyarrow writes the transition table (SPEC §3.2 columns, same names and types as pgser's)
+  - pyarrow writes the transition table (docs/tables.md columns, same names and types as pgser's)
     with zstd (pyarrow's default level, 1; other writer settings at pyarrow's defaults, which
     means dictionary encoding is tried on every column: --no-dictionary turns it off as pgser's
     writer does: on the 490k-row FetchPush benchmark 32.3 -> 26.1 MB and 0.62 -> 0.49 s).

@@ -1,5 +1,5 @@
 //! `pgser-etl collect`: simulate episodes in the Fetch environments and write them as a
-//! trajectory table (`.parquet`, SPEC §3.1) or a WGCSL pickle (`.pkl`, SPEC §4.1).
+//! trajectory table (`.parquet`, docs/tables.md) or a WGCSL pickle (`.pkl`, docs/domain.md).
 //!
 //! Episodes are simulated in parallel a chunk at a time, so memory holds one chunk however many
 //! episodes are asked for. Nothing depends on the thread count: episode i resets with seed

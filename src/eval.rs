@@ -1,4 +1,4 @@
-//! Evaluation: the deterministic policy in the task's MuJoCo environment (SPEC §2).
+//! Evaluation: the deterministic policy in the task's MuJoCo environment (docs/domain.md).
 //!
 //! Episodes run in lockstep so the policy sees one batch of all live episodes per step (one
 //! forward pass instead of E), while the environments step in parallel on rayon's pool. Episode

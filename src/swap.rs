@@ -49,7 +49,8 @@ impl GoalPool {
 }
 
 /// Transitions with the goals they are trained on, one row per (transition, goal), as flat
-/// float32 rows (`obs` holds `n · obs_dim` values, and so on): the columns of SPEC §3.2 but `q`.
+/// float32 rows (`obs` holds `n · obs_dim` values, and so on): the transition table's columns
+/// (docs/tables.md) but `q`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SwappedRows {
     pub n: usize,

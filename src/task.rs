@@ -1,7 +1,7 @@
 //! The tasks pgser knows: their episode length, dimensions, and goal metric.
 //!
 //! Values from Farama-Foundation/Gymnasium-Robotics 1.4.2 (`envs/fetch/*.py`,
-//! `envs/shadow_dexterous_hand/manipulate.py`); see SPEC §4.2. A task pgser does not know can
+//! `envs/shadow_dexterous_hand/manipulate.py`); see docs/domain.md. A task pgser does not know can
 //! still be used for data jobs: its dimensions come from the data and its success threshold from
 //! the user (`Task::custom`), with the Euclidean goal metric.
 

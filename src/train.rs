@@ -85,7 +85,7 @@ pub struct MetricsLine {
     pub eval: Option<EvalReport>,
 }
 
-/// What `--json` prints (SPEC §2).
+/// What `--json` prints (docs/checkpoint.md, JSON summaries).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
     pub updates: u64,

@@ -1,4 +1,4 @@
-//! The checkpoint file (SPEC §3.3): one safetensors file that PyTorch, numpy or any safetensors
+//! The checkpoint file (docs/checkpoint.md): one safetensors file that PyTorch, numpy or any safetensors
 //! reader can open, plus a `.resume` file beside it with the rest of the training state.
 //!
 //! Layout of `model.ckpt` (float32 tensors):

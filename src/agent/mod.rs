@@ -37,7 +37,7 @@ pub enum Algo {
     Td3bc,
 }
 
-/// Every hyper-parameter of the update, with the defaults of SPEC §4.3 (GoFAR's goal-conditioned
+/// Every hyper-parameter of the update, with the defaults of docs/domain.md (GoFAR's goal-conditioned
 /// offline settings, sfujim/TD3_BC's losses). Each field is a `pgser-train` flag.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
 pub struct AgentConfig {

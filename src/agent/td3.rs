@@ -2,7 +2,7 @@
 //!
 //! Follows sfujim/TD3_BC `TD3_BC.py` (losses, noise, delay, Polyak) with GoFAR's
 //! goal-conditioned settings (normalized [s, g] inputs, γ = 0.98, target clipped to
-//! [−1/(1−γ), 0], no terminal masking: a goal-reaching task never ends early). SPEC §4.3.
+//! [−1/(1−γ), 0], no terminal masking: a goal-reaching task never ends early); docs/domain.md.
 
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};

@@ -12,7 +12,7 @@
 //! σ = 0.1: 1.00, 0.97, 1.00, 0.23; σ = 0.2: 1.00, 0.89, 0.97, 0.03. Slide is the fragile one:
 //! its strikes need millimetre alignment and a speed right to a few percent (`expert_slide.rs`).
 //!
-//! Observation layout (SPEC §4.2; `fetch_obs.rs`): grip_pos 0..3, object_pos 3..6, object −
+//! Observation layout (docs/domain.md; `fetch_obs.rs`): grip_pos 0..3, object_pos 3..6, object −
 //! grip 6..9, finger qpos 9..11, object euler 11..14, object velocity relative to the gripper
 //! · dt 14..17, object angular velocity · dt 17..20, gripper velocity · dt 20..23, finger
 //! velocity · dt 23..25. Actions move the gripper's mocap target by `action[..3] · 5 cm` per step;

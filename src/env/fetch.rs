@@ -4,7 +4,7 @@
 //! Every MuJoCo call the Python environment makes is made here in the same order with the same
 //! inputs, down to the float32 rounding of the action and the stale kinematics an unblocked
 //! gripper leaves after `mj_step`: that is what keeps positions equal to Python's bit for bit
-//! (SPEC §4.2). Python helper names are kept in comments so the two can be read side by side.
+//! (docs/domain.md). Python helper names are kept in comments so the two can be read side by side.
 
 use std::path::Path;
 

@@ -1,5 +1,5 @@
 //! Goal-conditioned simulation environments: the gymnasium-robotics 1.4.2 Fetch v4 tasks on
-//! MuJoCo 3.17.0 (SPEC §4.2).
+//! MuJoCo 3.17.0 (docs/domain.md, tasks).
 //!
 //! They exist so pgser can collect trajectories and evaluate policies without Python. Being a
 //! port and not a look-alike is the point: with the same MuJoCo library, the same seed and the

@@ -2,7 +2,7 @@
 //!
 //! PGSER ranks swapped transitions by the pre-trained critic's Q(s, g_rand, a): a high Q means
 //! the goal looks reachable from s, which is what makes a swapped transition informative
-//! (SPEC §1, Alg. 2). Priorities are computed from the stored `q` column when the sampler is
+//! (Alg. 2; docs/domain.md). Priorities are computed from the stored `q` column when the sampler is
 //! built, so changing `--priority` or `--priority-alpha` never needs re-scoring.
 
 use anyhow::{Result, bail};

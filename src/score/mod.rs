@@ -1,6 +1,6 @@
 //! `pgser-etl score` (PGSER Alg. 2, step 2): materialize goal-swapped transitions of a
 //! trajectory table and score each with the pre-trained critic, w = min(Q1, Q2)(s, g, a), into a
-//! transition table (SPEC §3.2) that the final trainer samples by priority.
+//! transition table (docs/tables.md) that the final trainer samples by priority.
 //!
 //! Streaming, in parallel, reproducibly:
 //! - the achieved goals of the whole table (the swap pool, goal_dim floats per row) are read
@@ -51,12 +51,12 @@ pub const DEFAULT_SWAPS: usize = 4;
 /// fastest for K = 4 (larger chunks measured 6 % slower and 60 MB heavier).
 pub const CHUNK_ROWS: usize = 12_544;
 /// Rows per critic call. On burn's flex CPU backend 2048 was the fastest batch for FetchPush
-/// dims (≈ 320k rows/s; 4096 halves it: the activations fall out of cache), SPEC §4.4.
+/// dims (≈ 320k rows/s; 4096 halves it: the activations fall out of cache), docs/domain.md.
 pub const Q_BATCH: usize = 2048;
 /// Spawn key of the swap streams under `--seed` (chunk c uses `[STREAM_SWAP, c]`).
 const STREAM_SWAP: u64 = 0x5357_4150; // "SWAP"
 
-/// The transition table's columns (SPEC §3.2); vectors are float32 with non-null items.
+/// The transition table's columns (docs/tables.md); vectors are float32 with non-null items.
 pub fn schema(task: &Task) -> SchemaRef {
     let f = FloatType::Float32;
     Arc::new(Schema::new(vec![

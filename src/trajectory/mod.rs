@@ -1,4 +1,4 @@
-//! The trajectory table (SPEC §3.1): one row per observation, episodes contiguous and ordered
+//! The trajectory table (docs/tables.md): one row per observation, episodes contiguous and ordered
 //! by (episode, step). `desired_goal` and `action` are null on the last step, where WGCSL's
 //! `g` and `u` (T − 1 entries per episode) have nothing. [`Episodes`] loads a table for training.
 

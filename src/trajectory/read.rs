@@ -1,4 +1,4 @@
-//! Loading a trajectory table (SPEC §3.1) into memory for training.
+//! Loading a trajectory table (docs/tables.md) into memory for training.
 //!
 //! Training samples transitions uniformly and relabels goals from any later step of the same
 //! episode (HER "future"), so it needs random access to every episode: the whole table is held
