@@ -64,6 +64,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 from train_flops import flops_per_update  # noqa: E402
+from peer_python import last_json  # noqa: E402
 
 TASKS = {  # as bench_train.py
     "FetchReach": (10, 3, 4),
@@ -97,19 +98,6 @@ def has_module(python: str, module: str) -> str | None:
     if p.returncode != 0:
         last = (p.stderr.strip().splitlines() or ["?"])[-1]
         return f"no {module} in {python}: {last[:120]}"
-    return None
-
-
-def last_json(text: str) -> dict | None:
-    for line in reversed(text.splitlines()):
-        line = line.strip()
-        if line.startswith("{"):
-            try:
-                doc = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(doc, dict) and "updates_per_sec" in doc:
-                return doc
     return None
 
 

@@ -77,17 +77,7 @@ def run_measured(cmd: list[str], env: dict, out_path: Path, err_path: Path, key:
         wall = time.perf_counter() - t0
     res = {"rc": os.waitstatus_to_exitcode(status), "wall_s": wall,
            "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_bytes": ru.ru_maxrss * 1024}
-    res["report"] = None
-    for line in reversed(out_path.read_text(errors="replace").splitlines()):
-        line = line.strip()
-        if line.startswith("{"):
-            try:
-                doc = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(doc, dict) and key in doc:
-                res["report"] = doc
-                break
+    res["report"] = peer_python.last_json(out_path.read_text(errors="replace"), key)
     return res
 
 

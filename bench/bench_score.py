@@ -245,19 +245,6 @@ def parse_time_v(text: str) -> dict:
     return out
 
 
-def last_json(path: Path, key: str):
-    for line in reversed(path.read_text(errors="replace").splitlines()):
-        line = line.strip()
-        if line.startswith("{"):
-            try:
-                d = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(d, dict) and key in d:
-                return d
-    return None
-
-
 def tail(path: Path, n=30):
     try:
         return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
@@ -383,7 +370,7 @@ def main(argv=None):
                 busy_before, waited = wait_quiet(args.quiet_below, args.quiet_wait)
                 out, err = logs / f"{side}_{r}.out", logs / f"{side}_{r}.err"
                 m = run_timed(cmds[side], env, out, err)
-                rep = last_json(out, "rows_per_sec")
+                rep = peer_python.last_json(out.read_text(errors="replace"), "rows_per_sec")
                 if m["rc"] != 0 or rep is None:
                     print(f"\n{side} failed (exit {m['rc']}): {shlex.join(cmds[side])}\n--- stdout\n{tail(out)}\n"
                           f"--- stderr\n{tail(err)}", file=sys.stderr)
@@ -410,7 +397,7 @@ def main(argv=None):
     with open(vout, "wb") as f:
         subprocess.run([args.python, str(HERE / "score_peer.py"), "--q", str(q), "--verify", str(outs["pgser"]),
                         "--against", str(outs["peer"]), "--threads", t], stdout=f, stderr=subprocess.STDOUT, env=env)
-    check = last_json(vout, "q_max_abs_diff")
+    check = peer_python.last_json(vout.read_text(errors="replace"), "q_max_abs_diff")
     if not args.keep_outputs:
         for p in outs.values():
             p.unlink(missing_ok=True)

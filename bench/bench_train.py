@@ -83,23 +83,8 @@ def run_measured(cmd: list[str], env: dict, cpus: set[int] | None, out_path: Pat
     res = {"rc": os.waitstatus_to_exitcode(status), "wall_s": wall,
            "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_bytes": ru.ru_maxrss * 1024}
     res["cores_busy"] = res["cpu_s"] / wall if wall > 0 else float("nan")
-    res["report"] = last_json_line(out_path)
+    res["report"] = peer_python.last_json(out_path.read_text(errors="replace"))
     return res
-
-
-def last_json_line(path: Path) -> dict | None:
-    """The child's figures: the last stdout line that is a JSON object with updates_per_sec
-    (anything it logs before that is ignored)."""
-    for line in reversed(path.read_text(errors="replace").splitlines()):
-        line = line.strip()
-        if line.startswith("{"):
-            try:
-                doc = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(doc, dict) and "updates_per_sec" in doc:
-                return doc
-    return None
 
 
 def tail(path: Path, n: int = 30) -> str:

@@ -1,4 +1,4 @@
-"""The benchmark peers' interpreter, shared by bench_train.py, bench_sampler.py and bench_score.py.
+"""What the benchmark drivers share: the peers' interpreter, and reading a child's JSON figures.
 
 `make bench` passes `--python bench-out/torch-venv/bin/python`, a path relative to the repo; the
 drivers run some children in other folders (cwd="/" or a work folder), so the path is made
@@ -8,6 +8,7 @@ the venv's packages.)
 """
 from __future__ import annotations
 
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -29,3 +30,18 @@ def resolve(arg: str | None, packages: str) -> str:
         return str(DEFAULT)
     sys.exit(f"no interpreter for the peer: {DEFAULT} does not exist.\n"
              f"Create it (from the repo root) with:\n    {hint}\nor pass --python PATH.")
+
+
+def last_json(text: str, key: str = "updates_per_sec") -> dict | None:
+    """A child's figures: the last line of its output that is a JSON object holding `key`
+    (anything it logs before that is ignored)."""
+    for line in reversed(text.splitlines()):
+        line = line.strip()
+        if line.startswith("{"):
+            try:
+                doc = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(doc, dict) and key in doc:
+                return doc
+    return None
