@@ -70,6 +70,15 @@ check-wgpu:
 demo: build
 	./target/release/pgser-etl pipeline run pipelines/demo.toml
 	@./target/release/pgser-train eval --random --task FetchReach --episodes 50 | sed 's/^/for scale: /'
+	@echo
+	@echo "What Table 2 shows: the data is 20 expert FetchReach episodes and nothing else. Every goal the"
+	@echo "baseline trains on is one its own trajectory reaches, so its critic sees almost only rewards"
+	@echo "of 0, learns nothing about which action reaches which goal, and the agent scores about 0, below"
+	@echo "random actions. The -swap and -mem agents also train on goals swapped in from other episodes,"
+	@echo "which these actions do not reach: that is what takes them to about 47 of 50 (goal swapping,"
+	@echo "Alg. 1). -mem is no better than -swap here, as every swapped row is expert data; the paper's"
+	@echo "gain from prioritizing the swaps is about large expert + random data and far longer training:"
+	@echo "pipelines/fetch_*.toml run that, RESULTS.md reports it. Why this data: pipelines/demo.toml."
 
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
