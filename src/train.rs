@@ -27,6 +27,9 @@ use crate::sampler::{self, SamplerConfig};
 use crate::trajectory::Episodes;
 use rayon::prelude::*;
 
+mod bench;
+pub use bench::{BenchReport, SamplerBenchReport, bench_agents, bench_sampler};
+
 /// The training job's settings; with the agent's, this is everything a run depends on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
 pub struct TrainConfig {
@@ -533,129 +536,4 @@ fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
                 .with_context(|| format!("{}: line {} is not a metrics record", path.display(), i + 1))
         })
         .collect()
-}
-
-/// `pgser-train bench`: updates/s of the agent alone on random batches of a task's dimensions,
-/// the figure `make bench` compares with the same update in PyTorch; with `agents` > 1, a stack
-/// of that many agents trained at once (agent-updates/s = agents × updates/s).
-#[derive(Debug, Clone, Serialize)]
-pub struct BenchReport {
-    pub task: String,
-    pub algo: crate::agent::Algo,
-    pub backend: String,
-    pub threads: usize,
-    pub batch_size: usize,
-    pub agents: usize,
-    pub updates: u64,
-    pub seconds: f64,
-    pub updates_per_sec: f64,
-    pub agent_updates_per_sec: f64,
-}
-
-#[allow(clippy::too_many_arguments)]
-pub fn bench_agents(
-    task: &crate::task::Task,
-    agent_cfg: &AgentConfig,
-    batch_size: usize,
-    updates: u64,
-    warmup: u64,
-    device: Device,
-    backend: &str,
-    agents: usize,
-) -> BenchReport {
-    let mut rng = NpRandom::new(0);
-    let mut uniform = |n: usize| (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<f32>>();
-    let n = batch_size;
-    // Eight distinct sets of batches (one per agent), cycled, so data generation is not timed.
-    let sets: Vec<Vec<Batch>> = (0..8)
-        .map(|_| {
-            (0..agents)
-                .map(|_| Batch {
-                    n,
-                    obs: uniform(n * task.obs_dim),
-                    goal: uniform(n * task.goal_dim),
-                    action: uniform(n * task.act_dim),
-                    reward: uniform(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
-                    next_obs: uniform(n * task.obs_dim),
-                    weight: vec![],
-                })
-                .collect()
-        })
-        .collect();
-    let norm = Normalizer::identity(task, agent_cfg.norm_clip);
-    let seeds: Vec<u64> = (0..agents as u64).collect();
-    let mut agent = Agent::stack_new(agent_cfg.clone(), task.clone(), vec![norm; agents], &seeds, device);
-    let mut run = |k: u64| {
-        let mut last = None;
-        for i in 0..k {
-            last = Some(agent.update(&sets[i as usize % sets.len()]));
-        }
-        // Reading the last loss waits for all queued work (asynchronous backends).
-        if let Some(s) = last {
-            s.read();
-        }
-    };
-    run(warmup);
-    let t0 = Instant::now();
-    run(updates);
-    let seconds = t0.elapsed().as_secs_f64();
-    BenchReport {
-        task: task.name.clone(),
-        algo: agent_cfg.algo,
-        backend: backend.to_string(),
-        threads: rayon::current_num_threads(),
-        batch_size,
-        agents,
-        updates,
-        seconds,
-        updates_per_sec: updates as f64 / seconds,
-        agent_updates_per_sec: (updates * agents as u64) as f64 / seconds,
-    }
-}
-
-/// `pgser-train bench-sampler`: prioritized batches/s from a scored table, from disk or memory.
-#[derive(Debug, Clone, Serialize)]
-pub struct SamplerBenchReport {
-    pub rows: usize,
-    pub batch_size: usize,
-    pub batches: u64,
-    pub in_memory: bool,
-    /// Seconds to read q and build the sum tree (and, in memory, load the rows).
-    pub setup_seconds: f64,
-    pub seconds: f64,
-    pub batches_per_sec: f64,
-    pub samples_per_sec: f64,
-}
-
-pub fn bench_sampler(
-    path: &Path,
-    cfg: &PriorityConfig,
-    k: usize,
-    batches: u64,
-    in_memory: bool,
-) -> Result<SamplerBenchReport> {
-    let t0 = Instant::now();
-    let table = ScoredTable::open(path)?;
-    let rows = table.rows;
-    let beta = Arc::new(beta_of(&table)?);
-    let mut s = ScoredSampler::start(table, beta, cfg, k, 0, 0, in_memory)?;
-    let first = s.next_batch()?; // the first block is ready: setup is over
-    let setup_seconds = t0.elapsed().as_secs_f64();
-    drop(first);
-    let t1 = Instant::now();
-    for _ in 1..batches {
-        s.next_batch()?;
-    }
-    let seconds = t1.elapsed().as_secs_f64();
-    let per_sec = (batches - 1) as f64 / seconds;
-    Ok(SamplerBenchReport {
-        rows,
-        batch_size: k,
-        batches,
-        in_memory,
-        setup_seconds,
-        seconds,
-        batches_per_sec: per_sec,
-        samples_per_sec: per_sec * k as f64,
-    })
 }
