@@ -15,7 +15,7 @@ ASSETS_DIR := $(DEPS)/gymnasium_robotics/assets
 ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 CARGO ?= cargo
 
-.PHONY: all build test check-wgpu demo bench bench-venv deps venv fuzz clean
+.PHONY: all build test check-wgpu slurm-deps demo bench bench-venv deps venv fuzz clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP)
@@ -53,11 +53,24 @@ build: deps
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-test: deps venv check-wgpu
+test: deps venv check-wgpu slurm-deps
 	$(CARGO) test --release
+	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
+	  echo "make test: tests/slurm.rs NOT run (each test printed SKIPPED): no Slurm here (slurm-wlm, munge)"
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
 	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
+
+# tests/slurm.rs starts a single-node Slurm from Debian's packages: installed here when missing
+# and we are root with apt-get. Never fatal: without them those tests print SKIPPED.
+slurm-deps:
+	@if { command -v slurmctld || [ -x /usr/sbin/slurmctld ]; } >/dev/null 2>&1 && \
+	    { command -v munged || [ -x /usr/sbin/munged ]; } >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  { DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends slurm-wlm munge >/dev/null || \
+	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+	      slurm-wlm munge >/dev/null; }; } || echo "make slurm-deps: could not install slurm-wlm and munge"; \
+	else echo "make slurm-deps: no slurm-wlm/munge, and not root with apt-get: tests/slurm.rs will be skipped"; fi
 
 # The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
 # wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).

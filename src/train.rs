@@ -28,6 +28,7 @@ use crate::trajectory::Episodes;
 use rayon::prelude::*;
 
 mod bench;
+pub mod stop;
 pub use bench::{BenchReport, SamplerBenchReport, bench_agents, bench_sampler};
 
 /// The training job's settings; with the agent's, this is everything a run depends on.
@@ -198,6 +199,7 @@ impl Run {
 /// The cells share `schedule`, the task, and the update count they start from.
 pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &ProgressBar) -> Result<Vec<Summary>> {
     let first = cells.first().context("no cell to train")?;
+    let _training = stop::Training::start();
     for c in cells {
         if schedule(&c.cfg) != schedule(&first.cfg) {
             bail!(
@@ -247,7 +249,20 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
     bar.set_position(agent.updates);
     let mut update_time = 0.0f64;
     let start_updates = agent.updates;
-    while agent.updates < cfg.updates {
+    let mut saved_at = None;
+    loop {
+        // SIGTERM (`stop`): save where we are (unless a scheduled save just did) and stop.
+        if stop::requested() && agent.updates < cfg.updates {
+            if saved_at != Some(agent.updates) {
+                for (i, run) in runs.iter().enumerate() {
+                    run.save(&agent, i)?;
+                }
+            }
+            return Err(stop::Interrupted { updates: agent.updates, of: cfg.updates }.into());
+        }
+        if agent.updates >= cfg.updates {
+            break;
+        }
         let t0 = Instant::now();
         // Each cell samples from its own streams, so doing it in parallel changes no draw.
         let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
@@ -284,6 +299,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
             for (i, run) in runs.iter().enumerate() {
                 run.save(&agent, i)?;
             }
+            saved_at = Some(u);
         }
         bar.set_position(u);
     }

@@ -5,44 +5,9 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use common::{etl, repo, text};
-
-/// FetchReach from the committed sample pickles, with counts small enough for seconds.
-fn pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
-    let data = repo().join("data");
-    let toml = format!(
-        r#"
-name = "tiny"
-task = "FetchReach"
-out = "out"
-[data]
-pickles = ["{e}", "{r}"]
-episodes = [12, 24]
-[train]
-batch_size = 64
-eval_every = 0
-eval_episodes = 4
-save_every = 0
-log_every = 10
-[pretrain]
-updates = 40
-[score]
-swaps = {swaps}
-[report]
-seed = 1
-[agents]
-seeds = [0, 1]
-updates = {agent_updates}
-"#,
-        e = data.join("fetch_reach_expert_50.pkl").display(),
-        r = data.join("fetch_reach_random_200.pkl").display(),
-    );
-    let path = dir.join("tiny.toml");
-    std::fs::write(&path, toml).unwrap();
-    path
-}
+use common::{etl, snapshot, text, tiny_pipeline as pipeline};
 
 /// Runs the pipeline; returns step name → status.
 fn run(file: &Path, extra: &[&str]) -> BTreeMap<String, String> {
@@ -155,25 +120,6 @@ fn bad_pipelines_fail_in_one_line_before_any_work() {
     }
     let out = etl().args(["pipeline", "run"]).arg(&file).args(["--until", "nope"]).output().unwrap();
     assert!(text(&out.stderr).contains("--until nope: no such step"), "{}", text(&out.stderr));
-}
-
-/// Every file under `out` except the step records, by path relative to `out`.
-fn snapshot(out: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, files: &mut BTreeMap<PathBuf, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                if p.file_name().unwrap() != ".pipeline" {
-                    walk(root, &p, files);
-                }
-            } else {
-                files.insert(p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    let mut files = BTreeMap::new();
-    walk(out, out, &mut files);
-    files
 }
 
 #[test]
@@ -291,5 +237,83 @@ fn a_killed_stack_resumes_every_agent_as_unstacked_uninterrupted_runs_end() {
             let metrics = |p: &Path| std::fs::read(pgser::train::metrics_path(p)).unwrap();
             assert!(metrics(&a) == metrics(&b), "{f}: metrics differ");
         }
+    }
+}
+
+#[test]
+fn jobs_2_writes_what_jobs_1_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 2);
+    let out = dir.path().join("out");
+    run(&file, &["--jobs", "1"]);
+    let one = snapshot(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+    let two = run(&file, &["--jobs", "2"]);
+    assert!(two.values().all(|s| s == "ran"), "{two:?}");
+    let got = snapshot(&out);
+    assert_eq!(got.keys().collect::<Vec<_>>(), one.keys().collect::<Vec<_>>());
+    for (path, bytes) in &one {
+        assert!(&got[path] == bytes, "{} differs between --jobs 1 and --jobs 2", path.display());
+    }
+    let o = etl().args(["pipeline", "run"]).arg(&file).args(["--jobs", "2", "--partition", "x"]).output().unwrap();
+    assert!(text(&o.stderr).contains("--partition is for --executor slurm"), "{}", text(&o.stderr));
+}
+
+#[test]
+fn sigterm_saves_a_training_step_that_resumes_to_the_uninterrupted_bytes() {
+    // `pipeline step`, what a Slurm job runs, stopped by SIGTERM halfway through a pre-training
+    // that has no scheduled save: it saves there and fails; the next run resumes and ends with
+    // the bytes of a run that was never stopped.
+    let dir = tempfile::tempdir().unwrap();
+    let file = pipeline(dir.path(), 20, 2);
+    let toml =
+        std::fs::read_to_string(&file).unwrap().replace("[pretrain]\nupdates = 40", "[pretrain]\nupdates = 1500");
+    std::fs::write(&file, &toml).unwrap();
+    let out = dir.path().join("out");
+    // Run from the folder with a relative path, so that the paths the outputs record are the
+    // same as those of the uninterrupted run in another folder.
+    let here = |dir: &Path, args: &[&str]| {
+        let o = etl().current_dir(dir).args(["pipeline", "run", "tiny.toml", "--json"]).args(args).output().unwrap();
+        assert!(o.status.success(), "pipeline failed: {}", text(&o.stderr));
+        let r: serde_json::Value = serde_json::from_str(text(&o.stdout).lines().last().unwrap()).unwrap();
+        r["steps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
+            .collect::<BTreeMap<_, _>>()
+    };
+    here(dir.path(), &["--until", "convert"]);
+    let mut child = etl()
+        .current_dir(dir.path())
+        .args(["pipeline", "step", "tiny.toml", "pretrain", "--threads", "2"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut said = String::new();
+    while !said.contains("pretrain: running") {
+        assert!(std::io::BufRead::read_line(&mut stderr, &mut said).unwrap() > 0, "no start: {said}");
+    }
+    std::thread::sleep(std::time::Duration::from_millis(1000));
+    // SAFETY: signals the child this test started.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    std::io::Read::read_to_string(&mut stderr, &mut said).unwrap();
+    assert!(!child.wait().unwrap().success(), "{said}");
+    let at = said.split("stopped by SIGTERM at update ").nth(1).unwrap_or_else(|| panic!("no SIGTERM save: {said}"));
+    let updates: u64 = at.split(' ').next().unwrap().parse().unwrap();
+    assert!(updates > 0 && updates < 1500, "stopped at update {updates}: {said}");
+    assert_eq!(said.trim().lines().filter(|l| l.contains("error")).count(), 1, "{said}");
+    assert!(!out.join(".pipeline/pretrain.json").exists(), "an interrupted step was recorded");
+
+    let resumed = here(dir.path(), &["--until", "pretrain"]);
+    assert_eq!(resumed["pretrain"], "resumed", "{resumed:?}");
+    let alone = tempfile::tempdir().unwrap();
+    std::fs::write(alone.path().join("tiny.toml"), &toml).unwrap();
+    here(alone.path(), &["--until", "pretrain"]);
+    let (want, got) = (snapshot(&alone.path().join("out")), snapshot(&out));
+    assert_eq!(got.keys().collect::<Vec<_>>(), want.keys().collect::<Vec<_>>());
+    for (path, bytes) in &want {
+        assert!(&got[path] == bytes, "{} differs from an uninterrupted run", path.display());
     }
 }

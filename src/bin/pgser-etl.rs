@@ -179,12 +179,20 @@ enum PipelineCommand {
     /// Run the steps of a pipeline file in order, skipping those already up to date.
     #[command(after_help = "Examples:\n  pgser-etl pipeline run pipelines/demo.toml\n  \
         pgser-etl pipeline run pipelines/fetch_push.toml --until score     # data and scored swaps only\n  \
-        pgser-etl pipeline run pipelines/fetch_push.toml --dry-run         # what would run, and its cost\n\n\
+        pgser-etl pipeline run pipelines/fetch_push.toml --dry-run         # what would run, and its cost\n  \
+        pgser-etl pipeline run pipelines/demo.toml --jobs 2                # independent steps side by side\n  \
+        pgser-etl pipeline run pipelines/fetch_push.toml --executor slurm --partition gpu --gpus-per-task 1 \\\n      \
+        --device wgpu --sbatch-arg=--time=12:00:00 --array-parallelism 8  # as Slurm jobs\n\n\
         Before any step runs, the settings, input pickles, out folder and --device are checked, and the\n\
         cost of the steps to run is printed (updates, a wall time timed on this machine, disk).\n\
         A step is skipped when its record in OUT/.pipeline/ matches the sha256 of its parameters and\n\
         inputs (and pgser's version) and its outputs are unchanged; rerun after a crash or an edit and\n\
-        only what changed runs (an interrupted training step continues from its last checkpoint).")]
+        only what changed runs (an interrupted training step continues from its last checkpoint).\n\n\
+        --executor slurm submits each step that is not up to date as an sbatch job depending (afterok)\n\
+        on the jobs writing its inputs, the agent grid as one job array (one element per stack of\n\
+        `[agents] batch` cells), each job running `pgser-etl pipeline step`. Logs: OUT/.pipeline/logs/.\n\
+        A training job sent SIGTERM (time limit, preemption, scancel --signal=TERM) saves its checkpoint\n\
+        and fails; run again and it continues. See `pgser-etl pipeline status`.")]
     Run {
         /// The pipeline file (TOML; paths in it are relative to its folder).
         file: PathBuf,
@@ -207,7 +215,74 @@ enum PipelineCommand {
         /// Print the run's report as one JSON line on stdout.
         #[arg(long)]
         json: bool,
+        /// Where the steps run: here, or as Slurm jobs submitted with sbatch.
+        #[arg(long, value_enum, default_value = "local")]
+        executor: pipeline::Executor,
+        /// Local: run up to N independent steps (agent stacks, the report) at once, splitting
+        /// --threads between them. Outputs do not depend on it.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+        jobs: u64,
+        /// Slurm: the partition of every job.
+        #[arg(long)]
+        partition: Option<String>,
+        /// Slurm: one more sbatch argument for every job (repeatable): --sbatch-arg=--time=4:00:00.
+        #[arg(long = "sbatch-arg", value_name = "ARG", allow_hyphen_values = true)]
+        sbatch_args: Vec<String>,
+        /// Slurm: at most N elements of the agent array run at once (--array=…%N).
+        #[arg(long, value_name = "N")]
+        array_parallelism: Option<usize>,
+        /// Slurm: GPUs for each training and scoring job.
+        #[arg(long, value_name = "N")]
+        gpus_per_task: Option<usize>,
+        /// Slurm: wait for the jobs, then print the same summary as a local run (exit 1 if a
+        /// step failed); without it, print the job ids and return.
+        #[arg(long)]
+        wait: bool,
     },
+    /// Run named steps of a pipeline file as `pipeline run` would at their turn (what each Slurm job runs).
+    #[command(after_help = "Example:\n  pgser-etl pipeline step pipelines/demo.toml pretrain\n  \
+        pgser-etl pipeline step pipelines/demo.toml 'agent td3bc_mem_s0' 'agent td3bc_mem_s1'\n\n\
+        Each step is skipped when up to date, takes its lock in OUT/.pipeline/locks/ first (a second\n\
+        runner waits, then finds it up to date), and a training step continues from its checkpoint.\n\
+        Agent cells of one stack train as one stack. Their inputs must exist. On SIGTERM a training\n\
+        step saves its checkpoint at the next update and exits 1; running it again continues it.")]
+    Step {
+        /// The pipeline file.
+        file: PathBuf,
+        /// Step names as `pipeline run` prints them (`pretrain`, `agent td3bc_mem_s0`, …).
+        #[arg(required = true)]
+        steps: Vec<String>,
+        /// Where the networks run.
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: Backend,
+        /// Worker threads (default: all cores this process may use). Results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Where each step of a pipeline stands: up to date, pending, running, failed or not started.
+    #[command(after_help = "Example:\n  pgser-etl pipeline status pipelines/fetch_push.toml\n\n\
+        From the step records, the step locks and, for steps submitted with --executor slurm, squeue.\n\
+        A failed step's line names its log.")]
+    Status {
+        /// The pipeline file.
+        file: PathBuf,
+        /// Print the states as one JSON line on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Prints a run's report: its tables and summary, or one JSON line.
+fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(r)?);
+    } else {
+        for t in [&r.table1, &r.results].into_iter().flatten() {
+            println!("{}", std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?);
+        }
+        print!("{}", pipeline::render(r));
+    }
+    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -321,23 +396,78 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Pipeline(PipelineCommand::Run { file, until, dry_run, no_measure, device, threads, json }) => {
+        Command::Pipeline(PipelineCommand::Run {
+            file,
+            until,
+            dry_run,
+            no_measure,
+            device,
+            threads,
+            json,
+            executor,
+            jobs,
+            partition,
+            sbatch_args,
+            array_parallelism,
+            gpus_per_task,
+            wait,
+        }) => {
+            let slurm_only = [
+                ("--partition", partition.is_some()),
+                ("--sbatch-arg", !sbatch_args.is_empty()),
+                ("--array-parallelism", array_parallelism.is_some()),
+                ("--gpus-per-task", gpus_per_task.is_some()),
+                ("--wait", wait),
+            ];
+            let p = pipeline::Pipeline::load(&file)?;
+            let log = |line: &str| eprintln!("pipeline {}: {line}", p.name);
+            if executor == pipeline::Executor::Slurm && !dry_run {
+                anyhow::ensure!(jobs == 1, "--jobs is for --executor local; Slurm runs independent steps at once");
+                let o = pipeline::slurm::SlurmOptions {
+                    until,
+                    device,
+                    threads,
+                    partition,
+                    sbatch_args,
+                    array_parallelism,
+                    gpus_per_task,
+                };
+                let sub = pipeline::slurm::submit(&p, &file, &o, &log)?;
+                if !wait {
+                    for j in &sub.jobs {
+                        println!("{}", if json { serde_json::to_string(j)? } else { j.id.clone() });
+                    }
+                    return Ok(());
+                }
+                let r = pipeline::slurm::wait(&p, &sub, &log)?;
+                print_report(&r, json)?;
+                return pipeline::finished(&r);
+            }
+            if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given) {
+                anyhow::bail!("{flag} is for --executor slurm");
+            }
+            if let Some(n) = threads {
+                rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+            }
+            let o = pipeline::RunOptions { until, dry_run, device, measure: !no_measure, jobs: jobs as usize, threads };
+            let r = pipeline::run(&p, &o, &log)?;
+            print_report(&r, json)
+        }
+        Command::Pipeline(PipelineCommand::Step { file, steps, device, threads }) => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
             }
             let p = pipeline::Pipeline::load(&file)?;
-            let o = pipeline::RunOptions { until, dry_run, device, measure: !no_measure };
-            let r = pipeline::run(&p, &o, &mut |line| eprintln!("pipeline {}: {line}", p.name))?;
+            pipeline::step(&p, &steps, device, &|line| eprintln!("pipeline {}: {line}", p.name))?;
+            Ok(())
+        }
+        Command::Pipeline(PipelineCommand::Status { file, json }) => {
+            let p = pipeline::Pipeline::load(&file)?;
+            let states = pipeline::status(&p)?;
             if json {
-                println!("{}", serde_json::to_string(&r)?);
+                println!("{}", serde_json::to_string(&states)?);
             } else {
-                for t in [&r.table1, &r.results].into_iter().flatten() {
-                    println!(
-                        "{}",
-                        std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?
-                    );
-                }
-                print!("{}", pipeline::render(&r));
+                print!("{}", pipeline::render_status(&p, &states));
             }
             Ok(())
         }

@@ -20,6 +20,11 @@
 //! The key includes pgser's version (`state.rs` says why a version rather than a finer code
 //! identity), so upgrading pgser reruns every step once, training from scratch.
 //!
+//! Where steps run: one after another here, several at once with `--jobs` (`exec.rs`), or as
+//! Slurm jobs (`slurm.rs`), each job running `pipeline step` — every runner takes a step's lock
+//! (`lock.rs`) and applies the rules above through the same function (`exec::run_unit`), so two
+//! runs of one pipeline never run a step twice. `status.rs` says where each step stands.
+//!
 //! Before the first step runs, everything that does not need an earlier step's output is
 //! checked (`check.rs`: settings, input pickles, the report's positives, the out folder, the
 //! device), and the cost of the steps that will run is estimated and printed (`cost.rs`: updates,
@@ -28,24 +33,28 @@
 
 mod check;
 mod cost;
+mod exec;
+mod lock;
+pub mod slurm;
 mod spec;
 mod state;
+mod status;
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use serde::Serialize;
 use serde_json::json;
 
 pub use cost::{Cost, Measured, StepCost};
 pub use spec::{Data, Pipeline, Variant, normalize, train_config};
 use state::Hashes;
+pub use status::{StepState, render as render_status, status};
 
-use crate::agent::{Algo, Backend, checkpoint};
+use crate::agent::{Algo, Backend};
 use crate::env::policy::{PolicyKind, PolicySpec};
 use crate::train::{TrainConfig, metrics_path};
-use crate::{collect, progress, report, score, trajectory};
+use crate::{collect, report, score, trajectory};
 
 /// What one step does, with everything it needs.
 enum Action {
@@ -78,11 +87,15 @@ pub struct Step {
 #[derive(Debug, Clone, Serialize)]
 pub struct StepReport {
     pub name: String,
-    /// `ran`, `resumed` (a training step continued from its checkpoint), `up to date`, or with
-    /// `--dry-run` `would run`.
+    /// `ran`, `resumed` (a training step continued from its checkpoint), `up to date`, with
+    /// `--dry-run` `would run`; through Slurm also `failed` (its job failed) and `not run` (its
+    /// job was cancelled as a step it reads failed).
     pub status: String,
     pub seconds: f64,
     pub outputs: Vec<PathBuf>,
+    /// The Slurm job's log of a step that failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub log: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -97,6 +110,15 @@ pub struct RunReport {
     pub cost: Cost,
 }
 
+/// Where `pipeline run` runs the steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Executor {
+    /// On this machine (`--jobs` at once).
+    Local,
+    /// As Slurm jobs (`slurm.rs`).
+    Slurm,
+}
+
 #[derive(Debug, Clone)]
 pub struct RunOptions {
     /// Stop after the step of this name (e.g. `score` to prepare the data and Q only).
@@ -107,6 +129,10 @@ pub struct RunOptions {
     /// Time a few updates, episodes and scores on this machine for the cost estimate (a second
     /// or two); without it the cost says updates and disk but no wall time.
     pub measure: bool,
+    /// Units (steps, stacks of agents) run at once; 1 runs them one after another.
+    pub jobs: usize,
+    /// Threads to split between the `jobs` (None: rayon's pool, i.e. `--threads` or all cores).
+    pub threads: Option<usize>,
 }
 
 /// The steps of `p`, in the order they run.
@@ -261,7 +287,7 @@ fn assign_stacks(steps: &mut [Step], batch: usize) {
     }
 }
 
-fn stack_of(step: &Step) -> Option<usize> {
+pub(crate) fn stack_of(step: &Step) -> Option<usize> {
     match &step.action {
         Action::Train { stack, .. } => *stack,
         _ => None,
@@ -272,6 +298,7 @@ fn algo_name(a: Algo) -> &'static str {
     match a {
         Algo::Td3 => "td3",
         Algo::Td3bc => "td3bc",
+        Algo::Ddpg => "ddpg",
     }
 }
 
@@ -285,22 +312,28 @@ fn train_step(name: &str, data: &Path, ckpt: &Path, cfg: TrainConfig) -> Step {
     }
 }
 
-/// Runs (or with `dry_run` only checks) the steps of `p` in order, skipping those up to date.
-/// Before the first step runs, everything that does not need an earlier step's output is
-/// checked (`check.rs`) and the cost of the steps to run is estimated (`cost.rs`). `log`
-/// receives the cost and one line per step.
-pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<RunReport> {
-    let steps = plan(p)?;
-    let last = match &o.until {
-        None => steps.len() - 1,
-        Some(u) => match steps.iter().position(|s| &s.name == u) {
-            Some(i) => i,
+/// The index of the last step a run goes to: `until`'s, or the plan's last.
+pub(crate) fn last_step(steps: &[Step], until: Option<&str>) -> Result<usize> {
+    match until {
+        None => Ok(steps.len() - 1),
+        Some(u) => match steps.iter().position(|s| s.name == u) {
+            Some(i) => Ok(i),
             None => {
                 let names: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
-                bail!("--until {u}: no such step (steps: {})", names.join(", "));
+                bail!("--until {u}: no such step (steps: {})", names.join(", "))
             }
         },
-    };
+    }
+}
+
+/// Runs (or with `dry_run` only checks) the steps of `p`, skipping those up to date: in plan
+/// order, or with `jobs` > 1 as many independent ones at once (`exec.rs`). Before the first step
+/// runs, everything that does not need an earlier step's output is checked (`check.rs`) and the
+/// cost of the steps to run is estimated (`cost.rs`). `log` receives the cost and one line per
+/// step.
+pub fn run(p: &Pipeline, o: &RunOptions, log: &(dyn Fn(&str) + Sync)) -> Result<RunReport> {
+    let steps = plan(p)?;
+    let last = last_step(&steps, o.until.as_deref())?;
     let data = check::check(p, &steps[..=last], o.device)?;
     let mut hashes = Hashes::default();
     let forecast = state::forecast(&p.out, &steps[..=last], &mut hashes)?;
@@ -308,209 +341,91 @@ pub fn run(p: &Pipeline, o: &RunOptions, log: &mut dyn FnMut(&str)) -> Result<Ru
     for line in cost::render(&cost).lines() {
         log(line);
     }
-    let brief = |name: &str| match cost.per_step.iter().find(|c| c.name == name).map(cost::brief) {
-        Some(b) if !b.is_empty() => format!(" ({b})"),
-        _ => String::new(),
-    };
-    let mut report = RunReport {
-        pipeline: p.name.clone(),
-        out: p.out.clone(),
-        steps: vec![],
-        results: None,
-        table1: None,
-        cost: cost.clone(),
-    };
     let n = steps.len();
-    // Steps already run as members of a stack: their status and seconds.
-    let mut stacked: std::collections::HashMap<usize, (String, f64)> = std::collections::HashMap::new();
-    for (i, step) in steps.iter().enumerate() {
-        let head = format!("[{}/{n}] {}", i + 1, step.name);
-        let key = hashes.key(step)?;
+    let outcomes: Vec<exec::Outcome> = if o.dry_run {
         // A dry run reports the forecast: a step after one that would run reads outputs that
         // do not exist yet.
-        let up = if o.dry_run {
-            !forecast[i].runs
-        } else {
-            key.as_ref().is_some_and(|k| state::up_to_date(&p.out, step, k, &mut hashes))
-        };
-        let status = if let Some((how, secs)) = stacked.remove(&i) {
-            log(&format!("{head}: {how} (in a stack) in {secs:.1} s"));
-            (how, secs)
-        } else if up {
-            log(&format!("{head}: up to date"));
-            ("up to date".to_string(), 0.0)
-        } else if o.dry_run {
-            log(&format!("{head}: would run{}", brief(&step.name)));
-            ("would run".to_string(), 0.0)
-        } else {
-            // An agent cell runs with the later cells of its stack that must run too.
-            let mut members = vec![i];
-            if let Some(id) = stack_of(step) {
-                for (j, later) in steps.iter().enumerate().take(last + 1).skip(i + 1) {
-                    if stack_of(later) == Some(id) {
-                        let k = hashes.key(later)?;
-                        if !k.as_ref().is_some_and(|k| state::up_to_date(&p.out, later, k, &mut hashes)) {
-                            members.push(j);
-                        }
-                    }
+        (0..=last)
+            .map(|i| {
+                let head = format!("[{}/{n}] {}", i + 1, steps[i].name);
+                if forecast[i].runs {
+                    let b = cost.per_step.iter().find(|c| c.name == steps[i].name).map(cost::brief);
+                    let b = b.filter(|b| !b.is_empty()).map(|b| format!(" ({b})")).unwrap_or_default();
+                    log(&format!("{head}: would run{b}"));
+                    exec::Outcome { status: "would run".into(), seconds: 0.0, log: None }
+                } else {
+                    log(&format!("{head}: up to date"));
+                    exec::Outcome { status: "up to date".into(), seconds: 0.0, log: None }
                 }
-            }
-            let what = if members.len() > 1 {
-                format!(" with {} more in one stack", members.len() - 1)
-            } else {
-                String::new()
-            };
-            log(&format!("{head}: running{}{what}", brief(&step.name)));
-            let t0 = Instant::now();
-            // A training step may continue from its checkpoint after a crash (no record) or a
-            // change of settings (another key; `train` refuses what cannot continue), but not when
-            // a finished output no longer has its recorded bytes (that one is rebuilt from scratch)
-            // nor when another pgser version finished it.
-            let resume: Vec<bool> = members
-                .iter()
-                .map(|&j| Ok(state::may_resume(&p.out, &steps[j], hashes.key(&steps[j])?.as_deref())))
-                .collect::<Result<_>>()?;
-            let how: Vec<&str> = if members.len() == 1 {
-                vec![
-                    execute(step, o.device, resume[0])
-                        .with_context(|| format!("pipeline {}, step {}", p.name, step.name))?,
-                ]
-            } else {
-                let group: Vec<&Step> = members.iter().map(|&j| &steps[j]).collect();
-                execute_stack(&group, o.device, &resume).with_context(|| format!("pipeline {}", p.name))?
-            };
-            let secs = t0.elapsed().as_secs_f64();
-            for (&j, how) in members.iter().zip(&how) {
-                let key = hashes.key(&steps[j])?.context("an input vanished while the step ran")?;
-                state::record(&p.out, &steps[j], &key, secs, &mut hashes)?;
-                if j != i {
-                    stacked.insert(j, (how.to_string(), secs));
-                }
-            }
-            log(&format!("{head}: {} in {secs:.1} s", how[0]));
-            (how[0].to_string(), secs)
-        };
+            })
+            .collect()
+    } else {
+        let units = exec::units(&steps, &(0..=last).collect::<Vec<_>>(), o.jobs > 1);
+        let c = exec::Ctx { p, steps: &steps, device: o.device, cost: Some(&cost), log };
+        let threads = o.threads.unwrap_or_else(rayon::current_num_threads);
+        let mut done = exec::run_units(&c, &units, o.jobs, threads, hashes)?;
+        (0..=last).map(|i| done.remove(&i).expect("every step of the run has an outcome")).collect()
+    };
+    Ok(report_of(p, &steps[..=last], outcomes, cost))
+}
+
+/// The run's report from each step's outcome, in plan order.
+pub(crate) fn report_of(p: &Pipeline, steps: &[Step], outcomes: Vec<exec::Outcome>, cost: Cost) -> RunReport {
+    let mut report =
+        RunReport { pipeline: p.name.clone(), out: p.out.clone(), steps: vec![], results: None, table1: None, cost };
+    for (step, o) in steps.iter().zip(outcomes) {
+        let reached = o.status != "would run" && o.status != "failed" && o.status != "not run";
         match step.action {
-            Action::Results(_) if status.0 != "would run" => report.results = Some(step.outputs[0].clone()),
-            Action::Report(_) if status.0 != "would run" => report.table1 = Some(step.outputs[1].clone()),
+            Action::Results(_) if reached => report.results = Some(step.outputs[0].clone()),
+            Action::Report(_) if reached => report.table1 = Some(step.outputs[1].clone()),
             _ => {}
         }
-        let stop = o.until.as_deref() == Some(step.name.as_str());
         report.steps.push(StepReport {
             name: step.name.clone(),
-            status: status.0,
-            seconds: status.1,
+            status: o.status,
+            seconds: o.seconds,
             outputs: step.outputs.clone(),
+            log: o.log,
         });
-        if stop {
-            break;
-        }
     }
-    Ok(report)
+    report
 }
 
-/// Runs one step; returns `ran` or `resumed`.
-fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
-    for o in &step.outputs {
-        if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-        }
-    }
-    let bar = progress::bar("step", "");
-    let mut how = "ran";
-    match &step.action {
-        Action::Collect(o) => drop(collect::collect(o, &bar)?),
-        Action::Convert(o) => drop(trajectory::convert(o, &bar)?),
-        Action::Score(o) => drop(score::score(&score::ScoreOptions { device, ..o.clone() }, &bar)?),
-        Action::Report(o) => drop(report::q_report(o)?),
-        Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),
-        Action::Train { .. } => how = execute_stack(&[step], device, &[resume])?[0],
-    }
-    bar.finish_and_clear();
-    Ok(how)
-}
-
-/// Runs training steps as one stack of agents (cells that start from different updates — some
-/// continuing a checkpoint, some from scratch — as one stack per starting update); returns
-/// `ran` or `resumed` for each. A cell continues its checkpoint when `resume` allows and the
-/// checkpoint belongs to the same run; a checkpoint of another run is set aside as `.stale` and
-/// the cell starts over; any other failure stops the stack and leaves every checkpoint as it was.
-fn execute_stack(steps: &[&Step], device: Backend, resume: &[bool]) -> Result<Vec<&'static str>> {
-    let mut cells = Vec::with_capacity(steps.len());
-    let mut starts = std::collections::BTreeMap::<u64, Vec<usize>>::new();
-    let mut how = Vec::with_capacity(steps.len());
-    for (i, (step, &resume)) in steps.iter().zip(resume).enumerate() {
-        for o in &step.outputs {
-            if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+/// `pgser-etl pipeline step FILE STEP…`: runs the named steps of `p` exactly as `pipeline run`
+/// would at their turn — under their locks, skipping those up to date, continuing a training
+/// step from its checkpoint — with agent cells of one stack as one stack. What each Slurm job
+/// runs (`slurm.rs`); their inputs must exist (the steps that write them have finished).
+pub fn step(p: &Pipeline, names: &[String], device: Backend, log: &(dyn Fn(&str) + Sync)) -> Result<Vec<StepReport>> {
+    let steps = plan(p)?;
+    let mut include = Vec::with_capacity(names.len());
+    for name in names {
+        match steps.iter().position(|s| &s.name == name) {
+            Some(i) => include.push(i),
+            None => {
+                let all: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
+                bail!("pipeline {}: no step {name:?} (steps: {})", p.name, all.join(", "))
             }
         }
-        let Action::Train { data, out, cfg, .. } = &step.action else { bail!("{}: not a training step", step.name) };
-        let mut cell = crate::train::Cell { data: data.clone(), out: out.clone(), cfg: (**cfg).clone(), resume: false };
-        let mut start = 0;
-        if resume && out.exists() && checkpoint::resume_path(out).exists() {
-            match crate::train::resume_point(&cell) {
-                Ok(point) => {
-                    cell.resume = point.is_some();
-                    start = point.unwrap_or(0);
-                }
-                // The checkpoint is of another run (settings, data, a longer run): it cannot be
-                // continued, so start over, but keep it aside rather than overwrite it.
-                Err(e) if e.downcast_ref::<crate::train::StaleCheckpoint>().is_some() => {
-                    let kept = set_aside_stale(out)?;
-                    eprintln!(
-                        "pgser pipeline: {}: not resumed ({e:#}); the old checkpoint is kept as {}; training from scratch",
-                        step.name,
-                        kept.display()
-                    );
-                }
-                // Anything else (an unreadable file, a failed read of the data) is reported; the
-                // checkpoint and its progress stay as they are.
-                Err(e) => {
-                    return Err(e.context(format!(
-                        "step {}: resuming {} failed; the checkpoint is left as it was",
-                        step.name,
-                        out.display()
-                    )));
-                }
+    }
+    // Plan order, so that every runner takes the locks of a stack in the same order.
+    include.sort();
+    include.dedup();
+    let units = exec::units(&steps, &include, false);
+    let c = exec::Ctx { p, steps: &steps, device, cost: None, log };
+    let mut done = exec::run_units(&c, &units, 1, rayon::current_num_threads(), Hashes::default())?;
+    Ok(include
+        .iter()
+        .map(|&i| {
+            let o = done.remove(&i).expect("every named step has an outcome");
+            StepReport {
+                name: steps[i].name.clone(),
+                status: o.status,
+                seconds: o.seconds,
+                outputs: steps[i].outputs.clone(),
+                log: None,
             }
-        } else if resume && out.exists() {
-            // A checkpoint without its resume state cannot be continued; keep it anyway.
-            set_aside_stale(out)?;
-        }
-        how.push(if cell.resume { "resumed" } else { "ran" });
-        starts.entry(start).or_default().push(i);
-        cells.push(cell);
-    }
-    let bar = progress::bar("agents", "updates");
-    for members in starts.values() {
-        let stack: Vec<crate::train::Cell> = members.iter().map(|&i| cells[i].clone()).collect();
-        let commands: Vec<String> = members.iter().map(|&i| format!("pgser pipeline step {}", steps[i].name)).collect();
-        let names: Vec<&str> = members.iter().map(|&i| steps[i].name.as_str()).collect();
-        crate::train::train_stack(&stack, device.device()?, &commands, &bar).with_context(|| {
-            format!("training {} (one stack); checkpoints are left as they were at their last save", names.join(", "))
-        })?;
-    }
-    bar.finish_and_clear();
-    Ok(how)
-}
-
-/// Moves a checkpoint that cannot be continued, with its resume state and metrics, to
-/// `NAME.stale` (`.resume.stale`, `.metrics.jsonl.stale`), replacing an older stale copy; returns
-/// the checkpoint's new path.
-fn set_aside_stale(ckpt: &Path) -> Result<PathBuf> {
-    let stale = |p: &Path| {
-        let mut s = p.as_os_str().to_owned();
-        s.push(".stale");
-        PathBuf::from(s)
-    };
-    for p in [ckpt.to_path_buf(), checkpoint::resume_path(ckpt), metrics_path(ckpt)] {
-        if p.exists() {
-            std::fs::rename(&p, stale(&p))
-                .with_context(|| format!("{}: cannot move aside to {}", p.display(), stale(&p).display()))?;
-        }
-    }
-    Ok(stale(ckpt))
+        })
+        .collect())
 }
 
 /// The report's one-screen summary: steps, then where the tables are.
@@ -527,6 +442,13 @@ pub fn render(r: &RunReport) -> String {
     if would > 0 {
         s += &format!(", {would} would run (dry run)");
     }
+    // Slurm (`--wait`): steps whose job failed, and those cancelled as they read their outputs.
+    for what in ["failed", "not run"] {
+        let k = count(&|s| s == what);
+        if k > 0 {
+            s += &format!(", {k} {what}");
+        }
+    }
     s.push('\n');
     if let Some(t) = &r.table1 {
         s += &format!("Fig. 5 and Table 1: {} (and fig5_q_hist.png beside it)\n", t.display());
@@ -535,4 +457,27 @@ pub fn render(r: &RunReport) -> String {
         s += &format!("results: {} (CSV and curves beside it)\n", t.display());
     }
     s
+}
+
+/// An error naming the steps that did not finish (through Slurm: failed, or not run because a
+/// step they read failed) and the logs of the failed ones; Ok when every step finished.
+pub fn finished(r: &RunReport) -> Result<()> {
+    let failed: Vec<String> = r
+        .steps
+        .iter()
+        .filter(|s| s.status == "failed")
+        .map(|s| match &s.log {
+            Some(l) => format!("{} (log {})", s.name, l.display()),
+            None => s.name.clone(),
+        })
+        .collect();
+    let not_run: Vec<&str> = r.steps.iter().filter(|s| s.status == "not run").map(|s| s.name.as_str()).collect();
+    if failed.is_empty() && not_run.is_empty() {
+        return Ok(());
+    }
+    let mut msg = format!("pipeline {}: {} step(s) failed: {}", r.pipeline, failed.len(), failed.join(", "));
+    if !not_run.is_empty() {
+        msg += &format!("; not run as they read a failed step's outputs: {}", not_run.join(", "));
+    }
+    bail!("{msg}; fix the cause and run again: only what did not finish runs")
 }

@@ -39,12 +39,19 @@ pub struct Record {
     pub key: String,
     /// Output path (as planned) → sha256 when the step finished.
     pub outputs: BTreeMap<String, String>,
-    seconds: f64,
+    pub seconds: f64,
     pub pgser_version: String,
+    /// How the step finished: `ran` or `resumed` (absent in records of older pgser builds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<String>,
+    /// The Slurm job that ran it (the array's id for an element of the agent grid), so that
+    /// `pipeline run --executor slurm --wait` tells its own runs from other runs' work.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job: Option<String>,
 }
 
 /// sha256 of files, computed once per run per (path, size, mtime).
-#[derive(Default)]
+#[derive(Default, Clone)]
 pub struct Hashes {
     seen: HashMap<PathBuf, (u64, SystemTime, String)>,
 }
@@ -84,7 +91,7 @@ pub fn key_of(step: &Step, inputs: &[String], version: &str) -> Result<String> {
     Ok(hex(&sha2::Sha256::digest(text.as_bytes())))
 }
 
-fn record_path(out: &Path, step: &Step) -> PathBuf {
+pub fn record_path(out: &Path, step: &Step) -> PathBuf {
     out.join(".pipeline").join(format!("{}.json", step.name.replace(' ', "_")))
 }
 
@@ -166,18 +173,40 @@ pub fn forecast(out: &Path, steps: &[Step], hashes: &mut Hashes) -> Result<Vec<F
     Ok(all)
 }
 
-/// Writes the step's record once it has finished (atomically, like every output).
-pub fn record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Hashes) -> Result<()> {
-    write_record(out, step, key, seconds, hashes, VERSION)
+/// Writes the step's record once it has finished `how` (`ran`, `resumed`), atomically like
+/// every output.
+pub fn record(out: &Path, step: &Step, key: &str, seconds: f64, how: &str, hashes: &mut Hashes) -> Result<()> {
+    write_record(out, step, key, seconds, hashes, VERSION, how)
 }
 
-fn write_record(out: &Path, step: &Step, key: &str, seconds: f64, hashes: &mut Hashes, version: &str) -> Result<()> {
+/// The Slurm job this process runs in: the array's id for an element of a job array.
+pub fn slurm_job() -> Option<String> {
+    std::env::var("SLURM_ARRAY_JOB_ID").or_else(|_| std::env::var("SLURM_JOB_ID")).ok()
+}
+
+fn write_record(
+    out: &Path,
+    step: &Step,
+    key: &str,
+    seconds: f64,
+    hashes: &mut Hashes,
+    version: &str,
+    how: &str,
+) -> Result<()> {
     let mut outputs = BTreeMap::new();
     for p in &step.outputs {
         let sha = hashes.sha256(p)?.with_context(|| format!("{}: step {} did not write it", p.display(), step.name))?;
         outputs.insert(p.display().to_string(), sha);
     }
-    let r = Record { format: FORMAT, key: key.to_string(), outputs, seconds, pgser_version: version.to_string() };
+    let r = Record {
+        format: FORMAT,
+        key: key.to_string(),
+        outputs,
+        seconds,
+        pgser_version: version.to_string(),
+        status: Some(how.to_string()),
+        job: slurm_job(),
+    };
     let path = record_path(out, step);
     std::fs::create_dir_all(path.parent().expect("has a folder"))
         .with_context(|| format!("{}: cannot create", out.join(".pipeline").display()))?;
@@ -214,13 +243,13 @@ mod tests {
         let old = key_of(&step, &inputs, "0.0.1-old").unwrap();
         let new = key_of(&step, &inputs, VERSION).unwrap();
         assert_ne!(old, new);
-        write_record(out, &step, &old, 1.0, &mut h, "0.0.1-old").unwrap();
+        write_record(out, &step, &old, 1.0, &mut h, "0.0.1-old", "ran").unwrap();
         assert!(up_to_date(out, &step, &old, &mut h));
         assert!(!up_to_date(out, &step, &new, &mut h));
         assert!(!may_resume(out, &step, Some(&new)));
 
         // Finished by this pgser: up to date; other settings may continue its checkpoint.
-        record(out, &step, &new, 1.0, &mut h).unwrap();
+        record(out, &step, &new, 1.0, "ran", &mut h).unwrap();
         assert!(up_to_date(out, &step, &new, &mut h));
         assert!(!may_resume(out, &step, Some(&new)));
         assert!(may_resume(out, &step, Some("another key")));

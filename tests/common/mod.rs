@@ -1,5 +1,8 @@
-//! Helpers shared by the integration tests: the binaries, the test venv's Python, manifests.
+//! Helpers shared by the integration tests: the binaries, the test venv's Python, manifests,
+//! the tiny pipeline, a single-node Slurm (`slurm.rs`).
 #![allow(dead_code)]
+
+pub mod slurm;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -97,4 +100,59 @@ pub fn read_table(path: &Path) -> (arrow_array::RecordBatch, usize) {
 pub fn checkpoint_weights(path: &Path) -> Vec<Vec<f32>> {
     let (agent, _) = pgser::agent::checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
     [&agent.actor, &agent.critics].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
+}
+
+/// `DIR/tiny.toml`: FetchReach from the committed sample pickles, with counts small enough for
+/// seconds; its outputs go to `DIR/out`.
+pub fn tiny_pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
+    let data = repo().join("data");
+    let toml = format!(
+        r#"
+name = "tiny"
+task = "FetchReach"
+out = "out"
+[data]
+pickles = ["{e}", "{r}"]
+episodes = [12, 24]
+[train]
+batch_size = 64
+eval_every = 0
+eval_episodes = 4
+save_every = 0
+log_every = 10
+[pretrain]
+updates = 40
+[score]
+swaps = {swaps}
+[report]
+seed = 1
+[agents]
+seeds = [0, 1]
+updates = {agent_updates}
+"#,
+        e = data.join("fetch_reach_expert_50.pkl").display(),
+        r = data.join("fetch_reach_random_200.pkl").display(),
+    );
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+/// Every file under `out` except the step records, by path relative to `out`.
+pub fn snapshot(out: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, files: &mut std::collections::BTreeMap<PathBuf, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                if p.file_name().unwrap() != ".pipeline" {
+                    walk(root, &p, files);
+                }
+            } else {
+                files.insert(p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut files = std::collections::BTreeMap::new();
+    walk(out, out, &mut files);
+    files
 }
