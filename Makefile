@@ -13,12 +13,16 @@ MUJOCO_LIB := $(MUJOCO_DIR)/libmujoco.so
 # (the XML names meshdir ../stls/fetch and texturedir ../textures). build.rs points binaries here.
 ASSETS_DIR := $(DEPS)/gymnasium_robotics/assets
 ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
+# numpy's ziggurat tables (ki, wi, fi), read out of the numpy wheel's libnpyrandom.a: the hand
+# tasks' resets draw numpy's normals to the bit (scripts/numpy_ziggurat.py says why).
+ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
+NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
 .PHONY: all build test check-wgpu slurm-deps demo bench bench-venv deps venv fuzz clean
 all: build
 
-deps: $(MUJOCO_LIB) $(ASSETS_STAMP)
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT)
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -38,6 +42,13 @@ $(ASSETS_STAMP):
 	  z=zipfile.ZipFile('$(DEPS)/wheels/gymnasium_robotics-1.4.2-py3-none-any.whl'); \
 	  shutil.rmtree(t, ignore_errors=True); z.extractall(t, [n for n in z.namelist() if n.startswith(p+'/')]); \
 	  shutil.rmtree('$(ASSETS_DIR)', ignore_errors=True); shutil.move(t+'/'+p, '$(ASSETS_DIR)'); shutil.rmtree(t)"
+
+# Written beside the target and renamed, so an interrupted run leaves no partial file.
+$(ZIGGURAT): scripts/numpy_ziggurat.py
+	@mkdir -p $(DEPS)/wheels
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: numpy==$(NUMPY_WHEEL_VERSION) -d $(DEPS)/wheels
+	$(PYTHON) scripts/numpy_ziggurat.py $$(ls $(DEPS)/wheels/numpy-$(NUMPY_WHEEL_VERSION)-*.whl | head -1) $@.tmp
+	mv $@.tmp $@
 
 venv: $(VENV)/.stamp
 $(VENV)/.stamp: tests/requirements.txt
@@ -96,6 +107,7 @@ demo: build
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
 	$(PY) bench/bench_env.py --pgser target/release/pgser-etl --tasks FetchReach,FetchPush --episodes 400 --json bench-out/env.json
+	$(PY) bench/bench_env.py --pgser target/release/pgser-etl --tasks HandManipulateBlockRotateZ,HandManipulateEggRotate --episodes 100 --json bench-out/env_hand.json
 	$(MAKE) bench-venv
 	$(PY) bench/bench_train.py --python $(BENCH_PY) --json bench-out/train.json
 	$(PY) bench/bench_sampler.py --python $(BENCH_PY) --json bench-out/sampler.json

@@ -1,7 +1,8 @@
 //! Give binaries and tests an rpath to MuJoCo's shared library, so `target/release/pgser-*`
 //! run with no LD_LIBRARY_PATH. The folder comes from `.cargo/config.toml` (`make deps`).
 //! Also bakes in where `make deps` puts the gymnasium-robotics assets, so the Fetch
-//! environments (`pgser::env`) find their XML with no environment variable either.
+//! environments (`pgser::env`) find their XML with no environment variable either, and where
+//! it puts numpy's ziggurat tables.
 
 fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
@@ -16,4 +17,7 @@ fn main() {
     let root = std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
     let assets = std::path::Path::new(&root).join(".deps/gymnasium_robotics/assets");
     println!("cargo::rustc-env=PGSER_FETCH_ASSETS={}", assets.display());
+    // numpy's ziggurat tables for the hand tasks' normals (`pgser::env::ziggurat`), same rule.
+    let zig = std::path::Path::new(&root).join(".deps/numpy_ziggurat.bin");
+    println!("cargo::rustc-env=PGSER_ZIGGURAT={}", zig.display());
 }

@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""Env steps/s: pgser's Rust Fetch envs vs gymnasium-robotics 1.4.2 (mujoco 3.17.0), same run.
+"""Env steps/s: pgser's Rust Fetch and hand envs vs gymnasium-robotics 1.4.2 (mujoco 3.17.0), same run.
 
 Rust side: `pgser-etl collect --policy random` (episodes run with rayon; RAYON_NUM_THREADS=1 for
 the single-env figure, =N for parallel collect). Its time includes writing the Parquet output,
 which is small next to simulation. Python side: `gym.make('<Task>-v4')` with its default
-wrappers, `reset(seed=S+i)` and uniform random actions for the same number of steps per episode
-(T-1 = 49), one process for the single-env figure and a multiprocessing pool of N workers for
+wrappers (`<Task>-v1` for the hand tasks), `reset(seed=S+i)` and uniform random actions for the
+same number of steps per episode (T-1: 49 for Fetch, 99 for the hand tasks), one process for the single-env figure and a multiprocessing pool of N workers for
 the parallel one. Prints steps/s, steps/s per core and the ratios.
 """
 import argparse
@@ -17,7 +17,11 @@ import sys
 import tempfile
 import time
 
-STEPS = 49  # actions per WGCSL episode (T = 50 observations)
+def shape(task):
+    """(gymnasium id, actions per episode = T - 1, action dimension)."""
+    if task.startswith("Hand"):
+        return f"{task}-v1", 99, 20
+    return f"{task}-v4", 49, 4
 
 
 def patched_gym():
@@ -39,13 +43,14 @@ def python_episodes(args):
     task, first, count = args
     import numpy as np
     gym = patched_gym()
-    env = gym.make(f"{task}-v4")
+    gym_id, steps, act_dim = shape(task)
+    env = gym.make(gym_id)
     rng = np.random.default_rng(first)
     t0 = time.perf_counter()
     for i in range(first, first + count):
         env.reset(seed=i)
-        for _ in range(STEPS):
-            env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        for _ in range(steps):
+            env.step(rng.uniform(-1, 1, act_dim).astype(np.float32))
     return time.perf_counter() - t0
 
 
@@ -84,14 +89,14 @@ def main():
         out = os.path.join(tmp, "c.parquet")
         for task in a.tasks.split(","):
             python_episodes((task, 10**7, 2))  # warm imports and caches in this process
-            steps = a.episodes * STEPS
+            steps = a.episodes * shape(task)[1]
             r1 = min(rust_run(a.pgser, task, a.episodes, 1, out) for _ in range(2))
             p1 = python_run(task, a.episodes, 1)
             rn = min(rust_run(a.pgser, task, a.episodes, a.threads, out) for _ in range(2))
             pn = python_run(task, a.episodes, a.threads)
             rows.append(dict(task=task, steps=steps, threads=a.threads,
                              rust_1=steps / r1, python_1=steps / p1, rust_n=steps / rn, python_n=steps / pn))
-    print(f"env steps/s, random actions, {a.episodes} episodes x {STEPS} steps, {a.threads} threads/processes "
+    print(f"env steps/s, random actions, {a.episodes} episodes (T-1 steps each), {a.threads} threads/processes "
           f"for the parallel figures (machine: {os.cpu_count()} cores)")
     print(f"{'task':<18} {'rust 1':>10} {'python 1':>10} {'ratio':>6} | {'rust N':>10} {'python N':>10} {'ratio':>6} "
           f"| {'rust/core':>10} {'py/core':>10}")

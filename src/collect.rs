@@ -1,9 +1,10 @@
-//! `pgser-etl collect`: simulate episodes in the Fetch environments and write them as a
+//! `pgser-etl collect`: simulate episodes in pgser's environments and write them as a
 //! trajectory table (`.parquet`, docs/tables.md) or a WGCSL pickle (`.pkl`, docs/domain.md).
 //!
 //! Episodes are simulated in parallel a chunk at a time, so memory holds one chunk however many
 //! episodes are asked for. Nothing depends on the thread count: episode i resets with seed
-//! S + i (so Python reproduces it with `env.reset(seed=S+i)`), its policy draws from a
+//! S + i from a newly made environment (`GoalEnv::restart`; Python reproduces it with
+//! `gym.make(id).reset(seed=S+i)`, or `env.reset(seed=S+i)` for Fetch), its policy draws from a
 //! generator of its own (`env::policy`), and chunks are written in order. The parquet path
 //! goes through the same [`TrajectoryWriter`] as `convert`, so a `.pkl` from here converts to
 //! the very table `.parquet` gets.
@@ -93,7 +94,7 @@ fn prepare(opts: &CollectOptions) -> Result<(bool, Box<dyn GoalEnv + Send>)> {
     }
     let first = env::make(&opts.task)?;
     // Fails early (no file created) for a policy the task has no expert for.
-    EpisodePolicy::new(opts.policy, &first.task().name, opts.seed, 0)?;
+    EpisodePolicy::new(opts.policy.clone(), &first.task().name, opts.seed, 0)?;
     Ok((pickle, first))
 }
 
@@ -130,7 +131,7 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
     let bytes = match sink {
         Sink::Table(w) => {
             let mut footer = Footer::new(&task, float, opts.episodes, opts.command.clone());
-            footer.policy = Some(opts.policy.kind.name().to_string());
+            footer.policy = Some(opts.policy.kind.describe());
             footer.seed = Some(opts.seed);
             w.finish(&footer)?
         }
@@ -217,7 +218,7 @@ fn simulate(
         .enumerate()
         .map(|(k, (((o, ag), u), g))| {
             let i = (range.start + k) as u64;
-            let mut policy = EpisodePolicy::new(opts.policy, &task.name, opts.seed, i)?;
+            let mut policy = EpisodePolicy::new(opts.policy.clone(), &task.name, opts.seed, i)?;
             let out = pool.with(|env| run_episode(env, &mut policy, opts.seed + i, [o, ag, u, g]))?;
             bar.inc(1);
             Ok(out)
@@ -232,7 +233,7 @@ fn simulate(
 fn run_episode(env: &mut dyn GoalEnv, policy: &mut EpisodePolicy, seed: u64, out: [&mut [u8]; 4]) -> (bool, f64) {
     let [o, ag, u, g] = out;
     let t = env.task().t;
-    let mut obs = env.reset(Some(seed));
+    let mut obs = env.restart(seed);
     put(o, 0, &obs.observation);
     put(ag, 0, &obs.achieved_goal);
     let mut action = vec![0.0; env.task().act_dim];

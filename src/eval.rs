@@ -1,7 +1,8 @@
 //! Evaluation: the deterministic policy in the task's MuJoCo environment (docs/domain.md).
 //!
 //! Episodes run in lockstep so the policy sees one batch of all live episodes per step (one
-//! forward pass instead of E), while the environments step in parallel on rayon's pool. Episode
+//! forward pass instead of E), while the environments step in parallel on rayon's pool; at most
+//! 64 environments live at once (waves, see `run`), so memory does not grow with the stack. Episode
 //! i is reset with seed `seed + i`, so a report is a function of (policy, seed, episodes).
 //!
 //! An episode is T environment steps (gymnasium's `max_episode_steps`, 50 for Fetch), so the
@@ -74,40 +75,64 @@ pub fn evaluate_stack(agent: &crate::agent::Agent, episodes: usize, seed: u64) -
 /// Agent i's policy on rows[i] = (observations, desired goals) of n rows each.
 type StackPolicy<'a> = dyn Fn(&[(&[f32], &[f32])], usize) -> Vec<Vec<f32>> + 'a;
 
-/// `members` policies × `episodes` episodes in lockstep; environment `m·episodes + i` is member
-/// m's episode i, reset with seed `seed + i`.
+/// Environments alive at once. Each holds MuJoCo's buffers (~20 MB for Fetch and the hand
+/// tasks), so evaluating a stack of 9 agents on 50 episodes all at once held 9 GB; episodes now
+/// run in waves of at most this many environments, which are reused from wave to wave.
+const MAX_ENVS: usize = 64;
+
+/// `members` policies × `episodes` episodes, in waves. A wave is a group of members × a block
+/// of episodes, stepped in lockstep; member m's episode i is reset with seed `seed + i`.
+///
+/// The block size depends on `episodes` alone, never on `members`, and every member's rows go
+/// through the policy in blocks of that size: an agent evaluated inside a stack sees the same
+/// batches, hence the same bits, as evaluated alone. Members outside the wave's group get a
+/// copy of some group member's rows, whose actions are dropped.
 fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackPolicy) -> Result<Vec<EvalReport>> {
-    let total = members * episodes;
-    let mut envs: Vec<Box<dyn GoalEnv + Send>> = (0..total).map(|_| env::make(task_name)).collect::<Result<_>>()?;
+    let block = episodes.min(MAX_ENVS);
+    let group = (MAX_ENVS / block.max(1)).clamp(1, members.max(1));
+    let mut envs: Vec<Box<dyn GoalEnv + Send>> =
+        (0..(group * block).min(members * episodes)).map(|_| env::make(task_name)).collect::<Result<_>>()?;
     let task = envs.first().map(|e| e.task().clone());
     let Some(task) = task else {
         let empty = EvalReport { episodes: 0, return_mean: 0.0, return_std: 0.0, success_rate: 0.0, paper_score: 0.0 };
         return Ok(vec![empty; members]);
     };
-    let mut obs: Vec<Obs> =
-        envs.par_iter_mut().enumerate().map(|(j, e)| e.reset(Some(seed + (j % episodes) as u64))).collect();
-    let mut returns = vec![0.0f64; total];
-    let mut success = vec![false; total];
-    for _ in 0..task.t {
-        let flat =
-            |f: fn(&Obs) -> &Vec<f64>| obs.iter().flat_map(|o| f(o).iter().map(|&x| x as f32)).collect::<Vec<f32>>();
-        let (o, g) = (flat(|o| &o.observation), flat(|o| &o.desired_goal));
-        let rows: Vec<(&[f32], &[f32])> = (0..members)
-            .map(|m| {
-                let (od, gd) = (task.obs_dim * episodes, task.goal_dim * episodes);
-                (&o[m * od..(m + 1) * od], &g[m * gd..(m + 1) * gd])
-            })
-            .collect();
-        let actions: Vec<f32> = act(&rows, episodes).concat();
-        let steps: Vec<_> = envs
-            .par_iter_mut()
-            .zip(actions.par_chunks(task.act_dim))
-            .map(|(e, a)| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>()))
-            .collect();
-        for (j, s) in steps.into_iter().enumerate() {
-            returns[j] += s.reward;
-            success[j] = s.success;
-            obs[j] = s.obs;
+    let mut returns = vec![0.0f64; members * episodes];
+    let mut success = vec![false; members * episodes];
+    for g0 in (0..members).step_by(group) {
+        let gm = group.min(members - g0);
+        for e0 in (0..episodes).step_by(block) {
+            let n = block.min(episodes - e0);
+            // Environment k of the wave is member g0 + k / n's episode e0 + k % n.
+            let live = &mut envs[..gm * n];
+            let mut obs: Vec<Obs> =
+                live.par_iter_mut().enumerate().map(|(k, e)| e.restart(seed + (e0 + k % n) as u64)).collect();
+            for _ in 0..task.t {
+                let flat = |f: fn(&Obs) -> &Vec<f64>| {
+                    obs.iter().flat_map(|o| f(o).iter().map(|&x| x as f32)).collect::<Vec<f32>>()
+                };
+                let (o, g) = (flat(|o| &o.observation), flat(|o| &o.desired_goal));
+                let (od, gd) = (task.obs_dim * n, task.goal_dim * n);
+                let rows: Vec<(&[f32], &[f32])> = (0..members)
+                    .map(|m| {
+                        let k = if (g0..g0 + gm).contains(&m) { m - g0 } else { 0 };
+                        (&o[k * od..(k + 1) * od], &g[k * gd..(k + 1) * gd])
+                    })
+                    .collect();
+                let out = act(&rows, n);
+                let actions: Vec<f32> = out[g0..g0 + gm].concat();
+                let steps: Vec<_> = live
+                    .par_iter_mut()
+                    .zip(actions.par_chunks(task.act_dim))
+                    .map(|(e, a)| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>()))
+                    .collect();
+                for (k, s) in steps.into_iter().enumerate() {
+                    let j = (g0 + k / n) * episodes + e0 + k % n;
+                    returns[j] += s.reward;
+                    success[j] = s.success;
+                    obs[k] = s.obs;
+                }
+            }
         }
     }
     Ok(returns

@@ -60,6 +60,27 @@ impl Task {
         )
     }
 
+    /// The built-in name closest to a mistyped one (edit distance ≤ 1/3 of its length), for
+    /// "did you mean" in error messages.
+    pub fn suggest(name: &str) -> Option<&'static str> {
+        let base = name.split_once("-v").map_or(name, |(b, _)| b).to_ascii_lowercase();
+        let distance = |a: &str| {
+            let (a, b): (Vec<char>, Vec<char>) = (a.to_ascii_lowercase().chars().collect(), base.chars().collect());
+            let mut row: Vec<usize> = (0..=b.len()).collect();
+            for (i, ca) in a.iter().enumerate() {
+                let mut prev = row[0];
+                row[0] = i + 1;
+                for (j, cb) in b.iter().enumerate() {
+                    let cur = row[j + 1];
+                    row[j + 1] = (prev + usize::from(ca != cb)).min(row[j] + 1).min(cur + 1);
+                    prev = cur;
+                }
+            }
+            row[b.len()]
+        };
+        KNOWN.iter().map(|k| (distance(k.0), k.0)).min().filter(|&(d, _)| d > 0 && d * 3 <= base.len()).map(|(_, n)| n)
+    }
+
     pub fn known_names() -> Vec<&'static str> {
         KNOWN.iter().map(|k| k.0).collect()
     }
@@ -112,8 +133,26 @@ impl Task {
     /// The paper's eq. 2 sparse reward: 0 when the goal is reached, −1 otherwise. Written as
     /// gymnasium-robotics' `compute_reward` does, `−(d > threshold)`: at exactly d = threshold
     /// the reward is 0 although `success` (d < threshold) is false, as in the Python envs.
+    ///
+    /// The hand tasks compute it as `success − 1` instead, so there d = threshold gives −1.
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
-        if self.distance(ag, g) > self.threshold { -1.0 } else { 0.0 }
+        let d = self.distance(ag, g);
+        match self.metric {
+            GoalMetric::Euclidean => {
+                if d > self.threshold {
+                    -1.0
+                } else {
+                    0.0
+                }
+            }
+            GoalMetric::QuatAngle => {
+                if d < self.threshold {
+                    0.0
+                } else {
+                    -1.0
+                }
+            }
+        }
     }
 
     /// [`Task::reward`] for many rows at once: `achieved` and `goals` hold rows of `goal_dim`

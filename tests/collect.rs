@@ -181,3 +181,64 @@ fn help_shows_examples() {
     let h = text(&o.stdout);
     assert!(h.contains("Examples:") && h.contains("reset(seed=S+i)"), "{h}");
 }
+
+/// `pgser-train` on `table` (a few tiny updates), for a checkpoint to collect with.
+fn tiny_checkpoint(table: &Path, out: &Path) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", p(table), "-o", p(out), "--updates", "20", "--batch-size", "32", "--hidden", "16"])
+        .args(["--eval-episodes", "0", "--log-every", "10", "--seed", "1"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "pgser-train failed: {}", text(&o.stderr));
+}
+
+/// `--policy checkpoint:FILE`: a trained actor (here a tiny one) collects in its own task, Fetch
+/// or hand; its recorded actions are what `Agent::act` gives on the recorded observations; a
+/// checkpoint of another task is refused in one line and leaves no file.
+#[test]
+fn a_trained_actor_collects_in_its_task_and_only_there() {
+    let dir = tempfile::tempdir().unwrap();
+    for (task, policy) in [("FetchReach", "expert"), ("HandManipulateEggRotate", "random")] {
+        let data = dir.path().join(format!("{task}-data.parquet"));
+        collect_ok(&["--task", task, "--policy", policy, "--episodes", "4", "--seed", "3", "-o", p(&data)], None);
+        let ckpt = dir.path().join(format!("{task}.ckpt"));
+        tiny_checkpoint(&data, &ckpt);
+        let policy = format!("checkpoint:{}", p(&ckpt));
+        let table = dir.path().join(format!("{task}-trained.parquet"));
+        let run = ["--task", task, "--policy", &policy, "--episodes", "3", "--seed", "50"];
+        collect_ok(&[&run[..], &["-o", p(&table)]].concat(), Some(2));
+        let again = dir.path().join(format!("{task}-trained-1.parquet"));
+        collect_ok(&[&run[..], &["-o", p(&again)]].concat(), Some(1));
+        assert_same_data(&read_table(&table).0, &read_table(&again).0); // 2 threads vs 1
+        assert_eq!(inspect_json(&table)["footer"]["policy"], serde_json::json!(policy));
+
+        // The actions are the actor's (clipped and rounded as applied), up to float round-off.
+        let (agent, _) = pgser::agent::checkpoint::load(&ckpt, burn::tensor::Device::flex()).unwrap();
+        let (batch, _) = read_table(&table);
+        let col = |name: &str| -> Vec<f32> {
+            let a =
+                batch.column_by_name(name).unwrap().as_any().downcast_ref::<arrow_array::FixedSizeListArray>().unwrap();
+            let v = a.values().as_any().downcast_ref::<arrow_array::Float64Array>().unwrap();
+            v.values().iter().map(|&x| x as f32).collect()
+        };
+        let (obs, goal, act) = (col("obs"), col("desired_goal"), col("action"));
+        let t = agent.task.clone();
+        let rows = t.t - 1; // episode 0's steps with an action
+        let want = agent.act(&obs[..rows * t.obs_dim], &goal[..rows * t.goal_dim], rows);
+        let worst = want.iter().zip(&act[..rows * t.act_dim]).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "{task}: recorded actions differ from Agent::act by {worst}");
+    }
+    // A checkpoint of FetchReach given to another task: one line, no file.
+    let reach = format!("checkpoint:{}", p(&dir.path().join("FetchReach.ckpt")));
+    let out = dir.path().join("wrong.parquet");
+    let o = collect(&["--task", "FetchPush", "--policy", &reach, "--episodes", "2", "-o", p(&out)], None);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.trim_end().lines().count() == 1 && err.contains("trained on FetchReach, not FetchPush"), "{err}");
+    assert!(!out.exists());
+    let o = collect(
+        &["--task", "FetchReach", "--policy", "checkpoint:/no/such.ckpt", "--episodes", "2", "-o", p(&out)],
+        None,
+    );
+    assert!(text(&o.stderr).contains("/no/such.ckpt") && !out.exists(), "{}", text(&o.stderr));
+}

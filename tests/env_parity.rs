@@ -1,5 +1,5 @@
-//! The Rust Fetch environments against gymnasium-robotics 1.4.2 on the same MuJoCo 3.17.0, and
-//! the Rust numpy generator against numpy. Python writes reference runs
+//! The Rust Fetch and hand environments against gymnasium-robotics 1.4.2 on the same MuJoCo
+//! 3.17.0, and the Rust numpy generator (uniforms, ziggurat normals) against numpy. Python writes reference runs
 //! (`tests/py/env_parity.py`, floats as IEEE bits); Rust replays the same seeds and actions.
 //! Positions (and goals, object placement, sim time, rewards) must be equal bit for bit; the
 //! rest (Euler angles, Jacobian velocities, where numpy's libm/BLAS may round differently) within
@@ -8,8 +8,9 @@
 mod common;
 
 use pgser::env::fetch::{FetchEnv, TASKS};
+use pgser::env::hand::{self, HandEnv};
 use pgser::env::rng::NpRandom;
-use pgser::env::{GoalEnv, Obs, assets_dir};
+use pgser::env::{GoalEnv, Obs, assets_dir, ziggurat};
 use serde_json::Value;
 
 const SEEDS: [u64; 3] = [0, 1, 7];
@@ -40,6 +41,9 @@ fn numpy_generator_is_reproduced() {
         let mut uniform: Vec<f64> = (0..1000).map(|_| u.uniform(-0.3, 0.7)).collect();
         uniform.push(u.uniform(0.0, 0.45));
         assert!(same_bits(&uniform, &floats(&want["uniform"])), "uniform() differs for seed {s}");
+        let (zig, mut n) = (ziggurat::tables().unwrap(), NpRandom::new(s));
+        let normal: Vec<f64> = (0..1000).map(|_| zig.normal(&mut n, 0.0, 0.005)).collect();
+        assert!(same_bits(&normal, &floats(&want["normal"])), "normal() differs for seed {s}");
     }
 }
 
@@ -118,5 +122,104 @@ fn fetch_envs_match_python() {
             "{task:<18} {} observations: positions exact (max diff {:e}), euler max diff {:e}, velocities max diff {:e}",
             d.compared, d.positions, d.euler, d.velocities
         );
+    }
+}
+
+/// The hand tasks, replayed: several episodes per environment with `reset()` in between, so
+/// what carries over from one episode to the next (controls, warm starts: reset does not clear
+/// them) is checked too. Everything in the observation is a raw qpos/qvel, so all of it must be
+/// equal bit for bit, as must goals, rewards, successes and time.
+#[test]
+fn hand_envs_match_python() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hand.json");
+    let (seeds, episodes, steps) = ([0u64, 3], 3, 40);
+    let seed_list = seeds.map(|s| s.to_string()).join(",");
+    let (e, st) = (episodes.to_string(), steps.to_string());
+    let args = ["hand", "--tasks", &hand::TASKS.join(","), "--seeds", &seed_list, "--episodes", &e, "--steps", &st];
+    common::py_ok("env_parity.py", &[&args[..], &["--out", path.to_str().unwrap()]].concat());
+    let runs: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let exact = |task: &str, what: &str, got: &Obs, want: &Value| {
+        for (key, g) in [
+            ("observation", &got.observation),
+            ("achieved_goal", &got.achieved_goal),
+            ("desired_goal", &got.desired_goal),
+        ] {
+            let w = floats(&want[key]);
+            assert!(same_bits(g, &w), "{task} {what}: {key} differs\nrust   {g:?}\npython {w:?}");
+        }
+    };
+    for task in hand::TASKS {
+        let mut successes = 0;
+        for seed in seeds {
+            let mut env = HandEnv::new(task, &assets_dir()).unwrap();
+            for (ep, run) in runs[task][seed.to_string()].as_array().unwrap().iter().enumerate() {
+                let obs = env.reset(if ep == 0 { Some(seed) } else { None });
+                exact(task, &format!("seed {seed} episode {ep} reset"), &obs, &run["reset"]);
+                assert_eq!(
+                    env.time().to_bits(),
+                    floats(&run["time"])[0].to_bits(),
+                    "{task} seed {seed} episode {ep}: time"
+                );
+                for (t, want) in run["steps"].as_array().unwrap().iter().enumerate() {
+                    let step = env.step(&floats(&want["action"]));
+                    let what = format!("seed {seed} episode {ep} step {t}");
+                    exact(task, &what, &step.obs, want);
+                    assert_eq!(step.reward, want["reward"].as_f64().unwrap(), "{task} {what}: reward");
+                    assert_eq!(step.success, want["success"].as_bool().unwrap(), "{task} {what}: success");
+                    assert_eq!(env.time().to_bits(), floats(&want["time"])[0].to_bits(), "{task} {what}: time");
+                    successes += step.success as usize;
+                }
+            }
+            // After those episodes, a restart is a newly made environment again: episode 0.
+            let first = &runs[task][seed.to_string()][0];
+            let obs = env.restart(seed);
+            exact(task, &format!("seed {seed} restart"), &obs, &first["reset"]);
+            for (t, want) in first["steps"].as_array().unwrap().iter().enumerate() {
+                exact(task, &format!("seed {seed} restart step {t}"), &env.step(&floats(&want["action"])).obs, want);
+            }
+        }
+        println!(
+            "{task}: {} episodes × {steps} steps equal to Python bit for bit ({successes} successful steps)",
+            seeds.len() * episodes
+        );
+    }
+}
+
+/// `collect --policy random` over 100 episodes against gymnasium doing the same (a newly made
+/// environment per episode, reset with seed S + i, numpy's spawned action stream): the same
+/// final-step successes and the same summed rewards.
+#[test]
+fn random_hand_episodes_succeed_as_in_python() {
+    let dir = tempfile::tempdir().unwrap();
+    for task in hand::TASKS {
+        let out =
+            common::py_ok("env_parity.py", &["random-success", "--task", task, "--seed", "1000", "--episodes", "100"]);
+        let py: Value = serde_json::from_slice(&out.stdout).unwrap();
+        let py_successes = py["success"].as_array().unwrap().iter().filter(|v| v.as_bool().unwrap()).count();
+        let py_return: f64 = py["returns"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).sum();
+        let opts = pgser::collect::CollectOptions {
+            task: task.to_string(),
+            policy: pgser::env::policy::PolicySpec {
+                kind: pgser::env::policy::PolicyKind::Random,
+                noise: 0.0,
+                epsilon: 0.0,
+            },
+            episodes: 100,
+            seed: 1000,
+            output: dir.path().join(format!("{task}.parquet")),
+            float32: false,
+            row_group_rows: 65_536,
+            command: "test".into(),
+        };
+        let s = pgser::collect::collect(&opts, &indicatif::ProgressBar::hidden()).unwrap();
+        println!(
+            "{task}: random actions, 100 episodes: {} successes (Python {py_successes}), mean return {} (Python {})",
+            s.successes,
+            s.mean_return,
+            py_return / 100.0
+        );
+        assert_eq!(s.successes, py_successes, "{task}: final-step successes");
+        assert_eq!((s.mean_return * 100.0).round(), py_return, "{task}: summed rewards");
     }
 }

@@ -14,6 +14,7 @@
 
 mod adam;
 pub mod checkpoint;
+mod host;
 mod td3;
 #[cfg(test)]
 mod tests;
@@ -25,6 +26,7 @@ use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
+pub use host::HostActor;
 pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
 use crate::env::rng::NpRandom;

@@ -53,19 +53,23 @@ enum Command {
         #[arg(long, default_value_t = 65_536)]
         row_group_rows: usize,
     },
-    /// Simulate episodes in a Fetch environment (expert or random policy) into a table or pickle.
+    /// Simulate episodes in a Fetch or hand environment (expert, trained or random policy) into a table or pickle.
     #[command(
         after_help = "Examples:\n  pgser-etl collect --task FetchPush --policy expert --episodes 500 --seed 0 -o expert.parquet\n  \
         pgser-etl collect --task FetchPush --policy random --episodes 2000 --seed 1000 -o random.pkl\n  \
-        pgser-etl collect --task FetchReach --policy expert --noise 0.1 --episodes 50 --seed 0 -o noisy.pkl\n\n\
-        Episode i resets with seed S+i, as gymnasium's env.reset(seed=S+i) does."
+        pgser-etl collect --task FetchReach --policy expert --noise 0.1 --episodes 50 --seed 0 -o noisy.pkl\n  \
+        pgser-etl collect --task HandManipulateBlockRotateZ --policy random --episodes 2000 --seed 1000 -o random.parquet\n  \
+        pgser-etl collect --task HandManipulateBlockRotateZ --policy checkpoint:data/experts/block_z.ckpt --episodes 500 -o expert.parquet\n\n\
+        Episode i resets with seed S+i, as a newly made gymnasium env's reset(seed=S+i) does."
     )]
     Collect {
-        /// Task: FetchReach, FetchPush, FetchPickAndPlace or FetchSlide (optionally -v4).
+        /// Task: FetchReach, FetchPush, FetchPickAndPlace, FetchSlide (optionally -v4),
+        /// HandManipulateBlockRotateZ or HandManipulateEggRotate (optionally -v1).
         #[arg(long)]
         task: String,
-        /// Who acts: the scripted expert or uniform random actions.
-        #[arg(long, value_parser = ["expert", "random"])]
+        /// Who acts: `expert` (the scripted Fetch experts), `random` (uniform actions), or
+        /// `checkpoint:FILE` (agent 0's actor of a pgser checkpoint of the same task).
+        #[arg(long)]
         policy: String,
         /// Number of episodes.
         #[arg(long)]
@@ -76,10 +80,10 @@ enum Command {
         /// Output: .parquet (trajectory table) or .pkl (WGCSL pickle), written atomically.
         #[arg(short, long)]
         output: PathBuf,
-        /// Standard deviation of Gaussian noise added to expert actions (then clipped to [-1, 1]).
+        /// Standard deviation of Gaussian noise added to expert or checkpoint actions (then clipped to [-1, 1]).
         #[arg(long, default_value_t = 0.0)]
         noise: f64,
-        /// Probability of a uniform random action instead of the expert's, per step.
+        /// Probability of a uniform random action instead of the expert's or checkpoint's, per step.
         #[arg(long, default_value_t = 0.0)]
         epsilon: f64,
         /// Store float32 vectors in the table (default float64, as WGCSL pickles).

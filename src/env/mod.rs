@@ -1,5 +1,6 @@
-//! Goal-conditioned simulation environments: the gymnasium-robotics 1.4.2 Fetch v4 tasks on
-//! MuJoCo 3.17.0 (docs/domain.md, tasks).
+//! Goal-conditioned simulation environments: the gymnasium-robotics 1.4.2 Fetch v4 tasks and the
+//! two Shadow Hand v1 tasks of the paper (BlockRotateZ, EggRotate) on MuJoCo 3.17.0
+//! (docs/domain.md, tasks).
 //!
 //! They exist so pgser can collect trajectories and evaluate policies without Python. Being a
 //! port and not a look-alike is the point: with the same MuJoCo library, the same seed and the
@@ -8,8 +9,10 @@
 
 pub mod expert;
 pub mod fetch;
+pub mod hand;
 pub mod policy;
 pub mod rng;
+pub mod ziggurat;
 
 use std::path::{Path, PathBuf};
 
@@ -44,6 +47,13 @@ pub trait GoalEnv {
     /// match Python's. An environment never seeded behaves as if seeded with 0 (gymnasium would
     /// use OS entropy; pgser runs are meant to be reproducible).
     fn reset(&mut self, seed: Option<u64>) -> Obs;
+    /// Start an episode as a newly made environment would: `gym.make(id).reset(seed=seed)`.
+    /// For Fetch that is `reset`; the hand tasks carry controls and warm starts over from one
+    /// episode to the next, so `collect` and `eval`, which hand episodes to whichever worker is
+    /// free, start every episode with this to keep it independent of the one before it.
+    fn restart(&mut self, seed: u64) -> Obs {
+        self.reset(Some(seed))
+    }
     /// Apply one action (`task().act_dim` values, clipped to [−1, 1]). Values are first rounded
     /// to f32, the action space's dtype, because gymnasium computes with a float32 action as a
     /// policy hands it over. Panics if the action has the wrong length, as gymnasium raises.
@@ -57,18 +67,26 @@ pub fn applied_action(value: f64) -> f32 {
     (value as f32).clamp(-1.0, 1.0)
 }
 
-/// The environment for a task name or gymnasium id (`FetchPush`, `FetchPush-v4`).
-/// Other versions are refused: v1–v3 reset differently, so their data would not match.
+/// The environment for a task name or gymnasium id (`FetchPush`, `FetchPush-v4`,
+/// `HandManipulateEggRotate-v1`). Other versions are refused: Fetch v1–v3 reset differently and
+/// hand v0 runs on mujoco-py, so their data would not match.
 pub fn make(task_name: &str) -> Result<Box<dyn GoalEnv + Send>> {
-    if let Some((_, version)) = task_name.split_once("-v")
-        && version != "4"
-    {
-        bail!("{task_name}: pgser simulates the v4 Fetch environments only (use -v4 or no suffix)");
-    }
-    let Some(task) = Task::known(task_name) else {
-        bail!("{task_name}: no environment for this task (pgser simulates {})", fetch::TASKS.join(", "));
+    let simulated = || [&fetch::TASKS[..], &hand::TASKS[..]].concat().join(", ");
+    let Some(task) = Task::known(task_name).filter(|t| simulated().contains(t.name.as_str())) else {
+        let hint = Task::suggest(task_name).map(|s| format!(" (did you mean {s}?)")).unwrap_or_default();
+        bail!("{task_name}: no environment for this task{hint}; pgser simulates {}", simulated());
     };
-    Ok(Box::new(fetch::FetchEnv::new(&task.name, &assets_dir())?))
+    let version = task_name.split_once("-v").map(|(_, v)| v);
+    let (family, want) = if hand::TASKS.contains(&task.name.as_str()) { ("hand", "1") } else { ("Fetch", "4") };
+    if let Some(v) = version
+        && v != want
+    {
+        bail!("{task_name}: pgser simulates the v{want} {family} environments only (use -v{want} or no suffix)");
+    }
+    Ok(match family {
+        "hand" => Box::new(hand::HandEnv::new(&task.name, &assets_dir())?),
+        _ => Box::new(fetch::FetchEnv::new(&task.name, &assets_dir())?),
+    })
 }
 
 /// Where the gymnasium-robotics assets are: `$PGSER_ASSETS` if set, else the folder
@@ -101,8 +119,10 @@ mod tests {
     fn make_refuses_what_it_cannot_simulate() {
         let err = |n: &str| make(n).err().unwrap().to_string();
         assert!(err("FetchPush-v1").contains("v4"));
-        assert!(err("HandManipulateEggRotate").contains("FetchPickAndPlace"));
-        assert!(err("PointReach").contains("no environment"));
+        assert!(err("HandManipulateEggRotate-v0").contains("v1 hand"));
+        assert!(err("PointReach").contains("no environment") && err("PointReach").contains("HandManipulateEggRotate"));
+        let typo = err("HandManipulateBlockRotZ");
+        assert!(typo.contains("did you mean HandManipulateBlockRotateZ?") && !typo.contains('\n'), "{typo}");
     }
 
     #[test]

@@ -1,54 +1,86 @@
-//! The policies `collect` runs: the scripted experts (optionally noisy) and uniform random
-//! actions, each drawing from its own episode's generator.
+//! The policies `collect` runs: the scripted experts and trained actors (`checkpoint:FILE`),
+//! optionally noisy, and uniform random actions, each drawing from its own episode's generator.
 //!
 //! An episode's randomness depends on (seed, episode index) only, never on the thread that
 //! simulates it: episode i draws from numpy's `default_rng(SeedSequence(seed,
 //! spawn_key=(i,)))`, i.e. child i of `SeedSequence(seed).spawn(n)`, numpy's own recipe for
 //! independent parallel streams. Per step, in this order:
 //! * random policy: `rng.uniform(-1, 1, size=act_dim)`;
-//! * expert with `epsilon` > 0: one `rng.random()`; below epsilon the action is a random one as
+//! * expert or checkpoint with `epsilon` > 0: one `rng.random()`; below epsilon the action is a random one as
 //!   above and nothing else is drawn;
-//! * expert with `noise` > 0: per action value a standard normal from two `rng.random()` draws
+//! * expert or checkpoint with `noise` > 0: per action value a standard normal from two `rng.random()` draws
 //!   (Box–Muller, [`NpRandom::standard_normal`]), scaled by `noise` and added; then the action
 //!   is clipped to [−1, 1].
+
+use std::path::Path;
+use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
 use super::Obs;
 use super::expert::Expert;
 use super::rng::NpRandom;
+use crate::agent::HostActor;
 
 /// Which policy acts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone)]
 pub enum PolicyKind {
     Expert,
     Random,
+    /// A trained actor (agent 0 of a pgser checkpoint), shared by every worker.
+    Checkpoint(Arc<HostActor>),
 }
 
 impl PolicyKind {
+    /// `expert`, `random`, or `checkpoint:FILE` (the file is read here).
     pub fn parse(name: &str) -> Result<PolicyKind> {
         match name {
             "expert" => Ok(PolicyKind::Expert),
             "random" => Ok(PolicyKind::Random),
-            other => bail!("unknown policy '{other}': use expert or random"),
+            _ => match name.strip_prefix("checkpoint:") {
+                Some(file) if !file.is_empty() => {
+                    Ok(PolicyKind::Checkpoint(Arc::new(HostActor::load(Path::new(file))?)))
+                }
+                _ => bail!("unknown policy '{name}': use expert, random or checkpoint:FILE"),
+            },
         }
     }
 
-    pub fn name(self) -> &'static str {
+    pub fn name(&self) -> &'static str {
         match self {
             PolicyKind::Expert => "expert",
             PolicyKind::Random => "random",
+            PolicyKind::Checkpoint(_) => "checkpoint",
+        }
+    }
+}
+
+impl PolicyKind {
+    /// What a table's footer records: the name, and for a checkpoint its file.
+    pub fn describe(&self) -> String {
+        match self {
+            PolicyKind::Checkpoint(a) => format!("checkpoint:{}", a.source),
+            other => other.name().to_string(),
+        }
+    }
+}
+
+impl PartialEq for PolicyKind {
+    fn eq(&self, other: &PolicyKind) -> bool {
+        match (self, other) {
+            (PolicyKind::Checkpoint(a), PolicyKind::Checkpoint(b)) => Arc::ptr_eq(a, b),
+            _ => self.name() == other.name(),
         }
     }
 }
 
 /// A policy and its exploration settings.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct PolicySpec {
     pub kind: PolicyKind,
-    /// Standard deviation of Gaussian noise added to each expert action value.
+    /// Standard deviation of Gaussian noise added to each expert or checkpoint action value.
     pub noise: f64,
-    /// Probability of replacing an expert action by a uniform random one.
+    /// Probability of replacing an expert or checkpoint action by a uniform random one.
     pub epsilon: f64,
 }
 
@@ -62,16 +94,23 @@ impl PolicySpec {
             bail!("--epsilon must be a probability in [0, 1], got {}", self.epsilon);
         }
         if self.kind == PolicyKind::Random && (self.noise > 0.0 || self.epsilon > 0.0) {
-            bail!("--noise and --epsilon perturb the expert; the random policy takes neither");
+            bail!("--noise and --epsilon perturb the expert or a checkpoint; the random policy takes neither");
         }
         Ok(())
     }
 }
 
-/// One episode's policy: the task's expert (if any) and the episode's generator.
+/// Who picks the actions of an episode before any noise.
+enum Actor {
+    Random,
+    Expert(Expert),
+    Trained(Arc<HostActor>),
+}
+
+/// One episode's policy: its actor and the episode's generator.
 pub struct EpisodePolicy {
     spec: PolicySpec,
-    expert: Option<Expert>,
+    actor: Actor,
     rng: NpRandom,
 }
 
@@ -79,27 +118,39 @@ impl EpisodePolicy {
     /// The policy for episode `episode` of a run seeded with `seed`.
     pub fn new(spec: PolicySpec, task: &str, seed: u64, episode: u64) -> Result<EpisodePolicy> {
         spec.validate()?;
-        let expert = match spec.kind {
-            PolicyKind::Random => None,
+        let actor = match &spec.kind {
+            PolicyKind::Random => Actor::Random,
             PolicyKind::Expert => match Expert::for_task(task) {
-                Some(e) => Some(e),
-                None => bail!("{task}: pgser has no scripted expert for this task"),
+                Some(e) => Actor::Expert(e),
+                None => bail!(
+                    "{task}: pgser has no scripted expert for this task (a trained one: --policy checkpoint:FILE)"
+                ),
             },
+            PolicyKind::Checkpoint(a) => {
+                let t = crate::task::Task::known(task).map_or_else(|| task.to_string(), |t| t.name);
+                if a.task.name != t {
+                    bail!("--policy checkpoint: the checkpoint's actor was trained on {}, not {t}", a.task.name);
+                }
+                Actor::Trained(a.clone())
+            }
         };
-        Ok(EpisodePolicy { spec, expert, rng: NpRandom::spawned(seed, &[episode]) })
+        Ok(EpisodePolicy { spec, actor, rng: NpRandom::spawned(seed, &[episode]) })
     }
 
     /// Write the action for `obs` into `out` (the task's act_dim values, within [−1, 1]).
     pub fn act(&mut self, obs: &Obs, out: &mut [f64]) {
-        let Some(expert) = self.expert else {
-            return self.uniform(out);
-        };
-        if self.spec.epsilon > 0.0 && self.rng.random() < self.spec.epsilon {
+        if matches!(self.actor, Actor::Random) || (self.spec.epsilon > 0.0 && self.rng.random() < self.spec.epsilon) {
             return self.uniform(out);
         }
-        let a = expert.act(obs);
-        assert_eq!(out.len(), a.len(), "the {expert:?} expert acts in {} dimensions", a.len());
-        out.copy_from_slice(&a);
+        match &self.actor {
+            Actor::Expert(expert) => {
+                let a = expert.act(obs);
+                assert_eq!(out.len(), a.len(), "the {expert:?} expert acts in {} dimensions", a.len());
+                out.copy_from_slice(&a);
+            }
+            Actor::Trained(actor) => actor.act(&obs.observation, &obs.desired_goal, out),
+            Actor::Random => unreachable!("handled above"),
+        }
         if self.spec.noise > 0.0 {
             for x in out.iter_mut() {
                 *x += self.spec.noise * self.rng.standard_normal();
@@ -185,7 +236,10 @@ mod tests {
         assert!(e(spec(PolicyKind::Expert, -1.0, 0.0)).contains("--noise"));
         assert!(e(spec(PolicyKind::Expert, f64::NAN, 0.0)).contains("--noise"));
         assert!(e(spec(PolicyKind::Expert, 0.0, 1.5)).contains("--epsilon"));
-        assert!(PolicyKind::parse("greedy").unwrap_err().to_string().contains("expert or random"));
+        assert!(PolicyKind::parse("greedy").unwrap_err().to_string().contains("checkpoint:FILE"));
+        assert!(PolicyKind::parse("checkpoint:").is_err());
+        let e = PolicyKind::parse("checkpoint:/nonexistent/a.ckpt").err().unwrap().to_string();
+        assert!(e.contains("/nonexistent/a.ckpt"), "{e}");
         let p = EpisodePolicy::new(spec(PolicyKind::Expert, 0.0, 0.0), "PointReach", 0, 0);
         assert!(p.err().unwrap().to_string().contains("no scripted expert"));
     }

@@ -1,8 +1,10 @@
-"""Reference runs of the Python Fetch v4 environments and of numpy's generator, for
-tests/env_parity.rs.
+"""Reference runs of the Python Fetch v4 and hand v1 environments and of numpy's generator,
+for tests/env_parity.rs.
 
     env_parity.py rng --seeds 0,1,42 --n 1000          # JSON to stdout
     env_parity.py env --tasks FetchPush --seeds 0,1,7 --steps 50 --out runs.json
+    env_parity.py hand --tasks HandManipulateEggRotate --seeds 0,3 --episodes 3 --steps 40 --out runs.json
+    env_parity.py random-success --task HandManipulateEggRotate --seed 1000 --episodes 100
 
 Every float is written as the u64 of its IEEE bits, so the comparison in Rust sees exactly the
 values Python had (a decimal round trip through a JSON parser need not be exact).
@@ -53,6 +55,8 @@ def rng_cmd(args):
             "random": bits(g.random(args.n)),
             # one call with size=n, then scalar calls: both must follow the same stream
             "uniform": bits(np.concatenate([u.uniform(-0.3, 0.7, size=args.n), [u.uniform(0, 0.45)]])),
+            # the ziggurat (Generator.normal), as the hand tasks' resets draw it
+            "normal": bits(make().normal(size=args.n, scale=0.005)),
         }
     json.dump(out, sys.stdout)
 
@@ -105,6 +109,58 @@ def env_cmd(args):
         json.dump(runs, f)
 
 
+def hand_cmd(args):
+    """Per task and seed: `reset(seed=seed)`, then further `reset()`s on the same environment
+    (controls and warm starts carry over between episodes, as in gymnasium), each episode
+    stepped with float32 actions from `default_rng(1000 + seed)`, some outside [-1, 1]."""
+    runs = {}
+    for task in args.tasks:
+        per_seed = {}
+        for s in args.seeds:
+            u = gym.make(f"{task}-v1").unwrapped
+            actions = np.random.default_rng(1000 + s).uniform(-1.2, 1.2, (args.episodes, args.steps, 20))
+            episodes = []
+            for e in range(args.episodes):
+                obs, _ = u.reset(seed=s) if e == 0 else u.reset()
+                rec = {"reset": {k: bits(v) for k, v in obs.items()}, "time": bits(u.data.time), "steps": []}
+                for t in range(args.steps):
+                    a = actions[e, t].astype(np.float32)
+                    obs, r, _, _, info = u.step(a)
+                    step = {k: bits(v) for k, v in obs.items()}
+                    step.update(action=bits(a), reward=float(r), success=bool(info["is_success"]),
+                                time=bits(u.data.time))
+                    rec["steps"].append(step)
+                episodes.append(rec)
+            per_seed[str(s)] = episodes
+            u.close()
+        runs[task] = per_seed
+    with open(args.out, "w") as f:
+        json.dump(runs, f)
+
+
+def random_success_cmd(args):
+    """What `pgser-etl collect --policy random` does, in gymnasium: episode i is a newly made
+    environment reset with seed S+i, stepped T-1 times with `default_rng(SeedSequence(S,
+    spawn_key=(i,))).uniform(-1, 1, 20)` as float32. Prints the final-step successes and returns."""
+    T = {"HandManipulateBlockRotateZ": 100, "HandManipulateEggRotate": 100}.get(args.task, 50)
+    version = "v1" if args.task.startswith("Hand") else "v4"
+    success, returns = [], []
+    for i in range(args.episodes):
+        env = gym.make(f"{args.task}-{version}").unwrapped
+        env.reset(seed=args.seed + i)
+        rng = np.random.default_rng(np.random.SeedSequence(args.seed, spawn_key=(i,)))
+        ret, ok = 0.0, False
+        for _ in range(T - 1):
+            a = rng.uniform(-1.0, 1.0, size=env.action_space.shape[0]).astype(np.float32)
+            _, r, _, _, info = env.step(a)
+            ret += float(r)
+            ok = bool(info["is_success"])
+        success.append(ok)
+        returns.append(ret)
+        env.close()
+    json.dump({"success": success, "returns": returns}, sys.stdout)
+
+
 def main():
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -117,8 +173,18 @@ def main():
     e.add_argument("--seeds", type=ints, required=True)
     e.add_argument("--steps", type=int, default=50)
     e.add_argument("--out", required=True)
+    h = sub.add_parser("hand")
+    h.add_argument("--tasks", type=lambda s: s.split(","), required=True)
+    h.add_argument("--seeds", type=ints, required=True)
+    h.add_argument("--episodes", type=int, default=3)
+    h.add_argument("--steps", type=int, default=40)
+    h.add_argument("--out", required=True)
+    rs = sub.add_parser("random-success")
+    rs.add_argument("--task", required=True)
+    rs.add_argument("--seed", type=int, default=0)
+    rs.add_argument("--episodes", type=int, default=100)
     args = p.parse_args()
-    rng_cmd(args) if args.cmd == "rng" else env_cmd(args)
+    {"rng": rng_cmd, "env": env_cmd, "hand": hand_cmd, "random-success": random_success_cmd}[args.cmd](args)
 
 
 if __name__ == "__main__":
