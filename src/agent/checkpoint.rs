@@ -2,7 +2,8 @@
 //! reader can open, plus a `.resume` file beside it with the rest of the training state.
 //!
 //! Layout of `model.ckpt` (float32 tensors):
-//! - `actor.{0,2,4,6}.weight` `[out, in]` and `.bias` `[out]`, likewise `critic1.*`, `critic2.*`:
+//! - `actor.{0,2,4,6}.weight` `[out, in]` and `.bias` `[out]`, likewise `critic1.*`, `critic2.*`
+//!   (DDPG's one critic is `critic1.*`, and it has no `critic2`):
 //!   the names and shapes a PyTorch `nn.Sequential(Linear, ReLU, Linear, ..)` uses, so
 //!   `load_state_dict` works after stripping the prefix; the actor's output goes through tanh;
 //! - `normalizer.{obs,goal}_{mean,std}`;
@@ -190,8 +191,10 @@ pub fn stage(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, Stri
     let mut t = Tensors::default();
     let critics = agent.critics.tensors();
     t.push_member("actor", &agent.actor.member(i));
-    t.push_member("critic1", &member_of(&critics, 2 * i));
-    t.push_member("critic2", &member_of(&critics, 2 * i + 1));
+    let k = agent.config.algo.critics();
+    for c in 0..k {
+        t.push_member(&format!("critic{}", c + 1), &member_of(&critics, k * i + c));
+    }
     let n = &agent.norms[i];
     t.push("normalizer.obs_mean".into(), vec![n.obs_mean.len()], &n.obs_mean);
     t.push("normalizer.obs_std".into(), vec![n.obs_std.len()], &n.obs_std);
@@ -227,7 +230,9 @@ pub fn load(path: &Path, device: Device) -> Result<(Agent, HashMap<String, Strin
     };
     let (actor_sizes, critic_sizes) = net_sizes(&config, &task);
     let actor = f.member("actor", &actor_sizes)?;
-    let critics = [f.member("critic1", &critic_sizes)?, f.member("critic2", &critic_sizes)?];
+    let critics = (1..=config.algo.critics())
+        .map(|c| f.member(&format!("critic{c}"), &critic_sizes))
+        .collect::<Result<Vec<_>>>()?;
     let mut agent = Agent::new(config, task, norm, 0, device.clone());
     agent.actor = Mlp::from_members(&[actor], &device);
     agent.critics = Mlp::from_members(&critics, &device);
@@ -257,15 +262,15 @@ pub fn stage_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<Strin
     let mut t = Tensors::default();
     let targets = agent.critics_target.tensors();
     t.push_member("actor_target", &agent.actor_target.member(i));
-    t.push_member("critic1_target", &member_of(&targets, 2 * i));
-    t.push_member("critic2_target", &member_of(&targets, 2 * i + 1));
     t.push_moments("adam.actor", &agent.actor_opt.member(i));
-    t.push_moments("adam.critic1", &agent.critics_opt.member(2 * i));
-    t.push_moments("adam.critic2", &agent.critics_opt.member(2 * i + 1));
     let mut meta = extra.clone();
     meta.insert("adam.actor.step".into(), agent.actor_opt.step.to_string());
-    meta.insert("adam.critic1.step".into(), agent.critics_opt.step.to_string());
-    meta.insert("adam.critic2.step".into(), agent.critics_opt.step.to_string());
+    let k = agent.config.algo.critics();
+    for c in 0..k {
+        t.push_member(&format!("critic{}_target", c + 1), &member_of(&targets, k * i + c));
+        t.push_moments(&format!("adam.critic{}", c + 1), &agent.critics_opt.member(k * i + c));
+        meta.insert(format!("adam.critic{}.step", c + 1), agent.critics_opt.step.to_string());
+    }
     meta.insert("format".into(), format!("{FORMAT}-resume"));
     meta.insert("updates".into(), agent.updates.to_string());
     meta.insert("noise_rng".into(), serde_json::to_string(&agent.noise_rngs[i].words())?);
@@ -289,20 +294,22 @@ pub fn load_resume(agent: &mut Agent, path: &Path) -> Result<HashMap<String, Str
     let device = agent.device.clone();
     let (actor_sizes, critic_sizes) = net_sizes(&agent.config, &agent.task);
     agent.actor_target = Mlp::from_members(&[f.member("actor_target", &actor_sizes)?], &device);
-    agent.critics_target = Mlp::from_members(
-        &[f.member("critic1_target", &critic_sizes)?, f.member("critic2_target", &critic_sizes)?],
-        &device,
-    );
     let lr = agent.config.lr();
     let (am, av) = f.moments("adam.actor", &actor_sizes)?;
     agent.actor_opt = Adam::from_members(lr, f.meta_json(&meta, "adam.actor.step")?, &[am], &[av], &device);
-    let (c1m, c1v) = f.moments("adam.critic1", &critic_sizes)?;
-    let (c2m, c2v) = f.moments("adam.critic2", &critic_sizes)?;
-    let (s1, s2): (u64, u64) = (f.meta_json(&meta, "adam.critic1.step")?, f.meta_json(&meta, "adam.critic2.step")?);
-    if s1 != s2 {
-        bail!("{}: the two critics' Adam steps differ ({s1} vs {s2})", path.display());
+    let (mut targets, mut m, mut v, mut steps) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for c in 1..=agent.config.algo.critics() {
+        targets.push(f.member(&format!("critic{c}_target"), &critic_sizes)?);
+        let (cm, cv) = f.moments(&format!("adam.critic{c}"), &critic_sizes)?;
+        m.push(cm);
+        v.push(cv);
+        steps.push(f.meta_json::<u64>(&meta, &format!("adam.critic{c}.step"))?);
     }
-    agent.critics_opt = Adam::from_members(lr, s1, &[c1m, c2m], &[c1v, c2v], &device);
+    if steps.iter().any(|&s| s != steps[0]) {
+        bail!("{}: the critics' Adam steps differ ({steps:?})", path.display());
+    }
+    agent.critics_target = Mlp::from_members(&targets, &device);
+    agent.critics_opt = Adam::from_members(lr, steps[0], &m, &v, &device);
     agent.noise_rngs = vec![NpRandom::from_words(f.meta_json(&meta, "noise_rng")?)];
     Ok(meta)
 }

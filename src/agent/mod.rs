@@ -1,5 +1,6 @@
-//! The agent: a goal-conditioned actor and twin critics (burn modules), their normalizer, and
-//! the TD3 / TD3+BC update (`td3.rs`), Adam (`adam.rs`) and the checkpoint file (`checkpoint.rs`).
+//! The agent: a goal-conditioned actor and twin critics (one for DDPG; burn modules), their
+//! normalizer, and the TD3 / TD3+BC / DDPG update (`td3.rs`), Adam (`adam.rs`) and the
+//! checkpoint file (`checkpoint.rs`).
 //!
 //! The agent dimension: an `Agent` is a stack of A agents of the same settings, each network
 //! layer one `[A, in, out]` tensor (the twin critics an ensemble of two inside it), so that a
@@ -31,12 +32,25 @@ pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
 use crate::env::rng::NpRandom;
 
-/// Which learner: TD3 (Fujimoto et al. 2018) or TD3+BC (Fujimoto & Gu 2021).
+/// Which learner: TD3 (Fujimoto et al. 2018), TD3+BC (Fujimoto & Gu 2021), or DDPG (Lillicrap et
+/// al. 2016) as HER and MRN train it online (`pgser-train online`, docs/online.md): one critic,
+/// an action penalty, the actor every update and the targets every `policy_delay` updates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Algo {
     Td3,
     Td3bc,
+    Ddpg,
+}
+
+impl Algo {
+    /// Critics per agent: TD3's twins, or DDPG's one.
+    pub fn critics(self) -> usize {
+        match self {
+            Algo::Td3 | Algo::Td3bc => 2,
+            Algo::Ddpg => 1,
+        }
+    }
 }
 
 /// Every hyper-parameter of the update, with the defaults of docs/domain.md (GoFAR's goal-conditioned
@@ -49,7 +63,7 @@ pub struct AgentConfig {
     /// Discount factor γ.
     #[arg(long, default_value_t = 0.98)]
     pub gamma: f64,
-    /// Adam learning rate of actor and critics [default: 1e-3 for td3, 3e-4 for td3bc].
+    /// Adam learning rate of actor and critics [default: 1e-3 for td3 and ddpg, 3e-4 for td3bc].
     #[arg(long)]
     pub lr: Option<f64>,
     /// TD3+BC's α: the actor loss is −α/mean|Q| · mean Q + MSE(π(s), a).
@@ -61,7 +75,8 @@ pub struct AgentConfig {
     /// That noise is clipped to ±noise_clip.
     #[arg(long, default_value_t = 0.5)]
     pub noise_clip: f64,
-    /// The actor and the targets are updated every `policy_delay` critic updates.
+    /// The actor and the targets are updated every `policy_delay` critic updates (ddpg: the
+    /// actor every update, the targets every `policy_delay`).
     #[arg(long, default_value_t = 2)]
     pub policy_delay: u64,
     /// Polyak rate of the target networks.
@@ -76,6 +91,11 @@ pub struct AgentConfig {
     /// Normalized inputs are clipped to ±norm_clip.
     #[arg(long, default_value_t = 5.0)]
     pub norm_clip: f64,
+    /// Action penalty: action_l2 · mean π² is added to the actor loss [default: 1 for ddpg, as
+    /// HER and MRN have it; 0 for td3 and td3bc].
+    #[arg(long)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_l2: Option<f64>,
 }
 
 impl Default for AgentConfig {
@@ -92,6 +112,7 @@ impl Default for AgentConfig {
             hidden: 256,
             layers: 3,
             norm_clip: 5.0,
+            action_l2: None,
         }
     }
 }
@@ -99,8 +120,17 @@ impl Default for AgentConfig {
 impl AgentConfig {
     pub fn lr(&self) -> f64 {
         self.lr.unwrap_or(match self.algo {
-            Algo::Td3 => 1e-3,
+            Algo::Td3 | Algo::Ddpg => 1e-3,
             Algo::Td3bc => 3e-4,
+        })
+    }
+
+    /// The weight of the action penalty: DDPG's 1 unless set (baselines' HER and MRN), none
+    /// for the TD3 learners unless set.
+    pub fn action_l2(&self) -> f64 {
+        self.action_l2.unwrap_or(match self.algo {
+            Algo::Ddpg => 1.0,
+            Algo::Td3 | Algo::Td3bc => 0.0,
         })
     }
 
@@ -122,7 +152,7 @@ pub struct Dense {
 
 /// `M` ReLU multilayer perceptrons of the same shapes with a linear last layer, held as one
 /// stack: the actors of A agents (M = A), or their twin critics (M = 2A, agent a's critic 1 at
-/// member 2a and critic 2 at 2a + 1). Member m only ever sees row block m of the input, so
+/// member 2a and critic 2 at 2a + 1; DDPG: M = A, one critic each). Member m only ever sees row block m of the input, so
 /// members train independently; a stack of one is a plain network.
 #[derive(Module, Debug)]
 pub struct Mlp {

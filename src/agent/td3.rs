@@ -1,8 +1,10 @@
-//! TD3 and TD3+BC for goal-conditioned offline data, one update top to bottom.
+//! TD3 and TD3+BC for goal-conditioned offline data, and DDPG for online HER, one update top to
+//! bottom.
 //!
 //! Follows sfujim/TD3_BC `TD3_BC.py` (losses, noise, delay, Polyak) with GoFAR's
 //! goal-conditioned settings (normalized [s, g] inputs, γ = 0.98, target clipped to
 //! [−1/(1−γ), 0], no terminal masking: a goal-reaching task never ends early); docs/domain.md.
+//! DDPG is the same update with one critic, no target noise and MRN's actor loss (docs/online.md).
 
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
@@ -75,7 +77,8 @@ pub struct Agent {
     pub device: Device,
     /// A actors.
     pub actor: Mlp,
-    /// 2A critics: agent i's twin critics are members 2i and 2i + 1 (an ensemble of two).
+    /// K·A critics (K = `config.algo.critics()`): agent i's are members K·i .. K·i + K − 1 (TD3's
+    /// twins an ensemble of two, DDPG's one critic).
     pub critics: Mlp,
     pub actor_target: Mlp,
     pub critics_target: Mlp,
@@ -115,8 +118,9 @@ impl Agent {
             // Per agent, in this order from its own stream: actor, critic 1, critic 2.
             let mut init = NpRandom::spawned(seed, &[STREAM_INIT]);
             actors.push(init_member(&actor_sizes, &mut init));
-            critics.push(init_member(&critic_sizes, &mut init));
-            critics.push(init_member(&critic_sizes, &mut init));
+            for _ in 0..config.algo.critics() {
+                critics.push(init_member(&critic_sizes, &mut init));
+            }
         }
         let actor = Mlp::from_members(&actors, &device);
         let critics = Mlp::from_members(&critics, &device);
@@ -166,10 +170,11 @@ impl Agent {
         self.norms.len()
     }
 
-    /// One TD3 / TD3+BC update of every agent, agent i on `batches[i]` (all of one size).
+    /// One TD3 / TD3+BC / DDPG update of every agent, agent i on `batches[i]` (all of one size).
     pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
         let c = &self.config;
-        let (a, n, act_dim) = (self.agents(), batches[0].n, self.task.act_dim);
+        let (a, n, act_dim, k) = (self.agents(), batches[0].n, self.task.act_dim, c.algo.critics());
+        let ddpg = c.algo == Algo::Ddpg;
         assert_eq!(batches.len(), a, "one batch per agent");
         assert!(batches.iter().all(|b| b.n == n), "the agents' batches differ in size");
         let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
@@ -177,26 +182,35 @@ impl Agent {
         let action = self.stacked(batches.iter().map(|b| &b.action[..]), [a, n, act_dim]);
         let reward = self.stacked(batches.iter().map(|b| &b.reward[..]), [a, n, 1]);
 
-        // 1. The TD target, from the target networks with a smoothed target action.
-        let noise: Vec<f32> = self
-            .noise_rngs
-            .iter_mut()
-            .flat_map(|rng| {
-                (0..n * act_dim)
-                    .map(|_| (rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32)
-                    .collect::<Vec<f32>>()
-            })
-            .collect();
-        let noise = Tensor::from_data(TensorData::new(noise, [a, n, act_dim]), &self.device);
-        let next_action = (tanh(self.actor_target.forward(next_sg.clone())) + noise).clamp(-1.0, 1.0);
-        let next_q = twins(&self.critics_target, Tensor::cat(vec![next_sg, next_action], 2));
-        let [q1n, q2n] = pair(next_q);
-        let target = td_target(c, reward, q1n.min_pair(q2n)).unsqueeze_dim::<4>(1); // [A, 1, n, 1]
+        // 1. The TD target, from the target networks with a smoothed target action (TD3) or the
+        //    target actor's own (DDPG), and the smaller of the twins' values (TD3).
+        let next_action = tanh(self.actor_target.forward(next_sg.clone()));
+        let next_action = if ddpg {
+            next_action
+        } else {
+            let noise: Vec<f32> = self
+                .noise_rngs
+                .iter_mut()
+                .flat_map(|rng| {
+                    (0..n * act_dim)
+                        .map(|_| (rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32)
+                        .collect::<Vec<f32>>()
+                })
+                .collect();
+            let noise = Tensor::from_data(TensorData::new(noise, [a, n, act_dim]), &self.device);
+            (next_action + noise).clamp(-1.0, 1.0)
+        };
+        let next_q = ensemble(&self.critics_target, Tensor::cat(vec![next_sg, next_action], 2), k);
+        let target = td_target(c, reward, smallest(next_q)).unsqueeze_dim::<4>(1); // [A, 1, n, 1]
 
-        // 2. Both critics of every agent regress on its target: the loss is the sum over agents
-        //    and twins of mean squared errors, so each agent's gradient is its own loss's.
+        // DDPG's actor ascends the critic as it was before this step (HER's and MRN's order:
+        // both losses are built first, then both networks step).
+        let critics_before = ddpg.then(|| self.critics.copy());
+
+        // 2. Every critic of every agent regresses on its target: the loss is the sum over agents
+        //    and critics of mean squared errors, so each agent's gradient is its own loss's.
         let tracked = self.critics.tracked();
-        let q = twins(&tracked, Tensor::cat(vec![sg.clone(), action.clone()], 2)); // [A, 2, n, 1]
+        let q = ensemble(&tracked, Tensor::cat(vec![sg.clone(), action.clone()], 2), k); // [A, K, n, 1]
         let q_mean = q.clone().detach().narrow(1, 0, 1).mean_dims(&[1, 2, 3]).reshape([a]).without_autodiff();
         let sq = (q - target).square();
         let sq = if batches.iter().all(|b| b.weight.is_empty()) {
@@ -213,25 +227,35 @@ impl Agent {
         self.critics_opt.step(&mut self.critics, &tracked, &grads);
         self.updates += 1;
 
-        // 3. Every `policy_delay` updates: the actor ascends Q1 (TD3+BC: plus behaviour
-        //    cloning, with λ = α / mean|Q| per agent so the two terms stay on one scale), then
-        //    the targets.
+        // 3. Every `policy_delay` updates (DDPG: every update): the actor ascends Q1 (TD3+BC:
+        //    plus behaviour cloning, with λ = α / mean|Q| per agent so the two terms stay on one
+        //    scale; with `action_l2`: minus the action penalty); every `policy_delay` updates
+        //    the targets follow.
         let mut actor_loss = None;
-        if self.updates.is_multiple_of(c.policy_delay) {
+        let delayed = self.updates.is_multiple_of(c.policy_delay);
+        if ddpg || delayed {
             let tracked = self.actor.tracked();
             let pi = tanh(tracked.forward(sg.clone()));
-            // The updated critic 1 of each agent, as a constant: no gradient flows into it.
-            let q = self.critics.every(2, 0).forward(Tensor::cat(vec![sg, pi.clone()], 2)); // [A, n, 1]
+            // Critic 1 of each agent, as a constant: no gradient flows into it.
+            let critic = match critics_before {
+                Some(before) => before,
+                None => self.critics.every(2, 0),
+            };
+            let q = critic.forward(Tensor::cat(vec![sg, pi.clone()], 2)); // [A, n, 1]
             let loss = match c.algo {
-                Algo::Td3 => q.mean_dim(1).neg(),
+                Algo::Td3 | Algo::Ddpg => q.mean_dim(1).neg(),
                 Algo::Td3bc => {
                     let lambda = q.clone().abs().mean_dim(1).detach().recip().mul_scalar(c.alpha);
-                    (q.mean_dim(1) * lambda).neg() + (pi - action).square().mean_dims(&[1, 2])
+                    (q.mean_dim(1) * lambda).neg() + (pi.clone() - action).square().mean_dims(&[1, 2])
                 }
             }; // [A, 1, 1]
+            let l2 = c.action_l2();
+            let loss = if l2 > 0.0 { loss + pi.square().mean_dims(&[1, 2]).mul_scalar(l2) } else { loss };
             let grads = loss.clone().sum().backward();
             self.actor_opt.step(&mut self.actor, &tracked, &grads);
             actor_loss = Some(loss.detach().reshape([a]).without_autodiff());
+        }
+        if delayed {
             self.actor_target.soft_update(&self.actor, c.tau);
             self.critics_target.soft_update(&self.critics, c.tau);
         }
@@ -250,14 +274,14 @@ impl Agent {
         out.chunks(n * self.task.act_dim).map(<[f32]>::to_vec).collect()
     }
 
-    /// min(Q1, Q2)(s, g, a) of agent 0 for `n` rows: the score PGSER's Alg. 2 ranks swapped
-    /// transitions by.
+    /// min(Q1, Q2)(s, g, a) of agent 0 for `n` rows (DDPG: its critic's Q): the score PGSER's
+    /// Alg. 2 ranks swapped transitions by.
     pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Vec<f32> {
         let a = self.agents();
         let sg = self.input(std::iter::repeat_n((obs, goal), a), n);
         let act = self.stacked(std::iter::repeat_n(action, a), [a, n, self.task.act_dim]);
-        let [q1, q2] = pair(twins(&self.critics, Tensor::cat(vec![sg, act], 2)));
-        host(q1.min_pair(q2)).1[..n].to_vec()
+        let q = ensemble(&self.critics, Tensor::cat(vec![sg, act], 2), self.config.algo.critics());
+        host(smallest(q)).1[..n].to_vec()
     }
 
     /// Normalized [s, g] of each agent's rows, `[A, n, obs + goal]`.
@@ -278,15 +302,17 @@ impl Agent {
     }
 }
 
-/// Both critics of every agent on the agent's inputs `x` `[A, n, in]`: returns `[A, 2, n, 1]`.
-fn twins(critics: &Mlp, x: Tensor<3>) -> Tensor<4> {
+/// The `k` critics of every agent on the agent's inputs `x` `[A, n, in]`: returns `[A, k, n, 1]`.
+fn ensemble(critics: &Mlp, x: Tensor<3>, k: usize) -> Tensor<4> {
     let [a, n, d] = x.dims();
-    let x = x.unsqueeze_dim::<4>(1).expand([a, 2, n, d]).reshape([2 * a, n, d]);
-    critics.forward(x).reshape([a, 2, n, 1])
+    let x = x.unsqueeze_dim::<4>(1).expand([a, k, n, d]).reshape([k * a, n, d]);
+    critics.forward(x).reshape([a, k, n, 1])
 }
 
-/// `[A, 2, n, 1]` twin values as (Q1, Q2), each `[A, n, 1]`.
-fn pair(q: Tensor<4>) -> [Tensor<3>; 2] {
+/// The smallest of each agent's critics' values `[A, k, n, 1]`, as `[A, n, 1]` (TD3's clipped
+/// double Q; with one critic, its value). A minimum rounds nothing, so this is the same bits
+/// as taking it pairwise.
+fn smallest(q: Tensor<4>) -> Tensor<3> {
     let [a, _, n, _] = q.dims();
-    [q.clone().narrow(1, 0, 1).reshape([a, n, 1]), q.narrow(1, 1, 1).reshape([a, n, 1])]
+    q.min_dim(1).reshape([a, n, 1])
 }
