@@ -8,6 +8,7 @@
 //! task's reward function, so relabelled and swapped rows are labelled exactly like original ones.
 
 pub mod priority;
+pub mod replay;
 pub mod scored;
 
 use clap::{Args, ValueEnum};

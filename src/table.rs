@@ -124,14 +124,23 @@ impl TableWriter {
     }
 
     /// Write the footer and move the finished file into place. Returns its size in bytes.
-    pub fn finish(mut self, footer: &serde_json::Value) -> Result<u64> {
+    pub fn finish(self, footer: &serde_json::Value) -> Result<u64> {
+        let out = self.finish_staged(footer)?;
+        let dest: PathBuf = out.dest().to_path_buf();
+        out.commit()?;
+        Ok(std::fs::metadata(&dest)?.len())
+    }
+
+    /// Write the footer but leave the file beside its destination: the caller commits it, so a
+    /// table can be put in place together with the files that must agree with it (the online
+    /// trainer's replay buffer and its checkpoint).
+    pub fn finish_staged(mut self, footer: &serde_json::Value) -> Result<AtomicFile> {
         let dest: PathBuf = self.out.dest().to_path_buf();
         let mut writer = self.join()?;
         writer.append_key_value_metadata(KeyValue::new(FOOTER_KEY.to_string(), footer.to_string()));
         let buf = writer.into_inner().with_context(|| format!("{}: cannot finish the file", dest.display()))?;
         buf.into_inner().map_err(|e| e.into_error()).with_context(|| format!("{}: write failed", dest.display()))?;
-        self.out.commit()?;
-        Ok(std::fs::metadata(&dest)?.len())
+        Ok(self.out)
     }
 }
 

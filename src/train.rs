@@ -28,6 +28,7 @@ use crate::trajectory::Episodes;
 use rayon::prelude::*;
 
 mod bench;
+pub mod online;
 pub mod stop;
 pub use bench::{BenchReport, SamplerBenchReport, bench_agents, bench_sampler};
 
@@ -524,11 +525,13 @@ fn restore(
     let resume_meta = checkpoint::load_resume(&mut agent, &checkpoint::resume_path(out))?;
     let words = resume_meta.get("batch_rng").with_context(|| format!("{at}.resume: batch_rng missing"))?;
     let batches = NpRandom::from_words(serde_json::from_str(words)?);
-    let metrics = read_metrics(&metrics_path(out))?.into_iter().filter(|m| m.updates <= agent.updates).collect();
+    let metrics =
+        read_metrics::<MetricsLine>(&metrics_path(out))?.into_iter().filter(|m| m.updates <= agent.updates).collect();
     Ok((agent, batches, metrics))
 }
 
-fn stage_metrics(path: &Path, lines: &[MetricsLine]) -> Result<AtomicFile> {
+/// A metrics file (one JSON line per record), staged for the caller to commit.
+fn stage_metrics<T: Serialize>(path: &Path, lines: &[T]) -> Result<AtomicFile> {
     let mut text = String::new();
     for l in lines {
         text.push_str(&serde_json::to_string(l)?);
@@ -540,7 +543,7 @@ fn stage_metrics(path: &Path, lines: &[MetricsLine]) -> Result<AtomicFile> {
     Ok(out)
 }
 
-fn read_metrics(path: &Path) -> Result<Vec<MetricsLine>> {
+fn read_metrics<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
     if !path.exists() {
         return Ok(Vec::new());
     }

@@ -85,6 +85,26 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Train an expert online: DDPG + HER with MRN's settings in a pgser environment
+    /// (docs/online.md). Writes OUT, OUT.resume, OUT.metrics.jsonl (one line per epoch) and
+    /// OUT.buffer.parquet (the replay buffer, for --resume).
+    #[command(after_help = "Examples:\n  \
+        pgser-train online --task HandManipulateBlockRotateZ -o out/experts/block_z/expert.ckpt\n  \
+        pgser-train online --task HandManipulateBlockRotateZ -o out/experts/block_z/expert.ckpt --resume\n  \
+        pgser-train online --task FetchReach --epochs 5 --cycles 10 --episodes-per-cycle 2 -o reach.ckpt --json")]
+    Online {
+        /// Checkpoint to write (the other files go beside it).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Continue the run whose checkpoint is --output (same settings; --epochs may grow).
+        #[arg(long)]
+        resume: bool,
+        #[command(flatten)]
+        cfg: train::online::OnlineConfig,
+        /// Print a JSON summary as the last line of stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Time the prioritized sampler alone on a scored table (from disk, or --in-memory).
     #[command(
         after_help = "Example:\n  pgser-train bench-sampler --data scored.parquet --batch-size 256 --batches 2000 --json"
@@ -156,6 +176,30 @@ fn main() -> ExitCode {
                         "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
                         report.episodes, report.return_mean, report.return_std, report.success_rate, report.paper_score
                     );
+                }
+            }
+            Some(Command::Online { output, resume, cfg, json }) => {
+                let bar = progress::bar("online", "cycles");
+                let s = train::online::train_online(&cfg, &output, resume, device, &cli::command_line(), &bar)?;
+                let eval = s.eval.map_or(String::new(), |e| {
+                    format!(
+                        "; eval over {} episodes: success {:.3}, return {:.2}",
+                        e.episodes, e.success_rate, e.return_mean
+                    )
+                });
+                let stopped = if s.finished { "" } else { " (stopped by --max-minutes; continue with --resume)" };
+                eprintln!(
+                    "{}: {} cycles, epoch {}{stopped} ({} updates, {} env steps): {:.0} env steps/s, {:.1} updates/s{eval}",
+                    s.checkpoint.display(),
+                    s.cycles,
+                    s.epochs,
+                    s.updates,
+                    s.env_steps,
+                    s.env_steps_per_sec,
+                    s.updates_per_sec
+                );
+                if json {
+                    println!("{}", serde_json::to_string(&s)?);
                 }
             }
             Some(Command::BenchSampler { data, batch_size, batches, in_memory, priority, json }) => {

@@ -142,6 +142,12 @@ impl TrajectoryWriter {
         debug_assert_eq!(footer.episodes, self.episodes);
         self.table.finish(&serde_json::to_value(footer)?)
     }
+
+    /// Write the footer, leaving the file for the caller to commit (`TableWriter::finish_staged`).
+    pub fn finish_staged(self, footer: &Footer) -> Result<crate::output::AtomicFile> {
+        debug_assert_eq!(footer.episodes, self.episodes);
+        self.table.finish_staged(&serde_json::to_value(footer)?)
+    }
 }
 
 /// Episodes [e0, e1) of `src` as one record batch, numbered from `first_episode`.
