@@ -145,7 +145,7 @@ fn experts_beat_their_targets_and_random_does_not() {
 fn bad_requests_fail_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let base = ["--task", "FetchReach", "--policy", "expert", "--episodes", "2"];
-    let cases: [(&[&str], &str, &str); 7] = [
+    let cases: [(&[&str], &str, &str); 8] = [
         (&base, "out.csv", ".parquet"),
         (&[&base[..], &["--float32"]].concat(), "out.pkl", "float64"),
         (
@@ -154,6 +154,11 @@ fn bad_requests_fail_cleanly() {
             "random policy",
         ),
         (&["--task", "FetchFoo", "--policy", "expert", "--episodes", "2"], "o.pkl", "fetchfoo"),
+        (
+            &["--task", "HandManipulateBlockRotZ", "--policy", "random", "--episodes", "2"],
+            "o.pkl",
+            "did you mean HandManipulateBlockRotateZ?",
+        ),
         (&["--task", "FetchReach", "--policy", "expert", "--episodes", "0"], "o.pkl", "at least 1"),
         (&[&base[..], &["--epsilon", "2"]].concat(), "o.parquet", "epsilon"),
         (&[&base[..], &["--seed", "18446744073709551615"]].concat(), "o.parquet", "overflows"),
@@ -210,7 +215,18 @@ fn a_trained_actor_collects_in_its_task_and_only_there() {
         let again = dir.path().join(format!("{task}-trained-1.parquet"));
         collect_ok(&[&run[..], &["-o", p(&again)]].concat(), Some(1));
         assert_same_data(&read_table(&table).0, &read_table(&again).0); // 2 threads vs 1
-        assert_eq!(inspect_json(&table)["footer"]["policy"], serde_json::json!(policy));
+        let footer = &inspect_json(&table)["footer"];
+        assert_eq!(footer["policy"], serde_json::json!(policy));
+        let metric = if task.starts_with("Hand") { "quat_angle" } else { "euclidean" };
+        assert_eq!(footer["goal_metric"], serde_json::json!(metric), "{task}: the footer's goal metric");
+        // `pgser-train eval` runs the checkpoint in its task's environment.
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+            .args(["eval", "--ckpt", p(&ckpt), "--episodes", "2", "--json"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{task}: eval failed: {}", text(&o.stderr));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(report["episodes"], 2, "{task}: {report}");
 
         // The actions are the actor's (clipped and rounded as applied), up to float round-off.
         let (agent, _) = pgser::agent::checkpoint::load(&ckpt, burn::tensor::Device::flex()).unwrap();
