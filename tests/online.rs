@@ -132,6 +132,33 @@ fn a_run_is_the_same_bits_at_any_thread_count_and_across_resumes() {
 }
 
 #[test]
+fn sigterm_saves_at_a_cycle_boundary_and_the_run_resumes_to_the_same_bits() {
+    let dir = tempfile::tempdir().unwrap();
+    let straight = dir.path().join("straight.ckpt");
+    online_ok(&straight, 1, &["--epochs", "4"]);
+    let killed = dir.path().join("killed.ckpt");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["online", "-o", killed.to_str().unwrap(), "--threads", "1", "--epochs", "4"])
+        .args(TINY)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Once the first epoch is saved, ask it to stop (it may also have finished by then).
+    let start = std::time::Instant::now();
+    while !killed.exists() && start.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let out = child.wait_with_output().unwrap();
+    if !out.status.success() {
+        let err = text(&out.stderr);
+        assert!(err.trim_end().lines().last().unwrap().contains("stopped by SIGTERM"), "{err}");
+        online_ok(&killed, 1, &["--epochs", "4", "--resume"]);
+    }
+    assert_same_run(&straight, &killed);
+}
+
+#[test]
 fn resume_refuses_another_run_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     let ckpt = dir.path().join("a.ckpt");

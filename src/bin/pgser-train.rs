@@ -179,6 +179,9 @@ fn main() -> ExitCode {
                 }
             }
             Some(Command::Online { output, resume, cfg, json }) => {
+                // SIGTERM saves at the next cycle boundary and stops (a long run killed by a
+                // time limit or `kill` loses nothing).
+                train::stop::install()?;
                 let bar = progress::bar("online", "cycles");
                 let s = train::online::train_online(&cfg, &output, resume, device, &cli::command_line(), &bar)?;
                 let eval = s.eval.map_or(String::new(), |e| {

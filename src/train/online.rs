@@ -246,6 +246,7 @@ pub fn train_online(
     command: &str,
     bar: &ProgressBar,
 ) -> Result<OnlineSummary> {
+    let _training = super::stop::Training::start();
     let mut envs: Vec<Box<dyn GoalEnv + Send>> =
         (0..cfg.episodes_per_cycle).map(|_| env::make(&cfg.task)).collect::<Result<_>>()?;
     let task = envs[0].task().clone();
@@ -293,7 +294,9 @@ pub fn train_online(
             bar.suspend(|| eprintln!("{line}"));
         }
         let now = Instant::now();
-        let stop = out_of_time(&now) && run.progress.epoch < cfg.epochs;
+        // --max-minutes, or SIGTERM (`stop`, as a pipeline's training step): save and stop here.
+        let signal = super::stop::requested();
+        let stop = (out_of_time(&now) || signal) && run.progress.epoch < cfg.epochs;
         if run.progress.cycle == 0
             || stop
             || (cfg.save_minutes > 0.0 && (now - last_save).as_secs_f64() >= 60.0 * cfg.save_minutes)
@@ -302,6 +305,10 @@ pub fn train_online(
             last_save = Instant::now();
         }
         bar.set_position(run.progress.epoch * cfg.cycles + run.progress.cycle);
+        if stop && signal {
+            let of = cfg.epochs * cfg.cycles * cfg.updates_per_cycle;
+            return Err(super::stop::Interrupted { updates: run.agent.updates, of }.into());
+        }
         if stop {
             break;
         }
