@@ -24,7 +24,7 @@ check that each side really used about T cores. It includes start-up, so it read
 
 Usage:
     bench_train.py [--pgser target/release/pgser-train] [--python bench-out/torch-venv/bin/python]
-                   [--task FetchPush] [--algo td3bc|td3] [--batch-size 512] [--updates 300]
+                   [--task FetchPush] [--algo td3bc|td3|ddpg] [--batch-size 512] [--updates 300]
                    [--threads 2] [--repeat 3] [--cpu-set 0,1] [--json OUT.json]
                    [--peer-device cpu|cuda] [--pgser-arg ARG ...]
 
@@ -57,6 +57,8 @@ TASKS = {
     "FetchSlide": (25, 3, 4),
     "FetchPickAndPlace": (25, 3, 4),
     "FetchPick": (25, 3, 4),
+    "HandManipulateBlockRotateZ": (61, 7, 20),
+    "HandManipulateEggRotate": (61, 7, 20),
 }
 
 
@@ -105,7 +107,8 @@ def main(argv=None):
     ap.add_argument("--python", default=None,
                     help=f"interpreter for the peer, with torch and numpy (default {peer_python.DEFAULT.relative_to(REPO)})")
     ap.add_argument("--task", default="FetchPush", choices=sorted(TASKS), help="sets the peer's dims")
-    ap.add_argument("--algo", default="td3bc", choices=("td3bc", "td3"))
+    ap.add_argument("--algo", default="td3bc", choices=("td3bc", "td3", "ddpg"),
+                    help="ddpg: MRN's update, as `pgser-train online` makes it (targets every 40 updates)")
     ap.add_argument("--batch-size", type=int, default=512)
     ap.add_argument("--updates", type=int, default=300, help="timed updates per run (default 300)")
     ap.add_argument("--warmup", type=int, default=20, help="untimed warm-up updates, both sides (default 20)")
@@ -142,6 +145,8 @@ def main(argv=None):
         "pgser": [str(pgser), "bench", "--task", args.task, "--batch-size", str(args.batch_size),
                   "--updates", str(args.updates), "--warmup", str(args.warmup), "--threads", t,
                   "--algo", args.algo, "--json",
+                  # MRN moves the targets once per cycle of 40 updates, as `pgser-train online` does.
+                  *(["--policy-delay", "40", "--tau", "0.1"] if args.algo == "ddpg" else []),
                   *args.pgser_arg],
         "pytorch": [python, str(HERE / "train_peer.py"), "--obs", str(obs), "--goal", str(goal),
                     "--act", str(act), "--batch-size", str(args.batch_size), "--updates", str(args.updates),

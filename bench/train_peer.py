@@ -17,6 +17,17 @@ updates/s figures can be compared:
             td3:   -Q1(s, g, pi).mean()
     lr      3e-4 (td3bc) or 1e-3 (td3), both optimisers
 
+With --algo ddpg it is instead MRN's DDPG update (Cranial-XIX/metric-residual-network,
+src/agent/ddpg.py, as `main.py --agent her --negative-reward` trains the hand experts), the
+update `pgser-train online` makes (docs/online.md):
+
+    critic  one [obs+goal+act] -> 256 -> 256 -> 256 -> 1 (MRN feeds [s, a, g]: same cost)
+    target  r + 0.98 * Q'(s', g, pi'(s', g)), clamped to [-1 / (1 - gamma), 0]; no noise
+    actor   -Q(s, g, pi).mean() + 1.0 * pi.pow(2).mean(), every update, on the critic before
+            its step; both losses scaled by MRN's loss_scale 20 before backward
+    targets polyak 0.9 once per cycle of 40 updates
+    lr      1e-3, both optimisers
+
 Batches are random tensors generated before timing (8 of them, cycled), so only the update
 is timed. `--updates` counts critic updates; the actor and targets move on every 2nd one.
 
@@ -26,7 +37,7 @@ Prints one line; with --json:
 
 Usage:
     train_peer.py [--obs 25] [--goal 3] [--act 4] [--batch-size 512] [--updates 300]
-                  [--warmup 20] [--threads 2] [--seed 0] [--algo td3bc|td3]
+                  [--warmup 20] [--threads 2] [--seed 0] [--algo td3bc|td3|ddpg]
                   [--device cpu|cuda] [--json]
 """
 from __future__ import annotations
@@ -51,7 +62,12 @@ POLICY_FREQ = 2
 ALPHA = 2.5  # TD3+BC's lambda numerator
 CLIP_OBS = 5.0  # normaliser clip range, as in HER/WGCSL/GoFAR
 N_BATCHES = 8
-LR = {"td3bc": 3e-4, "td3": 1e-3}
+LR = {"td3bc": 3e-4, "td3": 1e-3, "ddpg": 1e-3}
+# MRN's DDPG (--algo ddpg): src/args.py defaults.
+ACTION_L2 = 1.0
+LOSS_SCALE = 20.0
+POLYAK = 0.9
+N_BATCHES_PER_CYCLE = 40
 
 
 def mlp(inp: int, out: int) -> nn.Sequential:
@@ -105,17 +121,44 @@ class Agent:
             net.requires_grad_(False)
         lr = LR[algo]
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=lr)
-        self.critic_opt = torch.optim.Adam([*self.q1.parameters(), *self.q2.parameters()], lr=lr)
+        critics = [self.q1] if algo == "ddpg" else [self.q1, self.q2]  # DDPG: one critic
+        self.critic_opt = torch.optim.Adam([p for q in critics for p in q.parameters()], lr=lr)
         self.o_norm = Normalizer(obs, gen, device)
         self.g_norm = Normalizer(goal, gen, device)
         self.q_min, self.q_max = -1.0 / (1.0 - GAMMA), 0.0
         self.it = 0
         self.last = {}
 
+    def update_ddpg(self, batch):
+        """MRN's `DDPG._update`, plus its once-per-cycle `_soft_update` every 40th call."""
+        self.it += 1
+        o_raw, g_raw, a, o2_raw, r = batch
+        o, g, o2 = self.o_norm(o_raw), self.g_norm(g_raw), self.o_norm(o2_raw)
+        with torch.no_grad():
+            tq = self.q1_t(o2, g, self.actor_t(o2, g))
+            target = (r + GAMMA * tq).clamp(self.q_min, self.q_max)
+        critic_loss = (self.q1(o, g, a) - target).pow(2).mean()
+        pi = self.actor(o, g)
+        actor_loss = -self.q1(o, g, pi).mean() + ACTION_L2 * pi.pow(2).mean()
+        self.actor_opt.zero_grad()
+        (actor_loss * LOSS_SCALE).backward()
+        self.actor_opt.step()
+        self.critic_opt.zero_grad()
+        (critic_loss * LOSS_SCALE).backward()
+        self.critic_opt.step()
+        self.last["critic_loss"], self.last["actor_loss"] = critic_loss, actor_loss
+        if self.it % N_BATCHES_PER_CYCLE == 0:
+            with torch.no_grad():
+                for net, tgt in ((self.q1, self.q1_t), (self.actor, self.actor_t)):
+                    for p, tp in zip(net.parameters(), tgt.parameters()):
+                        tp.data.copy_((1 - POLYAK) * p.data + POLYAK * tp.data)  # MRN's form
+
     def update(self, batch, eps=None):
         """One critic update (+ actor and targets every POLICY_FREQ-th). `eps`: the standard-normal
         draw behind the target-policy noise, shape of the batch's actions; None (the benchmark)
         draws it here. check_stacked_peer.py passes its own so other peers can be fed the same."""
+        if self.algo == "ddpg":
+            return self.update_ddpg(batch)
         self.it += 1
         o_raw, g_raw, a, o2_raw, r = batch
         # Normalising the raw batch is part of the update, as in pgser's trainer.
@@ -224,7 +267,8 @@ def main(argv=None):
         "batch_size": a.batch_size, "updates": a.updates, "seconds": secs,
         "updates_per_sec": a.updates / secs, "device": a.device,
         "algo": a.algo, "warmup": a.warmup, "warmup_seconds": warm_secs, "dims": [a.obs, a.goal, a.act],
-        "actor_updates": a.updates // POLICY_FREQ + (a.updates % POLICY_FREQ if a.warmup % 2 else 0),
+        "actor_updates": a.updates if a.algo == "ddpg"
+        else a.updates // POLICY_FREQ + (a.updates % POLICY_FREQ if a.warmup % 2 else 0),
         "python": platform.python_version(), **losses,
     }
     if device.type == "cuda":
