@@ -137,7 +137,7 @@ fn sigterm_saves_at_a_cycle_boundary_and_the_run_resumes_to_the_same_bits() {
     let straight = dir.path().join("straight.ckpt");
     online_ok(&straight, 1, &["--epochs", "4"]);
     let killed = dir.path().join("killed.ckpt");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+    let child = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
         .args(["online", "-o", killed.to_str().unwrap(), "--threads", "1", "--epochs", "4"])
         .args(TINY)
         .stderr(std::process::Stdio::piped())
