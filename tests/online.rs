@@ -194,4 +194,15 @@ fn ddpg_her_learns_fetch_reach_in_a_few_epochs() {
     let s: serde_json::Value = serde_json::from_str(text(&o.stdout).trim_end().lines().last().unwrap()).unwrap();
     let eval: EvalReport = serde_json::from_value(s["eval"].clone()).unwrap();
     assert!(eval.success_rate >= 0.8, "{eval:?}");
+    // The expert's data: `collect --policy checkpoint:FILE` runs the trained actor.
+    let data = dir.path().join("expert.parquet");
+    let policy = format!("checkpoint:{}", ckpt.display());
+    collect_ok(
+        &["--task", "FetchReach", "--policy", &policy, "--episodes", "4", "--seed", "5", "-o", data.to_str().unwrap()],
+        None,
+    );
+    let expert = Episodes::load(&data).unwrap();
+    let reached =
+        (0..4).filter(|&e| expert.task.success(expert.ag(e, expert.t - 1), expert.goal(e, expert.t - 2))).count();
+    assert!(reached >= 3, "{reached} of 4 collected episodes end at the goal");
 }
