@@ -447,7 +447,9 @@ fn main() -> ExitCode {
                 print_report(&r, json)?;
                 return pipeline::finished(&r);
             }
-            if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given) {
+            // `--executor slurm --dry-run` says which steps would be submitted; its flags are fine.
+            let local = executor == pipeline::Executor::Local;
+            if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given && local) {
                 anyhow::bail!("{flag} is for --executor slurm");
             }
             if let Some(n) = threads {
