@@ -80,7 +80,9 @@ fn a_slurm_run_writes_the_bytes_of_a_local_run() {
     let dir = tempfile::tempdir().unwrap();
     let (d, out) = (dir.path(), dir.path().join("out"));
     tiny_pipeline(d, 20, 2);
+    let t0 = Instant::now();
     local(d, &[]);
+    eprintln!("the tiny pipeline locally: {:.1} s", t0.elapsed().as_secs_f64());
     let want = snapshot(&out);
     std::fs::remove_dir_all(&out).unwrap();
 

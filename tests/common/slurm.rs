@@ -50,6 +50,7 @@ pub fn cluster(test: &str) -> Option<Cluster> {
 
 impl Cluster {
     fn start() -> Cluster {
+        let started = Instant::now();
         let dir = tempfile::Builder::new().prefix("pgser-slurm-").tempdir().unwrap();
         let d = dir.path();
         for sub in ["state", "spool"] {
@@ -123,6 +124,7 @@ impl Cluster {
         loop {
             let o = c.command("sinfo").args(["--noheader", "--format=%T"]).output().unwrap();
             if super::text(&o.stdout).trim() == "idle" {
+                eprintln!("the test Slurm was up in {:.1} s", started.elapsed().as_secs_f64());
                 break c;
             }
             assert!(t0.elapsed() < Duration::from_secs(60), "the test Slurm's node never became idle{}", c.logs());
