@@ -1,21 +1,23 @@
 //! `pgser-etl inspect`: what is in a pgser table (or any Parquet file of numeric columns).
 //!
-//! Reads row groups as a stream, so it runs in constant memory on files of any size. Column
-//! statistics are merged per batch with Chan et al.'s parallel variance formula, which stays
-//! accurate where a running sum of squares would cancel.
+//! The footer and schema come from the Parquet metadata; the statistics from one lazy polars
+//! scan run on its streaming engine, which reads the file in batches: memory stays flat on
+//! tables larger than RAM. Each numeric column and each component of a vector column gets a
+//! count, mean, variance (polars merges batches with Chan et al.'s parallel formula, accurate
+//! where a running sum of squares would cancel), min and max; a column's overall moments are
+//! its components' merged the same way ([`Moments::merge`]).
 
-use std::borrow::Cow;
 use std::fs::File;
 use std::path::Path;
 
-use anyhow::{Context, Result};
-use arrow_array::cast::AsArray;
-use arrow_array::types::{Float32Type, Float64Type, Int32Type, Int64Type};
-use arrow_array::{Array, ArrayRef, RecordBatch};
+use anyhow::{Context, Result, anyhow};
 use arrow_schema::DataType;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use polars::error::PolarsResult;
+use polars::prelude::{Column, DataType as PlType, Expr, LazyFrame, col, lit};
 use serde::Serialize;
 
+use crate::query::{collect, first_line, scan_parquet};
 use crate::table::FOOTER_KEY;
 use crate::trajectory;
 
@@ -37,20 +39,15 @@ impl Default for Moments {
 }
 
 impl Moments {
-    pub fn of(values: impl Iterator<Item = f64> + Clone) -> Self {
-        let (mut n, mut sum, mut min, mut max) = (0u64, 0.0, f64::INFINITY, f64::NEG_INFINITY);
-        for v in values.clone() {
-            n += 1;
-            sum += v;
-            min = min.min(v);
-            max = max.max(v);
+    /// From a count, mean, population variance, min and max (None where polars has no value:
+    /// no rows).
+    fn from_stats(count: u64, mean: Option<f64>, var: Option<f64>, min: Option<f64>, max: Option<f64>) -> Self {
+        match (count, mean, var, min, max) {
+            (n, Some(mean), Some(var), Some(min), Some(max)) if n > 0 => {
+                Moments { count: n, mean, m2: var * n as f64, min, max }
+            }
+            _ => Self::default(),
         }
-        if n == 0 {
-            return Self::default();
-        }
-        let mean = sum / n as f64;
-        let m2 = values.map(|v| (v - mean) * (v - mean)).sum();
-        Moments { count: n, mean, m2, min, max }
     }
 
     pub fn merge(&mut self, o: &Moments) {
@@ -117,6 +114,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         .map(|f| serde_json::from_value(f.clone()).with_context(|| format!("{at}: malformed trajectory footer")))
         .transpose()?;
     let schema = builder.schema().clone();
+    let rows = meta.file_metadata().num_rows() as u64;
     let mut columns: Vec<ColumnSummary> = schema
         .fields()
         .iter()
@@ -129,32 +127,27 @@ pub fn inspect(path: &Path) -> Result<Summary> {
             per_dim: Vec::new(),
         })
         .collect();
-    let mut success = traj.as_ref().map(|f| SuccessCounter::new(f.task()));
-    let reader = builder.with_batch_size(65_536).build().with_context(|| format!("{at}: cannot read"))?;
-    for batch in reader {
-        let batch = batch.with_context(|| format!("{at}: cannot read a row group"))?;
-        for (c, col) in columns.iter_mut().zip(batch.columns()) {
-            c.nulls += col.null_count() as u64;
-            if let Some(dims) = column_moments(col) {
-                if c.per_dim.is_empty() {
-                    c.per_dim = vec![Moments::default(); dims.len()];
-                }
-                c.per_dim.iter_mut().zip(&dims).for_each(|(a, b)| a.merge(b));
-            }
-        }
-        if let Some(s) = success.as_mut() {
-            s.add(&batch).with_context(|| format!("{at}: cannot compute success"))?;
+    let fail = |e: polars::error::PolarsError| anyhow!("{at}: cannot compute statistics: {}", first_line(&e));
+    if rows > 0 {
+        let stats = column_stats(scan_parquet(path)?, &schema).map_err(fail)?;
+        for (c, (nulls, dims)) in columns.iter_mut().zip(stats) {
+            c.nulls = nulls;
+            c.per_dim = dims;
         }
     }
+    let success = match traj.as_ref().filter(|_| rows > 0) {
+        Some(f) => Some(final_success(scan_parquet(path)?, f.task()).map_err(fail)?),
+        None => traj.as_ref().map(|_| (0, 0)),
+    };
     for c in &mut columns {
         c.per_dim.iter().for_each(|m| c.all.merge(m));
         c.std = c.all.std();
     }
-    let (episodes, final_success) = success.map(|s| (s.episodes, s.successes)).unzip();
+    let (episodes, final_success) = success.unzip();
     Ok(Summary {
         path: path.display().to_string(),
         bytes,
-        rows: meta.file_metadata().num_rows() as u64,
+        rows,
         row_groups: meta.num_row_groups(),
         footer,
         columns,
@@ -173,78 +166,93 @@ fn type_text(t: &DataType) -> String {
     }
 }
 
-/// Per-component moments of a numeric or FixedSizeList-of-numeric column (nulls skipped).
-fn column_moments(col: &ArrayRef) -> Option<Vec<Moments>> {
-    let (values, dim, valid): (ArrayRef, usize, Option<&arrow_buffer::NullBuffer>) = match col.data_type() {
-        DataType::FixedSizeList(_, n) => {
-            let l = col.as_fixed_size_list();
-            (l.values().clone(), *n as usize, l.nulls())
-        }
-        _ => (col.clone(), 1, None),
-    };
-    let flat = as_f64(&values)?;
-    let scalar_nulls = if dim == 1 && valid.is_none() { values.nulls() } else { valid };
-    let rows = flat.len() / dim.max(1);
-    let keep = |r: &usize| scalar_nulls.is_none_or(|n| n.is_valid(*r));
-    Some((0..dim).map(|d| Moments::of((0..rows).filter(keep).map(|r| flat[r * dim + d]))).collect())
-}
-
-/// Final-step success of each episode: the last achieved goal against the last desired goal
-/// (the one on step T − 2; step T − 1 has none), with the task's metric and threshold.
-struct SuccessCounter {
-    task: crate::task::Task,
-    episodes: u64,
-    successes: u64,
-    /// Desired goal seen on the latest non-null row, carried across batch boundaries.
-    last_goal: Vec<f64>,
-}
-
-impl SuccessCounter {
-    fn new(task: crate::task::Task) -> Self {
-        SuccessCounter { task, episodes: 0, successes: 0, last_goal: Vec::new() }
+/// The vector size of a numeric column (1 for a scalar) or of a FixedSizeList of numbers; None
+/// for columns without statistics (strings, booleans, …).
+fn numeric_dims(t: &DataType) -> Option<usize> {
+    let numeric = |t: &DataType| matches!(t, DataType::Float64 | DataType::Float32 | DataType::Int64 | DataType::Int32);
+    match t {
+        DataType::FixedSizeList(item, n) if numeric(item.data_type()) => Some(*n as usize),
+        t if numeric(t) => Some(1),
+        _ => None,
     }
+}
 
-    fn add(&mut self, batch: &RecordBatch) -> Result<()> {
-        let t = self.task.t as i32;
-        let step = batch.column_by_name("step").context("no step column")?.as_primitive::<Int32Type>();
-        let ag = vectors(batch.column_by_name("achieved_goal").context("no achieved_goal column")?)?;
-        let g_col = batch.column_by_name("desired_goal").context("no desired_goal column")?;
-        let g = vectors(g_col)?;
-        let dim = self.task.goal_dim;
-        for r in 0..batch.num_rows() {
-            if g_col.is_valid(r) {
-                self.last_goal = g[r * dim..(r + 1) * dim].to_vec();
+/// Per column, its null count and per-component moments (nulls skipped; none for columns
+/// without statistics), in one streaming pass over the file.
+fn column_stats(scan: LazyFrame, schema: &arrow_schema::Schema) -> PolarsResult<Vec<(u64, Vec<Moments>)>> {
+    const STATS: [&str; 5] = ["count", "mean", "var", "min", "max"];
+    let mut exprs: Vec<Expr> = Vec::new();
+    for (i, f) in schema.fields().iter().enumerate() {
+        let c = col(f.name().as_str());
+        exprs.push(c.clone().is_null().sum().cast(PlType::UInt64).alias(format!("{i}:nulls")));
+        let dims = numeric_dims(f.data_type()).unwrap_or(0);
+        for d in 0..dims {
+            let v = if matches!(f.data_type(), DataType::FixedSizeList(..)) {
+                c.clone().arr().get(lit(d as i64), false)
+            } else {
+                c.clone()
             }
-            if step.value(r) == t - 1 {
-                self.episodes += 1;
-                if self.task.success(&ag[r * dim..(r + 1) * dim], &self.last_goal) {
-                    self.successes += 1;
-                }
+            .cast(PlType::Float64);
+            let [n, mean, var, min, max] = STATS.map(|s| format!("{i}:{d}:{s}"));
+            exprs.push(v.clone().count().cast(PlType::UInt64).alias(n));
+            exprs.push(v.clone().mean().alias(mean));
+            exprs.push(v.clone().var(0).alias(var));
+            exprs.push(v.clone().min().alias(min));
+            exprs.push(v.max().alias(max));
+        }
+    }
+    let df = collect(scan.select(exprs))?;
+    let u = |name: String| -> PolarsResult<u64> { Ok(df.column(&name)?.u64()?.get(0).unwrap_or(0)) };
+    let x = |name: String| -> PolarsResult<Option<f64>> { Ok(df.column(&name)?.f64()?.get(0)) };
+    let mut out = Vec::with_capacity(schema.fields().len());
+    for (i, f) in schema.fields().iter().enumerate() {
+        let dims = (0..numeric_dims(f.data_type()).unwrap_or(0))
+            .map(|d| {
+                let [n, mean, var, min, max] = STATS.map(|s| format!("{i}:{d}:{s}"));
+                Ok(Moments::from_stats(u(n)?, x(mean)?, x(var)?, x(min)?, x(max)?))
+            })
+            .collect::<PolarsResult<Vec<Moments>>>()?;
+        out.push((u(format!("{i}:nulls"))?, dims));
+    }
+    Ok(out)
+}
+
+/// Final-step success: (episodes, successes). An episode's last achieved goal against its last
+/// desired goal (the one on step T − 2; step T − 1 has none), with the task's metric and
+/// threshold. Only the last two steps of each episode are read.
+fn final_success(scan: LazyFrame, task: crate::task::Task) -> PolarsResult<(u64, u64)> {
+    let t = task.t as i32;
+    let df = collect(scan.filter(col("step").gt_eq(lit(t - 2))).select([
+        col("step").cast(PlType::Int32),
+        col("achieved_goal"),
+        col("desired_goal"),
+    ]))?;
+    let dim = task.goal_dim;
+    let step: Vec<i32> = df.column("step")?.i32()?.iter().map(|s| s.unwrap_or(-1)).collect();
+    let ag = flat_f64(df.column("achieved_goal")?, dim)?;
+    let g_col = df.column("desired_goal")?;
+    let g = flat_f64(g_col, dim)?;
+    let g_valid: Vec<bool> = g_col.is_not_null().iter().map(|v| v.unwrap_or(false)).collect();
+    let (mut episodes, mut successes, mut last_goal) = (0, 0, vec![f64::NAN; dim]);
+    for r in 0..df.height() {
+        if g_valid[r] {
+            last_goal.copy_from_slice(&g[r * dim..(r + 1) * dim]);
+        }
+        if step[r] == t - 1 {
+            episodes += 1;
+            if task.success(&ag[r * dim..(r + 1) * dim], &last_goal) {
+                successes += 1;
             }
         }
-        Ok(())
     }
+    Ok((episodes, successes))
 }
 
-/// The flat values of a FixedSizeList<float> column as f64.
-fn vectors(col: &ArrayRef) -> Result<Cow<'_, [f64]>> {
-    let values = col.as_fixed_size_list().values();
-    match values.data_type() {
-        DataType::Float64 | DataType::Float32 => Ok(as_f64(values).expect("numeric")),
-        other => anyhow::bail!("vector column of {other}"),
-    }
-}
-
-/// Numeric values as f64: borrowed when they already are, converted otherwise; None for
-/// columns that are not numeric.
-fn as_f64(values: &ArrayRef) -> Option<Cow<'_, [f64]>> {
-    Some(match values.data_type() {
-        DataType::Float64 => Cow::Borrowed(values.as_primitive::<Float64Type>().values().as_ref()),
-        DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
-        DataType::Int64 => values.as_primitive::<Int64Type>().values().iter().map(|&v| v as f64).collect(),
-        DataType::Int32 => values.as_primitive::<Int32Type>().values().iter().map(|&v| v as f64).collect(),
-        _ => return None,
-    })
+/// The flat values of a vector column (rows × dim, null rows included as NaN) as f64.
+fn flat_f64(c: &Column, dim: usize) -> PolarsResult<Vec<f64>> {
+    let s = c.as_materialized_series().cast(&PlType::Array(Box::new(PlType::Float64), dim))?.rechunk();
+    let inner = s.array()?.get_inner();
+    Ok(inner.f64()?.iter().map(|v| v.unwrap_or(f64::NAN)).collect())
 }
 
 /// The human-readable report.
@@ -369,13 +377,22 @@ fn compact_json(v: &serde_json::Value) -> String {
 mod tests {
     use super::*;
 
+    /// Two-pass moments of a set of values.
+    fn moments_of(values: &[f64]) -> Moments {
+        let n = values.len() as u64;
+        let mean = values.iter().sum::<f64>() / n as f64;
+        let m2 = values.iter().map(|v| (v - mean) * (v - mean)).sum();
+        let (min, max) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        Moments { count: n, mean, m2, min, max }
+    }
+
     #[test]
     fn merged_moments_equal_direct() {
         let xs: Vec<f64> = (0..1000).map(|i| 1e6 + (i as f64 * 0.37).sin()).collect();
-        let direct = Moments::of(xs.iter().copied());
+        let direct = moments_of(&xs);
         let mut merged = Moments::default();
         for chunk in xs.chunks(77) {
-            merged.merge(&Moments::of(chunk.iter().copied()));
+            merged.merge(&moments_of(chunk));
         }
         assert_eq!(merged.count, 1000);
         assert!((merged.mean - direct.mean).abs() < 1e-9);

@@ -3,8 +3,9 @@
 //! Data flows one way: files → record batches → tensors. Each pipeline stage is one module:
 //! [`pickle`] reads WGCSL buffers without executing them (and writes them), [`trajectory`]
 //! writes and reads the trajectory table, [`collect`] simulates episodes in [`env`](mod@env) and writes
-//! them as either, [`inspect`] summarises any pgser table. [`table`] and [`output`] hold what
-//! every writer shares (parallel row-group encoding, the footer, atomic files).
+//! them as either, [`inspect`] summarises any pgser table, [`query`] runs SQL over tables.
+//! [`table`] and [`output`] hold what every writer shares (parallel row-group encoding, the
+//! footer, atomic files).
 
 pub mod agent;
 pub mod cli;
@@ -16,6 +17,7 @@ pub mod output;
 pub mod pickle;
 pub mod pipeline;
 pub mod progress;
+pub mod query;
 pub mod report;
 pub mod sampler;
 pub mod score;

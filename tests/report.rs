@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::sync::Arc;
 
@@ -12,7 +12,7 @@ use arrow_array::{Float32Array, Int32Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema};
 use common::*;
 use pgser::env::rng::NpRandom;
-use pgser::report::{self, Run};
+use pgser::report;
 
 /// Width and height from a PNG's IHDR chunk (after checking the signature).
 fn png_size(path: &Path) -> (u32, u32) {
@@ -272,28 +272,6 @@ fn controlled_table1_is_at_chance_where_only_the_data_source_separates() {
     }
 }
 
-/// A metrics file: a loss line, an early evaluation at 0, and the final evaluation `score`.
-fn metrics(dir: &Path, name: &str, score: f64, success: f64) -> PathBuf {
-    let p = dir.join(name);
-    let eval = |u: u64, s: f64, ok: f64| {
-        format!(
-            "{{\"updates\":{u},\"eval\":{{\"episodes\":10,\"return_mean\":{},\"return_std\":1.0,\"success_rate\":{ok},\"paper_score\":{s}}}}}",
-            s - 50.0
-        )
-    };
-    let text = format!(
-        "{{\"updates\":500,\"critic_loss\":0.5,\"q_mean\":-3.0}}\n{}\n{{\"updates\":1500,\"critic_loss\":0.4}}\n{}\n{{\"updates\":2500,\"critic_loss\":0.3}}\n",
-        eval(1000, 0.0, 0.0),
-        eval(2000, score, success)
-    );
-    std::fs::write(&p, text).unwrap();
-    p
-}
-
-fn run(task: &str, algo: &str, variant: &str, seed: u64, metrics: PathBuf) -> Run {
-    Run { task: task.into(), algo: algo.into(), variant: variant.into(), seed, metrics }
-}
-
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let m = v.iter().sum::<f64>() / v.len() as f64;
     (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt())
@@ -308,12 +286,12 @@ fn results_table_from_metrics_files() {
     let mut runs = Vec::new();
     for (variant, scores) in &cells {
         for (seed, s) in scores.iter().enumerate() {
-            let m = metrics(d, &format!("{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
-            runs.push(run("FetchReach", "td3bc", variant, seed as u64, m));
+            let m = metrics_file(d, &format!("{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
+            runs.push(report_run("FetchReach", "td3bc", variant, seed as u64, m));
         }
     }
     // A second algorithm with one seed: std and p are undefined.
-    runs.push(run("FetchReach", "td3", "mem", 0, metrics(d, "td3.metrics.jsonl", 20.0, 0.5)));
+    runs.push(report_run("FetchReach", "td3", "mem", 0, metrics_file(d, "td3.metrics.jsonl", 20.0, 0.5)));
     let out = d.join("out");
     let r = report::results(&runs, &out).unwrap();
 
@@ -355,15 +333,17 @@ fn results_table_from_metrics_files() {
 fn results_refuse_a_run_without_a_final_evaluation() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let good = metrics(d, "good.metrics.jsonl", 10.0, 0.2);
+    let good = metrics_file(d, "good.metrics.jsonl", 10.0, 0.2);
     let no_eval = d.join("noeval.metrics.jsonl");
     std::fs::write(&no_eval, "{\"updates\":500,\"critic_loss\":0.5}\n").unwrap();
     let empty = d.join("empty.metrics.jsonl");
     std::fs::write(&empty, "").unwrap();
     let missing = d.join("missing.metrics.jsonl");
     for bad in [&no_eval, &empty, &missing] {
-        let runs =
-            [run("FetchReach", "td3", "baseline", 0, good.clone()), run("FetchReach", "td3", "swap", 0, bad.clone())];
+        let runs = [
+            report_run("FetchReach", "td3", "baseline", 0, good.clone()),
+            report_run("FetchReach", "td3", "swap", 0, bad.clone()),
+        ];
         let e = report::results(&runs, &d.join("out")).unwrap_err();
         let msg = format!("{e:#}");
         assert!(msg.contains(&bad.display().to_string()), "{msg}");
@@ -389,8 +369,8 @@ fn results_mark_the_direction_of_a_significant_difference() {
     let mut runs = Vec::new();
     for (task, variant, scores) in &cells {
         for (seed, s) in scores.iter().enumerate() {
-            let m = metrics(d, &format!("{task}{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
-            runs.push(run(task, "td3bc", variant, seed as u64, m));
+            let m = metrics_file(d, &format!("{task}{variant}{seed}.metrics.jsonl"), *s, s / 50.0);
+            runs.push(report_run(task, "td3bc", variant, seed as u64, m));
         }
     }
     let r = report::results(&runs, &d.join("out")).unwrap();

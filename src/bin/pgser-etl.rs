@@ -7,14 +7,14 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
 use pgser::env::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, inspect, pipeline, progress, report, score, trajectory};
+use pgser::{cli, collect, inspect, pipeline, progress, query, report, score, trajectory};
 
 #[derive(Parser)]
 #[command(
     name = "pgser-etl",
     version,
     long_version = pgser::cli::LONG_VERSION.as_str(),
-    about = "pgser data jobs: convert, collect, inspect, score, report"
+    about = "pgser data jobs: convert, collect, inspect, query, score, report"
 )]
 struct Args {
     #[command(subcommand)]
@@ -164,6 +164,43 @@ enum Command {
         /// Print the report as JSON instead of the markdown table.
         #[arg(long)]
         json: bool,
+    },
+    /// Run SQL over pgser tables and CSV files (polars' SQL on lazy scans); print or write the result.
+    #[command(
+        after_help = "Each FILE is a table named by its file stem (scored.parquet is `scored`), or by NAME=FILE. \
+        Vector columns (obs, goal, …) are arrays. The result goes to \
+        stdout as CSV, or with -o to a file in the format its name or --csv/--json/--parquet says.\n\n\
+        Examples:\n  \
+        # mean Q and reward per goal episode of a scored table (the swapped rows only)\n  \
+        pgser-etl query \"SELECT goal_episode, AVG(q) AS mean_q, AVG(reward) AS mean_reward, COUNT(*) AS n \
+        FROM scored WHERE goal_step >= 0 GROUP BY goal_episode ORDER BY goal_episode\" scored.parquet\n  \
+        # success rate per task over all runs of a results table (pgser-train runs, Table 2)\n  \
+        pgser-etl query \"SELECT task, SUM(success_mean * seeds) / SUM(seeds) AS success_rate, SUM(seeds) AS runs \
+        FROM results GROUP BY task ORDER BY task\" results/fetch_push_cpu/results.csv\n  \
+        # episodes of a trajectory table by their last step, to Parquet\n  \
+        pgser-etl query \"SELECT episode, achieved_goal FROM traj WHERE step = 49\" traj.parquet -o last.parquet\n  \
+        # rows with their own goal and with a swapped one, as JSON Lines\n  \
+        pgser-etl query \"SELECT goal_step = -1 AS original, COUNT(*) AS n FROM s GROUP BY original\" \
+        s=scored.parquet --json"
+    )]
+    Query {
+        /// One SQL statement (polars' SQL dialect: SELECT, WHERE, GROUP BY, JOIN, ORDER BY, LIMIT, …).
+        sql: String,
+        /// Input tables: FILE (.parquet or .csv) or NAME=FILE.
+        #[arg(required = true, value_name = "FILE")]
+        inputs: Vec<String>,
+        /// Output file (written atomically; nothing is left when the query fails).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Write CSV (the default on stdout).
+        #[arg(long, group = "format")]
+        csv: bool,
+        /// Write JSON Lines, one object per row.
+        #[arg(long, group = "format")]
+        json: bool,
+        /// Write Parquet (needs -o).
+        #[arg(long, group = "format")]
+        parquet: bool,
     },
     /// Show a table's schema, footer, counts, success rate and column statistics.
     #[command(after_help = "Example:\n  pgser-etl inspect traj.parquet --per-dim")]
@@ -493,6 +530,16 @@ fn main() -> ExitCode {
             } else {
                 print!("{}", report::table1_markdown(&r));
                 println!("\nFig. 5: {}", r.fig5.display());
+            }
+            Ok(())
+        }
+        Command::Query { sql, inputs, output, csv, json, parquet } => {
+            let format = [(csv, query::Format::Csv), (json, query::Format::Json), (parquet, query::Format::Parquet)]
+                .into_iter()
+                .find_map(|(on, f)| on.then_some(f));
+            let rows = query::query(&query::QueryOptions { sql, inputs, format, output: output.clone() })?;
+            if let Some(out) = output {
+                eprintln!("wrote {}: {rows} rows", out.display());
             }
             Ok(())
         }

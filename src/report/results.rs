@@ -13,11 +13,11 @@
 //! The CSV adds the one-sided p of the paper's claim, "mem outperforms the reference" (H1: mem's
 //! mean > the reference's), which is the test to quote for that claim, decided before the run.
 
-use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use polars::prelude::{Column, DataFrame, Expr, IntoLazy, PolarsResult, SortMultipleOptions, col};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
@@ -74,10 +74,9 @@ pub const ALPHA: f64 = 0.05;
 pub const BETTER: &str = "▲";
 pub const WORSE: &str = "▼";
 
-/// A Table 2 group in table order: (task, algo rank, algo, variant rank, variant).
-type GroupKey = (String, usize, String, usize, String);
-/// Each seed of a group with its evaluation history.
-type Seeds = Vec<(u64, Vec<Eval>)>;
+/// The columns that name a Table 2 group, in table order: task, then TD3 before TD3+BC, then
+/// baseline, swap, mem (the ranks), then anything else by name.
+const GROUP: [&str; 5] = ["task", "algo_rank", "algo", "variant_rank", "variant"];
 
 /// One evaluation line of a run.
 #[derive(Debug, Clone, Copy)]
@@ -88,43 +87,41 @@ struct Eval {
 }
 
 /// Writes `out_dir/results.md`, `out_dir/results.csv` and `out_dir/curves_<task>.png`.
+///
+/// The metrics files become one frame of evaluation lines (a row per line, in run and file
+/// order), which polars groups: the last line of each run, then the runs of each group (in run
+/// order), and for the curves the seeds' scores at each update count. Means and stds are then
+/// taken with [`mean_std`], the statistics Welch's test uses, so the table shows the numbers its p
+/// values are computed from.
 pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
     if runs.is_empty() {
         bail!("{}: no training runs to report", out_dir.display());
     }
-    // (task, algo, variant) → per-seed evaluation histories, in a stable order.
-    let mut groups: BTreeMap<GroupKey, Seeds> = BTreeMap::new();
-    for r in runs {
-        let evals = read_evals(&r.metrics)?;
-        let key = (r.task.clone(), algo_rank(&r.algo), r.algo.clone(), variant_rank(&r.variant), r.variant.clone());
-        groups.entry(key).or_default().push((r.seed, evals));
-    }
-    let finals = |k: &GroupKey| -> Option<Vec<f64>> {
-        groups.get(k).map(|runs| runs.iter().map(|(_, e)| e.last().expect("checked").paper_score).collect())
+    let evals = evals_frame(runs)?;
+    let groups = final_scores(&evals).context("Table 2: grouping the final evaluations")?;
+    let scores_of = |task: &str, algo: &str, variant: &str| {
+        groups.iter().find(|g| g.task == task && g.algo == algo && g.variant == variant).map(|g| &g.scores)
     };
     let mut rows = Vec::new();
-    for (key, seeds) in &groups {
-        let (task, _, algo, _, variant) = key;
-        let scores: Vec<f64> = seeds.iter().map(|(_, e)| e.last().expect("checked").paper_score).collect();
-        let success: Vec<f64> = seeds.iter().map(|(_, e)| e.last().expect("checked").success_rate).collect();
+    for g in &groups {
         // (two-sided p, one-sided p of H1: mem > other).
         let p_vs = |other: &str| -> Option<(f64, f64)> {
-            if variant != "mem" {
+            if g.variant != "mem" {
                 return None;
             }
-            let theirs = finals(&(task.clone(), key.1, algo.clone(), variant_rank(other), other.to_string()))?;
-            Some((welch_t_test(&scores, &theirs)?.2, welch_greater(&scores, &theirs)?))
+            let theirs = scores_of(&g.task, &g.algo, other)?;
+            Some((welch_t_test(&g.scores, theirs)?.2, welch_greater(&g.scores, theirs)?))
         };
         let (vs_baseline, vs_swap) = (p_vs("baseline"), p_vs("swap"));
-        let (m, s) = mean_std(&scores);
+        let (m, s) = mean_std(&g.scores);
         rows.push(ResultRow {
-            task: task.clone(),
-            algo: algo.clone(),
-            variant: variant.clone(),
-            seeds: seeds.len(),
+            task: g.task.clone(),
+            algo: g.algo.clone(),
+            variant: g.variant.clone(),
+            seeds: g.scores.len(),
             paper_score_mean: m,
             paper_score_std: s,
-            success_mean: mean_std(&success).0,
+            success_mean: mean_std(&g.success).0,
             p_vs_baseline: vs_baseline.map(|p| p.0),
             p_vs_swap: vs_swap.map(|p| p.0),
             p_one_sided_vs_baseline: vs_baseline.map(|p| p.1),
@@ -134,15 +131,8 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
 
     ensure_dir(out_dir)?;
     let mut curves = Vec::new();
-    let mut tasks: Vec<&String> = groups.keys().map(|k| &k.0).collect();
-    tasks.dedup();
-    for task in tasks {
-        let lines: Vec<Curve> = groups
-            .iter()
-            .filter(|(k, _)| &k.0 == task)
-            .map(|(k, seeds)| curve(format!("{} {}", algo_name(&k.2), k.4), seeds))
-            .collect();
-        let path = out_dir.join(format!("curves_{}.png", file_safe(task)));
+    for (task, lines) in task_curves(&evals).context("Table 2: grouping the evaluations by update count")? {
+        let path = out_dir.join(format!("curves_{}.png", file_safe(&task)));
         plot::mean_std_curves(
             &path,
             FIG_SIZE,
@@ -157,6 +147,123 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
     write_text(&r.markdown, &results_markdown(&r))?;
     write_text(&r.csv, &csv(&r.rows))?;
     Ok(r)
+}
+
+/// A Table 2 group: its runs' final scores and success rates, in run order.
+struct Group {
+    task: String,
+    algo: String,
+    variant: String,
+    scores: Vec<f64>,
+    success: Vec<f64>,
+}
+
+/// Every evaluation line of every run: the group columns, the run's index, and the line.
+fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
+    let (mut task, mut algo, mut variant) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut algo_ranks, mut variant_ranks, mut run) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut updates, mut score, mut success) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, r) in runs.iter().enumerate() {
+        for e in read_evals(&r.metrics)? {
+            task.push(r.task.as_str());
+            algo.push(r.algo.as_str());
+            variant.push(r.variant.as_str());
+            algo_ranks.push(algo_rank(&r.algo));
+            variant_ranks.push(variant_rank(&r.variant));
+            run.push(i as u64);
+            updates.push(e.updates);
+            score.push(e.paper_score);
+            success.push(e.success_rate);
+        }
+    }
+    let columns = vec![
+        Column::new("task".into(), task),
+        Column::new("algo_rank".into(), algo_ranks),
+        Column::new("algo".into(), algo),
+        Column::new("variant_rank".into(), variant_ranks),
+        Column::new("variant".into(), variant),
+        Column::new("run".into(), run),
+        Column::new("updates".into(), updates),
+        Column::new("paper_score".into(), score),
+        Column::new("success_rate".into(), success),
+    ];
+    Ok(DataFrame::new_infer_height(columns)?)
+}
+
+/// Table 2's groups in table order, each with the final evaluation (the last line) of its runs.
+fn final_scores(evals: &DataFrame) -> PolarsResult<Vec<Group>> {
+    let group: Vec<Expr> = GROUP.iter().map(|c| col(*c)).collect();
+    let mut by_run = group.clone();
+    by_run.push(col("run"));
+    let df = evals
+        .clone()
+        .lazy()
+        .group_by_stable(by_run)
+        .agg([col("paper_score").last(), col("success_rate").last()])
+        .group_by_stable(group)
+        .agg([col("paper_score"), col("success_rate")])
+        .sort(GROUP, SortMultipleOptions::default().with_maintain_order(true))
+        .collect()?;
+    let text = |name: &str| -> PolarsResult<Vec<String>> {
+        Ok(df.column(name)?.str()?.iter().map(|v| v.unwrap_or_default().to_string()).collect())
+    };
+    let (task, algo, variant) = (text("task")?, text("algo")?, text("variant")?);
+    let (scores, success) = (f64_lists(df.column("paper_score")?)?, f64_lists(df.column("success_rate")?)?);
+    Ok((0..df.height())
+        .map(|i| Group {
+            task: task[i].clone(),
+            algo: algo[i].clone(),
+            variant: variant[i].clone(),
+            scores: scores[i].clone(),
+            success: success[i].clone(),
+        })
+        .collect())
+}
+
+/// Each task with its groups' curves, in table order: mean ± std over the seeds that evaluated
+/// at each update count (runs with different `--eval-every` still plot).
+fn task_curves(evals: &DataFrame) -> PolarsResult<Vec<(String, Vec<Curve>)>> {
+    let mut by = GROUP.to_vec();
+    by.push("updates");
+    let df = evals
+        .clone()
+        .lazy()
+        .group_by(by.iter().map(|c| col(*c)).collect::<Vec<_>>())
+        .agg([col("paper_score")])
+        .sort(by, SortMultipleOptions::default().with_maintain_order(true))
+        .collect()?;
+    let text = |name: &str| -> PolarsResult<Vec<String>> {
+        Ok(df.column(name)?.str()?.iter().map(|v| v.unwrap_or_default().to_string()).collect())
+    };
+    let (task, algo, variant) = (text("task")?, text("algo")?, text("variant")?);
+    let updates: Vec<u64> = df.column("updates")?.u64()?.into_no_null_iter().collect();
+    let scores = f64_lists(df.column("paper_score")?)?;
+    let mut out: Vec<(String, Vec<Curve>)> = Vec::new();
+    for i in 0..df.height() {
+        if out.last().is_none_or(|(t, _)| *t != task[i]) {
+            out.push((task[i].clone(), Vec::new()));
+        }
+        let lines = &mut out.last_mut().expect("pushed above").1;
+        let new_group = i == 0 || (&task[i], &algo[i], &variant[i]) != (&task[i - 1], &algo[i - 1], &variant[i - 1]);
+        if new_group {
+            let label = format!("{} {}", algo_name(&algo[i]), variant[i]);
+            lines.push(Curve { label, x: Vec::new(), mean: Vec::new(), std: Vec::new() });
+        }
+        let c = lines.last_mut().expect("pushed above");
+        let (m, s) = mean_std(&scores[i]);
+        c.x.push(updates[i] as f64);
+        c.mean.push(m);
+        c.std.push(if s.is_finite() { s } else { 0.0 });
+    }
+    Ok(out)
+}
+
+/// A list column of floats as vectors.
+fn f64_lists(c: &Column) -> PolarsResult<Vec<Vec<f64>>> {
+    let lists = c.list()?;
+    (0..lists.len())
+        .map(|i| lists.get_as_series(i).map_or(Ok(Vec::new()), |s| Ok(s.f64()?.into_no_null_iter().collect())))
+        .collect()
 }
 
 /// Table 2 as markdown: one table per task, one row per algorithm and variant.
@@ -271,25 +378,6 @@ fn read_evals(path: &Path) -> Result<Vec<Eval>> {
     Ok(evals)
 }
 
-/// Mean ± std over seeds at each update count that any seed evaluated at (over the seeds that
-/// did: runs with different `--eval-every` still plot).
-fn curve(label: String, seeds: &[(u64, Vec<Eval>)]) -> Curve {
-    let mut at: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
-    for (_, evals) in seeds {
-        for e in evals {
-            at.entry(e.updates).or_default().push(e.paper_score);
-        }
-    }
-    let mut c = Curve { label, x: Vec::new(), mean: Vec::new(), std: Vec::new() };
-    for (u, v) in at {
-        let (m, s) = mean_std(&v);
-        c.x.push(u as f64);
-        c.mean.push(m);
-        c.std.push(if s.is_finite() { s } else { 0.0 });
-    }
-    c
-}
-
 fn csv(rows: &[ResultRow]) -> String {
     let mut s = String::from(
         "task,algo,variant,seeds,paper_score_mean,paper_score_std,success_mean,p_vs_baseline,p_vs_swap,\
@@ -343,7 +431,7 @@ fn algo_name(algo: &str) -> String {
 }
 
 /// Table order: TD3 before TD3+BC, then anything else by name.
-fn algo_rank(algo: &str) -> usize {
+fn algo_rank(algo: &str) -> u32 {
     match algo {
         "td3" => 0,
         "td3bc" => 1,
@@ -352,7 +440,7 @@ fn algo_rank(algo: &str) -> usize {
 }
 
 /// Table order: baseline, swap, mem, then anything else by name.
-fn variant_rank(variant: &str) -> usize {
+fn variant_rank(variant: &str) -> u32 {
     match variant {
         "baseline" => 0,
         "swap" => 1,

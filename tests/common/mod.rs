@@ -156,3 +156,72 @@ pub fn snapshot(out: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
     walk(out, out, &mut files);
     files
 }
+
+/// The committed FetchReach sample (50 expert + 200 random episodes) as a trajectory table in
+/// `dir`, and a scored table of it (2 swaps + the original goal per transition, scored by a
+/// critic of 10 updates): real tables as pgser writes them, for readers to be checked on.
+pub fn reach_tables(dir: &Path) -> (PathBuf, PathBuf) {
+    let table = dir.join("reach.parquet");
+    let data = repo().join("data");
+    convert_ok(&[&data.join("fetch_reach_expert_50.pkl"), &data.join("fetch_reach_random_200.pkl")], &table, &[]);
+    let ckpt = dir.join("reach.ckpt");
+    let out = Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", table.to_str().unwrap(), "-o", ckpt.to_str().unwrap()])
+        .args(["--updates", "10", "--hidden", "32", "--batch-size", "64", "--eval-episodes", "0"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "pgser-train failed: {}", text(&out.stderr));
+    let scored = dir.join("scored.parquet");
+    let out = etl()
+        .args(["score", "--q", ckpt.to_str().unwrap(), "--data", table.to_str().unwrap(), "-o"])
+        .arg(&scored)
+        .args(["--swaps", "2", "--include-original"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "score failed: {}", text(&out.stderr));
+    (table, scored)
+}
+
+/// A metrics file: a loss line, an early evaluation at 0, and the final evaluation `score`.
+pub fn metrics_file(dir: &Path, name: &str, score: f64, success: f64) -> PathBuf {
+    let p = dir.join(name);
+    let eval = |u: u64, s: f64, ok: f64| {
+        format!(
+            "{{\"updates\":{u},\"eval\":{{\"episodes\":10,\"return_mean\":{},\"return_std\":1.0,\"success_rate\":{ok},\"paper_score\":{s}}}}}",
+            s - 50.0
+        )
+    };
+    let text = format!(
+        "{{\"updates\":500,\"critic_loss\":0.5,\"q_mean\":-3.0}}\n{}\n{{\"updates\":1500,\"critic_loss\":0.4}}\n{}\n{{\"updates\":2500,\"critic_loss\":0.3}}\n",
+        eval(1000, 0.0, 0.0),
+        eval(2000, score, success)
+    );
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+pub fn report_run(task: &str, algo: &str, variant: &str, seed: u64, metrics: PathBuf) -> pgser::report::Run {
+    pgser::report::Run { task: task.into(), algo: algo.into(), variant: variant.into(), seed, metrics }
+}
+
+/// A Table 2 of two tasks written by `report::results` into `dir/results`: FetchPush TD3+BC
+/// baseline and mem over 3 seeds (final success 0.1, 0.2, 0.3 and 0.5, 0.6, 0.7), FetchReach TD3
+/// mem over 1 seed (success 0.5: std NaN, no p) and TD3+BC baseline over 3 (0.8, 0.9, 1.0).
+pub fn results_table(dir: &Path) -> pgser::report::Results {
+    /// (task, algo, variant, each seed's final (paper score, success rate)).
+    type Cell = (&'static str, &'static str, &'static str, &'static [(f64, f64)]);
+    let cells: [Cell; 4] = [
+        ("FetchPush", "td3bc", "baseline", &[(10.0, 0.1), (12.0, 0.2), (14.0, 0.3)]),
+        ("FetchPush", "td3bc", "mem", &[(30.0, 0.5), (31.0, 0.6), (33.0, 0.7)]),
+        ("FetchReach", "td3", "mem", &[(20.0, 0.5)]),
+        ("FetchReach", "td3bc", "baseline", &[(40.0, 0.8), (45.0, 0.9), (47.0, 1.0)]),
+    ];
+    let mut runs = Vec::new();
+    for (task, algo, variant, seeds) in cells {
+        for (seed, (score, success)) in seeds.iter().enumerate() {
+            let m = metrics_file(dir, &format!("{task}_{algo}_{variant}_{seed}.metrics.jsonl"), *score, *success);
+            runs.push(report_run(task, algo, variant, seed as u64, m));
+        }
+    }
+    pgser::report::results(&runs, &dir.join("results")).unwrap()
+}
