@@ -14,14 +14,7 @@ fn run(file: &Path, extra: &[&str]) -> BTreeMap<String, String> {
     let out =
         etl().args(["pipeline", "run"]).arg(file).args(["--json", "--threads", "2"]).args(extra).output().unwrap();
     assert!(out.status.success(), "pipeline failed: {}", text(&out.stderr));
-    let line = text(&out.stdout);
-    let r: serde_json::Value = serde_json::from_str(line.lines().last().unwrap()).unwrap();
-    r["steps"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
-        .collect()
+    common::step_statuses(&out)
 }
 
 fn ran(s: &BTreeMap<String, String>) -> Vec<&str> {

@@ -14,7 +14,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use common::slurm::{Cluster, cluster};
-use common::{snapshot, text, tiny_pipeline};
+use common::{snapshot, step_statuses, text, tiny_pipeline};
 
 /// One cluster at a time: the machine has few cores, and each test's timing matters.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -41,19 +41,6 @@ fn job_logs(dir: &Path) -> String {
     all
 }
 
-/// The step → status map of a run's JSON report (the last line of stdout).
-fn statuses(o: &Output) -> BTreeMap<String, String> {
-    let out = text(&o.stdout);
-    let last = out.lines().last().unwrap_or_else(|| panic!("no report on stdout: {}", text(&o.stderr)));
-    let r: serde_json::Value = serde_json::from_str(last).unwrap();
-    r["steps"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
-        .collect()
-}
-
 fn ok(c: &Cluster, dir: &Path, o: Output, what: &str) -> Output {
     assert!(o.status.success(), "{what} failed: {}\n{}{}", text(&o.stderr), job_logs(dir), c.logs());
     o
@@ -68,7 +55,7 @@ fn local(dir: &Path, args: &[&str]) -> BTreeMap<String, String> {
         .output()
         .unwrap();
     assert!(o.status.success(), "local run failed: {}", text(&o.stderr));
-    statuses(&o)
+    step_statuses(&o)
 }
 
 const SLURM_WAIT: [&str; 7] = ["pipeline", "run", "tiny.toml", "--executor", "slurm", "--wait", "--json"];
@@ -89,7 +76,7 @@ fn a_slurm_run_writes_the_bytes_of_a_local_run() {
     let t0 = Instant::now();
     let o = ok(&c, d, etl(&c, d, &SLURM_WAIT), "the Slurm run");
     eprintln!("the tiny pipeline through Slurm: {:.1} s", t0.elapsed().as_secs_f64());
-    let s = statuses(&o);
+    let s = step_statuses(&o);
     assert_eq!(s.len(), 11, "{s:?}");
     assert!(s.values().all(|v| v == "ran"), "{s:?}");
     let got = snapshot(&out);
@@ -130,7 +117,7 @@ fn a_failed_step_cancels_what_reads_it_and_a_resubmission_runs_only_the_rest() {
     let o = etl(&c, d, &SLURM_WAIT);
     let err = text(&o.stderr);
     assert!(!o.status.success(), "a failed step was not reported: {err}");
-    let s = statuses(&o);
+    let s = step_statuses(&o);
     assert_eq!(s["agent td3bc_mem_s1"], "failed", "{s:?}");
     assert_eq!(s["results"], "not run", "{s:?}");
     for step in ["convert", "pretrain", "score", "report"] {
@@ -154,7 +141,7 @@ fn a_failed_step_cancels_what_reads_it_and_a_resubmission_runs_only_the_rest() {
 
     std::fs::remove_file(out.join("agents")).unwrap();
     let o = ok(&c, d, etl(&c, d, &SLURM_WAIT), "the resubmission");
-    let s = statuses(&o);
+    let s = step_statuses(&o);
     for (step, status) in &s {
         let want = if step.starts_with("agent") || step == "results" { "ran" } else { "up to date" };
         assert_eq!(status, want, "{step}: {s:?}");
@@ -202,7 +189,7 @@ fn a_training_job_stopped_by_sigterm_resumes_to_the_weights_of_an_uninterrupted_
     assert!(!out.join(".pipeline/pretrain.json").exists(), "an interrupted step was recorded as finished");
 
     let o = ok(&c, d, etl(&c, d, &[&SLURM_WAIT[..], &["--until", "pretrain"]].concat()), "the resubmission");
-    let s = statuses(&o);
+    let s = step_statuses(&o);
     assert_eq!((s["convert"].as_str(), s["pretrain"].as_str()), ("up to date", "resumed"), "{s:?}");
 
     // The same pipeline never interrupted, locally: the same bytes (weights, optimizer, metrics).
@@ -238,7 +225,7 @@ fn two_concurrent_submissions_run_each_step_once() {
     let (a, b) = (spawn(), spawn());
     let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
     let (a, b) = (ok(&c, d, a, "submission A"), ok(&c, d, b, "submission B"));
-    let (sa, sb) = (statuses(&a), statuses(&b));
+    let (sa, sb) = (step_statuses(&a), step_statuses(&b));
     let logs = job_logs(d);
     for name in sa.keys() {
         // Every runner logs "[i/n] NAME: ran …" (or "resumed") when it ran the step.

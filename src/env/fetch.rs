@@ -377,10 +377,7 @@ impl GoalEnv for FetchEnv {
             self.data.step();
         }
         self.step_callback();
-        let obs = self.obs();
-        let reward = self.task.reward(&obs.achieved_goal, &obs.desired_goal) as f64;
-        let success = self.task.success(&obs.achieved_goal, &obs.desired_goal);
-        Step { obs, reward, success }
+        Step::of(&self.task, self.obs())
     }
 }
 

@@ -281,10 +281,7 @@ impl GoalEnv for HandEnv {
         for _ in 0..N_SUBSTEPS {
             self.data.step();
         }
-        let obs = self.obs();
-        let reward = self.task.reward(&obs.achieved_goal, &obs.desired_goal) as f64;
-        let success = self.task.success(&obs.achieved_goal, &obs.desired_goal);
-        Step { obs, reward, success }
+        Step::of(&self.task, self.obs())
     }
 }
 

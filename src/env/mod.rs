@@ -39,6 +39,15 @@ pub struct Step {
     pub success: bool,
 }
 
+impl Step {
+    /// The step that returned `obs`: `task`'s reward and success for its goals.
+    pub fn of(task: &Task, obs: Obs) -> Step {
+        let reward = task.reward(&obs.achieved_goal, &obs.desired_goal) as f64;
+        let success = task.success(&obs.achieved_goal, &obs.desired_goal);
+        Step { obs, reward, success }
+    }
+}
+
 /// A goal-conditioned environment, shaped like gymnasium's `GoalEnv`.
 pub trait GoalEnv {
     fn task(&self) -> &Task;

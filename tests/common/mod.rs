@@ -225,3 +225,16 @@ pub fn results_table(dir: &Path) -> pgser::report::Results {
     }
     pgser::report::results(&runs, &dir.join("results")).unwrap()
 }
+
+/// Step name → status from the JSON report a `pipeline run --json` prints as its last stdout line.
+pub fn step_statuses(o: &Output) -> std::collections::BTreeMap<String, String> {
+    let out = text(&o.stdout);
+    let last = out.lines().last().unwrap_or_else(|| panic!("no report on stdout: {}", text(&o.stderr)));
+    let r: serde_json::Value = serde_json::from_str(last).unwrap();
+    r["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
+        .collect()
+}
