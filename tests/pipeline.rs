@@ -310,3 +310,94 @@ fn sigterm_saves_a_training_step_that_resumes_to_the_uninterrupted_bytes() {
         assert!(&got[path] == bytes, "{} differs from an uninterrupted run", path.display());
     }
 }
+
+/// A pipeline whose expert is a trained actor: simulated data, the expert read from
+/// `expert_checkpoint`, trained online first when that file is absent.
+fn expert_pipeline(dir: &Path, checkpoint: &Path) -> std::path::PathBuf {
+    let toml = format!(
+        r#"
+name = "trained_expert"
+task = "FetchReach"
+out = "out"
+[data]
+expert = 4
+random = 4
+seed = 7
+noise = 0.1
+expert_checkpoint = "{c}"
+[expert]
+epochs = 1
+cycles = 2
+episodes_per_cycle = 2
+updates_per_cycle = 3
+batch_size = 32
+buffer_size = 5000
+hidden = 16
+layers = 2
+eval_episodes = 2
+seed = 3
+[train]
+batch_size = 32
+eval_every = 0
+eval_episodes = 2
+save_every = 0
+[pretrain]
+updates = 10
+[score]
+swaps = 1
+[agents]
+variants = ["baseline"]
+updates = 10
+"#,
+        c = checkpoint.display()
+    );
+    let path = dir.join("expert.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+#[test]
+fn a_missing_expert_is_trained_online_and_the_data_collected_from_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let absent = dir.path().join("experts/reach.ckpt");
+    let file = expert_pipeline(dir.path(), &absent);
+
+    let first = run(&file, &[]);
+    assert_eq!(first.get("expert").map(String::as_str), Some("ran"), "{first:?}");
+    assert!(first.values().all(|s| s == "ran"), "{first:?}");
+    let trained = out.join("expert/expert.ckpt");
+    assert!(trained.exists() && out.join("expert/expert.ckpt.metrics.jsonl").exists());
+    assert!(!absent.exists(), "the pipeline writes only under its out folder");
+
+    // The expert episodes are what `collect --policy checkpoint:` writes from that actor.
+    let alone = dir.path().join("alone.pkl");
+    let o = etl()
+        .args(["collect", "--task", "FetchReach", "--episodes", "4", "--seed", "7", "--noise", "0.1", "--policy"])
+        .arg(format!("checkpoint:{}", trained.display()))
+        .arg("-o")
+        .arg(&alone)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(std::fs::read(&alone).unwrap(), std::fs::read(out.join("data/expert.pkl")).unwrap());
+
+    // The same expert shipped at the given path: no training, and the data (keyed by the
+    // checkpoint's bytes, not its path) and everything after it stay up to date.
+    std::fs::create_dir_all(absent.parent().unwrap()).unwrap();
+    std::fs::copy(&trained, &absent).unwrap();
+    let shipped = run(&file, &[]);
+    assert!(!shipped.contains_key("expert"), "{shipped:?}");
+    assert!(ran(&shipped).is_empty(), "{shipped:?}");
+
+    // An expert of another task is refused before any step runs, naming the file.
+    let reach = std::fs::read_to_string(&file).unwrap();
+    let push = dir.path().join("push.toml");
+    std::fs::write(&push, reach.replace("\"FetchReach\"", "\"FetchPush\"").replace("out = \"out\"", "out = \"push\""))
+        .unwrap();
+    let o = etl().args(["pipeline", "run"]).arg(&push).output().unwrap();
+    let err = text(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("expert_checkpoint") && err.contains("trained on FetchReach, not FetchPush"), "{err}");
+    assert!(!dir.path().join("push").exists(), "nothing written");
+}

@@ -14,6 +14,7 @@ use anyhow::{Context, Result, bail};
 
 use super::{Action, Data, Pipeline, Step};
 use crate::agent::Backend;
+use crate::env::policy::{PolicyKind, PolicySpec};
 use crate::task::Task;
 use crate::train::TrainConfig;
 use crate::trajectory::FloatType;
@@ -42,8 +43,22 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
     for step in steps {
         let name = &step.name;
         match &step.action {
-            Action::Collect(o) => {
-                crate::collect::check(o).with_context(|| format!("[data] {} (step {name})", o.policy.kind.name()))?;
+            Action::Collect(c) => {
+                let o = match &c.checkpoint {
+                    // Written by the `expert` step: only the environment and the output are checked now.
+                    Some(f) if !f.exists() => crate::collect::CollectOptions {
+                        policy: PolicySpec { kind: PolicyKind::Random, noise: 0.0, epsilon: 0.0 },
+                        ..c.opts.clone()
+                    },
+                    Some(f) => c.options().with_context(|| format!("[data] expert_checkpoint {}", f.display()))?,
+                    None => c.opts.clone(),
+                };
+                let what = if c.checkpoint.is_some() { "expert_checkpoint" } else { o.policy.kind.name() };
+                crate::collect::check(&o).with_context(|| format!("[data] {what} (step {name})"))?;
+            }
+            Action::Online { cfg, .. } => {
+                let task = Task::known(&p.task).context("task")?;
+                cfg.validate(&task).context("[expert]")?;
             }
             Action::Convert(o) if beta.is_none() => {
                 let plan = crate::trajectory::check_convert(o).context("[data] pickles")?;

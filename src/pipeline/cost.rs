@@ -106,7 +106,7 @@ pub fn estimate(
         };
         match &step.action {
             Action::Collect(o) => {
-                let n = o.episodes as u64;
+                let n = o.opts.episodes as u64;
                 c.env_steps = n * (t - 1);
                 let (obs, goal, act) = (task.obs_dim as u64, task.goal_dim as u64, task.act_dim as u64);
                 c.bytes = n * (t * (obs + goal) + (t - 1) * (act + goal)) * 8;
@@ -128,6 +128,21 @@ pub fn estimate(
                 c.scored_rows = eps * (t - 1) * (o.swaps as u64 + o.include_original as u64);
                 let vectors = (2 * task.obs_dim + task.act_dim + 2 * task.goal_dim) as u64 * 4;
                 c.bytes = c.scored_rows * (32 + vectors);
+            }
+            Action::Online { cfg, .. } => {
+                let (epochs, cycles) = (cfg.epochs, cfg.cycles);
+                let episodes = epochs * cycles * cfg.episodes_per_cycle as u64;
+                c.updates = epochs * cycles * cfg.updates_per_cycle;
+                c.envs_created = cfg.episodes_per_cycle as u64 + epochs * cfg.eval_episodes as u64;
+                c.env_steps = (episodes + epochs * cfg.eval_episodes as u64) * t;
+                // The replay buffer saved beside the checkpoint dominates.
+                let stored = episodes.min(cfg.capacity(task) as u64);
+                let (obs, goal, act) = (task.obs_dim as u64, task.goal_dim as u64, task.act_dim as u64);
+                c.bytes = stored * ((t + 1) * (obs + goal) + t * (act + goal)) * 8;
+                let mut as_train = super::train_config(&[])?;
+                as_train.agent = cfg.agent();
+                as_train.batch_size = cfg.batch_size;
+                trains.push((per_step.len(), as_train, false));
             }
             Action::Report(_) | Action::Results(_) => {}
         }

@@ -20,6 +20,7 @@ use super::state::{self, Hashes};
 use super::{Action, Cost, Pipeline, Step, cost, stack_of};
 use crate::agent::{Backend, checkpoint};
 use crate::train::metrics_path;
+use crate::train::online::{OnlineConfig, buffer_path, train_online};
 use crate::{collect, progress, report, score, trajectory};
 
 /// Steps that run together, and the units whose outputs they read.
@@ -250,7 +251,8 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
     let bar = progress::bar("step", "");
     let mut how = "ran";
     match &step.action {
-        Action::Collect(o) => drop(collect::collect(o, &bar)?),
+        Action::Collect(c) => drop(collect::collect(&c.options()?, &bar)?),
+        Action::Online { cfg, out } => how = execute_online(step, cfg, out, device, resume, &bar)?,
         Action::Convert(o) => drop(trajectory::convert(o, &bar)?),
         // The threads of the pool this unit runs on (all of `--threads` alone, its share with
         // `--jobs`); the scores do not depend on it.
@@ -331,8 +333,51 @@ fn execute_stack(steps: &[&Step], device: Backend, resume: &[bool]) -> Result<Ve
     Ok(how)
 }
 
+/// Trains the expert online, continuing its checkpoint as a training step does: when `resume`
+/// allows and it is of the same run (else it is set aside as `.stale` and training starts over).
+/// A run stopped before its last epoch (SIGTERM) is saved and reported as not finished.
+fn execute_online(
+    step: &Step,
+    cfg: &OnlineConfig,
+    out: &Path,
+    device: Backend,
+    resume: bool,
+    bar: &indicatif::ProgressBar,
+) -> Result<&'static str> {
+    let command = format!("pgser pipeline step {}", step.name);
+    let device = device.device()?;
+    let mut continuing = resume && out.exists() && checkpoint::resume_path(out).exists();
+    if resume && out.exists() && !continuing {
+        set_aside_stale(out)?;
+    }
+    let mut result = train_online(cfg, out, continuing, device.clone(), &command, bar);
+    if let Err(e) = &result
+        && continuing
+        && e.downcast_ref::<crate::train::StaleCheckpoint>().is_some()
+    {
+        let kept = set_aside_stale(out)?;
+        eprintln!(
+            "pgser pipeline: {}: not resumed ({e:#}); the old checkpoint is kept as {}; training from scratch",
+            step.name,
+            kept.display()
+        );
+        continuing = false;
+        result = train_online(cfg, out, false, device, &command, bar);
+    }
+    let summary = result?;
+    if !summary.finished {
+        bail!(
+            "{}: stopped after epoch {} of {} (saved); run the pipeline again to continue",
+            out.display(),
+            summary.epochs,
+            cfg.epochs
+        );
+    }
+    Ok(if continuing { "resumed" } else { "ran" })
+}
+
 /// Moves a checkpoint that cannot be continued, with its resume state and metrics, to
-/// `NAME.stale` (`.resume.stale`, `.metrics.jsonl.stale`), replacing an older stale copy; returns
+/// `NAME.stale` (`.resume.stale`, `.metrics.jsonl.stale`, an online run's `.buffer.parquet.stale`), replacing an older stale copy; returns
 /// the checkpoint's new path.
 fn set_aside_stale(ckpt: &Path) -> Result<PathBuf> {
     let stale = |p: &Path| {
@@ -340,7 +385,7 @@ fn set_aside_stale(ckpt: &Path) -> Result<PathBuf> {
         s.push(".stale");
         PathBuf::from(s)
     };
-    for p in [ckpt.to_path_buf(), checkpoint::resume_path(ckpt), metrics_path(ckpt)] {
+    for p in [ckpt.to_path_buf(), checkpoint::resume_path(ckpt), metrics_path(ckpt), buffer_path(ckpt)] {
         if p.exists() {
             std::fs::rename(&p, stale(&p))
                 .with_context(|| format!("{}: cannot move aside to {}", p.display(), stale(&p).display()))?;

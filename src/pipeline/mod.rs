@@ -1,6 +1,7 @@
 //! `pgser-etl pipeline run FILE`: the paper's whole experiment as one command.
 //!
-//! A pipeline file (`spec.rs`) becomes a list of steps — data, Q pre-training, scoring, the grid
+//! A pipeline file (`spec.rs`) becomes a list of steps — data (with, for a trained expert that is
+//! absent, its online training first), Q pre-training, scoring, the grid
 //! of agents, the Fig. 5 / Table 1 report, the results table — each calling the same library
 //! function as its CLI command. (The report comes after the agents so that the hours of training
 //! never wait on it; it reads only the scored table and the Q.) A step is *up to date* when its record in `OUT/.pipeline/`
@@ -53,12 +54,18 @@ pub use status::{StepState, render as render_status, status};
 
 use crate::agent::{Algo, Backend};
 use crate::env::policy::{PolicyKind, PolicySpec};
+use crate::train::online::OnlineConfig;
 use crate::train::{TrainConfig, metrics_path};
 use crate::{collect, report, score, trajectory};
 
 /// What one step does, with everything it needs.
 enum Action {
-    Collect(collect::CollectOptions),
+    Collect(CollectStep),
+    /// Online DDPG + HER training of the expert (`pgser-train online`).
+    Online {
+        cfg: Box<OnlineConfig>,
+        out: PathBuf,
+    },
     Convert(trajectory::ConvertOptions),
     /// `stack`: agent cells of one stack id train at once as one stack of networks.
     Train {
@@ -70,6 +77,24 @@ enum Action {
     Score(score::ScoreOptions),
     Report(report::QReportOptions),
     Results(Vec<report::Run>),
+}
+
+/// A `collect` step. With `checkpoint` the policy is that trained actor, read when the step
+/// runs (an earlier step may write it), and `opts.policy.kind` stands in for it until then.
+struct CollectStep {
+    opts: collect::CollectOptions,
+    checkpoint: Option<PathBuf>,
+}
+
+impl CollectStep {
+    /// The options `collect` runs with: the checkpoint's actor read in when there is one.
+    fn options(&self) -> Result<collect::CollectOptions> {
+        let mut o = self.opts.clone();
+        if let Some(c) = &self.checkpoint {
+            o.policy.kind = PolicyKind::parse(&format!("checkpoint:{}", c.display()))?;
+        }
+        Ok(o)
+    }
 }
 
 /// One step of the plan.
@@ -143,7 +168,24 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     let traj = out.join("traj.parquet");
     let (pickles, episodes) = match &p.data {
         Data::Pickles { inputs, episodes } => (inputs.clone(), episodes.clone()),
-        Data::Collect { expert, random, seed, noise } => {
+        Data::Collect { expert, random, seed, noise, checkpoint } => {
+            // A trained expert: the given checkpoint, or when it is absent the one the `expert`
+            // step trains (`pgser-train online` with `[expert]`'s settings).
+            let trained = checkpoint.as_ref().map(|c| {
+                if c.exists() {
+                    c.clone()
+                } else {
+                    let ckpt = out.join("expert/expert.ckpt");
+                    steps.push(Step {
+                        name: "expert".into(),
+                        params: json!({"task": p.task, "online": p.expert}),
+                        inputs: vec![],
+                        outputs: vec![ckpt.clone(), metrics_path(&ckpt)],
+                        action: Action::Online { cfg: Box::new(p.expert.clone()), out: ckpt.clone() },
+                    });
+                    ckpt
+                }
+            });
             let mut files = Vec::new();
             for (kind, n, s) in
                 [(PolicyKind::Expert, *expert, *seed), (PolicyKind::Random, *random, seed + *expert as u64)]
@@ -151,20 +193,24 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                 let name = format!("collect_{}", kind.name());
                 let file = out.join(format!("data/{}.pkl", kind.name()));
                 let noise = if kind == PolicyKind::Expert { *noise } else { 0.0 };
+                let checkpoint = trained.clone().filter(|_| kind == PolicyKind::Expert);
                 steps.push(Step {
                     params: json!({"task": p.task, "policy": kind.name(), "episodes": n, "seed": s, "noise": noise}),
                     name: name.clone(),
-                    inputs: vec![],
+                    inputs: checkpoint.iter().cloned().collect(),
                     outputs: vec![file.clone()],
-                    action: Action::Collect(collect::CollectOptions {
-                        task: p.task.clone(),
-                        policy: PolicySpec { kind, noise, epsilon: 0.0 },
-                        episodes: n,
-                        seed: s,
-                        output: file.clone(),
-                        float32: false,
-                        row_group_rows: 65_536,
-                        command: cmd(&name),
+                    action: Action::Collect(CollectStep {
+                        opts: collect::CollectOptions {
+                            task: p.task.clone(),
+                            policy: PolicySpec { kind, noise, epsilon: 0.0 },
+                            episodes: n,
+                            seed: s,
+                            output: file.clone(),
+                            float32: false,
+                            row_group_rows: 65_536,
+                            command: cmd(&name),
+                        },
+                        checkpoint,
                     }),
                 });
                 files.push(file);

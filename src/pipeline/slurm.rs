@@ -161,7 +161,9 @@ pub fn submit(p: &Pipeline, file: &Path, o: &SlurmOptions, log: &dyn Fn(&str)) -
             .flat_map(|&m| steps[m].inputs.iter())
             .filter_map(|input| writer.get(input).and_then(|w| job_of.get(w)))
             .collect();
-        let uses_device = members.iter().any(|&m| matches!(steps[m].action, Action::Train { .. } | Action::Score(_)));
+        let uses_device = members
+            .iter()
+            .any(|&m| matches!(steps[m].action, Action::Train { .. } | Action::Score(_) | Action::Online { .. }));
         let array = stack_of(&steps[i]).is_some();
         let tag = if array { "agents".to_string() } else { steps[i].name.replace(' ', "_") };
         let mut args: Vec<String> = vec![

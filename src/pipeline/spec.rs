@@ -14,6 +14,7 @@ use serde::Deserialize;
 
 use crate::agent::Algo;
 use crate::train::TrainConfig;
+use crate::train::online::OnlineConfig;
 
 /// The three variants of the paper's Table 2.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -52,6 +53,9 @@ pub struct Pipeline {
     pub score: ScoreSpec,
     pub report: ReportSpec,
     pub agents: Agents,
+    /// `[expert]`: how the `expert` step trains the expert (`pgser-train online` settings) when
+    /// `[data] expert_checkpoint` names a file that is absent.
+    pub expert: OnlineConfig,
 }
 
 /// Where β comes from.
@@ -60,9 +64,11 @@ pub enum Data {
     /// WGCSL pickles, converted in order taking the first `episodes[i]` of each (GoFAR's mix;
     /// the expert file first, which is what the report takes as positives).
     Pickles { inputs: Vec<PathBuf>, episodes: Option<Vec<usize>> },
-    /// Simulated: `expert` episodes of the scripted expert (seeds seed…) and `random` of
-    /// uniform actions (seeds seed + expert …), written as pickles and converted.
-    Collect { expert: usize, random: usize, seed: u64, noise: f64 },
+    /// Simulated: `expert` episodes of the expert (seeds seed…) and `random` of uniform actions
+    /// (seeds seed + expert …), written as pickles and converted. The expert is the task's
+    /// scripted one (Fetch), or with `checkpoint` a trained actor (the hand tasks, which have no
+    /// scripted expert): that file when it exists, else the one the `expert` step trains.
+    Collect { expert: usize, random: usize, seed: u64, noise: f64, checkpoint: Option<PathBuf> },
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -120,6 +126,8 @@ struct File {
     #[serde(default)]
     report: ReportSpec,
     agents: toml::Table,
+    #[serde(default)]
+    expert: Option<toml::Table>,
 }
 
 fn default_score() -> ScoreSpec {
@@ -138,6 +146,7 @@ struct DataFile {
     seed: u64,
     #[serde(default)]
     noise: f64,
+    expert_checkpoint: Option<String>,
 }
 
 impl Pipeline {
@@ -173,10 +182,15 @@ impl Pipeline {
                 if expert == 0 {
                     bail!("[data]: expert = 0; the report needs expert episodes as positives");
                 }
-                Data::Collect { expert, random, seed: d.seed, noise: d.noise }
+                let checkpoint = d.expert_checkpoint.as_deref().map(resolve);
+                Data::Collect { expert, random, seed: d.seed, noise: d.noise, checkpoint }
             }
             _ => bail!("[data]: give either `pickles` (and optionally `episodes`) or both `expert` and `random`"),
         };
+        if f.expert.is_some() && !matches!(data, Data::Collect { checkpoint: Some(_), .. }) {
+            bail!("[expert] trains a missing [data] expert_checkpoint; without expert_checkpoint it means nothing");
+        }
+        let expert = online_config(&f.task, &f.expert.unwrap_or_default()).context("[expert]")?;
 
         let mut agents = f.agents;
         let algos: Vec<Algo> = take(&mut agents, "algos")?.unwrap_or(vec![Algo::Td3bc]);
@@ -200,6 +214,7 @@ impl Pipeline {
             score: f.score,
             report: f.report,
             agents: Agents { algos, variants, seeds, batch, train: agents },
+            expert,
         };
         // Fail now, not after an hour of training, on a misspelt setting.
         p.pretrain_config()?;
@@ -261,6 +276,31 @@ pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
         }
     }
     serde_json::from_value(json).map_err(|e| anyhow::anyhow!("a training setting has the wrong type: {e}"))
+}
+
+/// `pgser-train online`'s settings for `task`: its defaults (MRN's) with `table` applied. Keys
+/// are the flags' snake_case names; the task is the pipeline's.
+fn online_config(task: &str, table: &toml::Table) -> Result<OnlineConfig> {
+    #[derive(Parser)]
+    struct Defaults {
+        #[command(flatten)]
+        c: OnlineConfig,
+    }
+    let defaults = Defaults::try_parse_from(["pgser-train", "--task", task]).context("the online defaults")?.c;
+    let mut json = serde_json::to_value(&defaults)?;
+    let obj = json.as_object_mut().expect("a struct");
+    for (key, value) in table {
+        if key == "task" || !obj.contains_key(key) {
+            bail!(
+                "unknown setting {key:?} (use pgser-train online's flag names in snake_case; the task is the pipeline's)"
+            );
+        }
+        obj.insert(key.clone(), serde_json::to_value(value)?);
+    }
+    let cfg: OnlineConfig =
+        serde_json::from_value(json).map_err(|e| anyhow::anyhow!("a setting has the wrong type: {e}"))?;
+    // Not settings of the run (they change no result): save every 10 minutes, as the CLI does.
+    Ok(OnlineConfig { save_minutes: defaults.save_minutes, max_minutes: None, ..cfg })
 }
 
 /// `a/b/../c` → `a/c`, without touching the file system (the outputs may not exist yet), so
@@ -335,6 +375,36 @@ mod tests {
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("2 pickles"));
         let bad = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"best\"]");
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("variants"));
+    }
+
+    #[test]
+    fn a_trained_expert_and_its_online_settings() {
+        let base = r#"
+            name = "h"
+            task = "HandManipulateBlockRotateZ"
+            out = "../out/h"
+            [data]
+            expert = 5
+            random = 5
+            expert_checkpoint = "../data/experts/h.ckpt"
+            [agents]
+        "#;
+        let p =
+            Pipeline::parse(&format!("{base}\n[expert]\nepochs = 7\ncycles = 3"), Path::new("pipes/h.toml")).unwrap();
+        match &p.data {
+            Data::Collect { checkpoint, .. } => {
+                assert_eq!(checkpoint.as_deref(), Some(Path::new("data/experts/h.ckpt")))
+            }
+            d => panic!("{d:?}"),
+        }
+        assert_eq!((p.expert.task.as_str(), p.expert.epochs, p.expert.cycles), ("HandManipulateBlockRotateZ", 7, 3));
+        assert_eq!(p.expert.batch_size, 1024, "MRN's defaults for the rest");
+        let err = |text: &str| format!("{:#}", Pipeline::parse(text, Path::new("h.toml")).unwrap_err());
+        assert!(err(&format!("{base}\n[expert]\nepoch = 7")).contains("\"epoch\""));
+        assert!(err(&format!("{base}\n[expert]\ntask = \"FetchPush\"")).contains("the task is the pipeline's"));
+        assert!(err(&format!("{base}\n[expert]\nepochs = \"many\"")).contains("wrong type"));
+        let scripted = base.replace("expert_checkpoint = \"../data/experts/h.ckpt\"", "");
+        assert!(err(&format!("{scripted}\n[expert]\nepochs = 7")).contains("without expert_checkpoint"));
     }
 
     #[test]

@@ -146,7 +146,7 @@ impl OnlineConfig {
         OnlineConfig { epochs: 0, save_minutes: 0.0, max_minutes: None, ..self.clone() }
     }
 
-    fn validate(&self, task: &Task) -> Result<()> {
+    pub(crate) fn validate(&self, task: &Task) -> Result<()> {
         let probability = |name: &str, p: f64| {
             if (0.0..=1.0).contains(&p) { Ok(()) } else { Err(anyhow::anyhow!("--{name} must be in [0, 1], got {p}")) }
         };
