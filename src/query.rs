@@ -196,17 +196,22 @@ fn write(df: &mut DataFrame, format: Format, w: impl Write) -> Result<()> {
 }
 
 /// JSON Lines by serde_json: polars' own JSON writer is a cargo feature of its own (simd-json and
-/// polars-json) that would be built for this alone.
+/// polars-json) that would be built for this alone. Each object's keys are in the query's column
+/// order (as in the CSV header), not sorted as a `serde_json::Map` would have them.
 fn write_json_lines(df: &DataFrame, w: impl Write) -> Result<()> {
     let mut w = std::io::BufWriter::new(w);
     let names: Vec<String> = df.get_column_names().iter().map(|n| n.to_string()).collect();
     for i in 0..df.height() {
-        let mut row = serde_json::Map::with_capacity(names.len());
-        for (name, c) in names.iter().zip(df.columns()) {
-            row.insert(name.clone(), json_value(&c.get(i).map_err(|e| anyhow!("{}", first_line(&e)))?)?);
+        w.write_all(b"{")?;
+        for (k, (name, c)) in names.iter().zip(df.columns()).enumerate() {
+            if k > 0 {
+                w.write_all(b",")?;
+            }
+            serde_json::to_writer(&mut w, name)?;
+            w.write_all(b":")?;
+            serde_json::to_writer(&mut w, &json_value(&c.get(i).map_err(|e| anyhow!("{}", first_line(&e)))?)?)?;
         }
-        serde_json::to_writer(&mut w, &row)?;
-        w.write_all(b"\n")?;
+        w.write_all(b"}\n")?;
     }
     w.flush()?;
     Ok(())

@@ -118,6 +118,10 @@ fn outputs_in_each_format() {
     let want =
         serde_json::json!({"task": "FetchPush", "variant": "baseline", "seeds": 3, "success_mean": base.success_mean});
     assert_eq!(objs[0], want);
+    // Keys in the SELECT's order, as the CSV header has them (not sorted).
+    let first = json.lines().next().unwrap();
+    let at = |k: &str| first.find(&format!("\"{k}\":")).unwrap();
+    assert!(at("task") < at("variant") && at("variant") < at("seeds") && at("seeds") < at("success_mean"), "{first}");
 
     let pq = d.join("out.parquet");
     let o = query(&[sql, p(&r.csv), "-o", p(&pq)]);
