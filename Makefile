@@ -19,10 +19,10 @@ ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
-.PHONY: all build test check-wgpu slurm-deps demo bench bench-venv deps venv fuzz clean
+.PHONY: all build test check-wgpu slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
 all: build
 
-deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT)
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -57,19 +57,36 @@ $(VENV)/.stamp: tests/requirements.txt
 	$(PY) -m pip install --quiet -r tests/requirements.txt
 	touch $@
 
+# Minari datasets in HDF5 storage are read through the HDF5 C library: the cargo feature `hdf5`
+# (on by default) links Debian's libhdf5 (libhdf5-dev), which hdf5-deps installs when missing
+# and we are root with apt-get, as slurm-deps does for Slurm. Where it cannot be installed,
+# cargo runs with --no-default-features: everything else builds, and `convert` says how to get
+# HDF5 reading (docs/minari.md).
+FEATURES = $$(pkg-config --exists hdf5 2>/dev/null || echo --no-default-features)
+
+hdf5-deps:
+	@if pkg-config --exists hdf5 2>/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  { DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libhdf5-dev pkg-config >/dev/null || \
+	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+	      libhdf5-dev pkg-config >/dev/null; }; } || echo "make hdf5-deps: could not install libhdf5-dev"; \
+	else echo "make hdf5-deps: no libhdf5-dev, and not root with apt-get: building without Minari HDF5 reading"; fi
+
 build: deps
-	$(CARGO) build --release
+	$(CARGO) build --release $(FEATURES)
 
 # Real WGCSL pickles written by other people's code (not redistributed here): when a folder of
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
 test: deps venv check-wgpu slurm-deps
-	$(CARGO) test --release
+	$(CARGO) test --release $(FEATURES)
+	@pkg-config --exists hdf5 2>/dev/null || \
+	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
 	  echo "make test: tests/slurm.rs NOT run (each test printed SKIPPED): no Slurm here (slurm-wlm, munge)"
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
-	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
+	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release $(FEATURES) --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
 
 # tests/slurm.rs starts a single-node Slurm from Debian's packages: installed here when missing
@@ -86,7 +103,7 @@ slurm-deps:
 # The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
 # wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).
 check-wgpu:
-	$(CARGO) check --release --features wgpu --lib --bins
+	$(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and

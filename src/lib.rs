@@ -1,7 +1,8 @@
 //! pgser: Prioritized Offline Goal-Swapping Experience Replay as batch jobs over Parquet.
 //!
 //! Data flows one way: files → record batches → tensors. Each pipeline stage is one module:
-//! [`pickle`] reads WGCSL buffers without executing them (and writes them), [`trajectory`]
+//! [`pickle`] reads WGCSL buffers without executing them (and writes them), [`minari`] reads
+//! and writes Minari datasets, [`trajectory`]
 //! writes and reads the trajectory table, [`collect`] simulates episodes in [`env`](mod@env) and writes
 //! them as either, [`inspect`] summarises any pgser table, [`query`] runs SQL over tables.
 //! [`table`] and [`output`] hold what every writer shares (parallel row-group encoding, the
@@ -13,6 +14,7 @@ pub mod collect;
 pub mod env;
 pub mod eval;
 pub mod inspect;
+pub mod minari;
 pub mod output;
 pub mod pickle;
 pub mod pipeline;

@@ -7,14 +7,14 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
 use pgser::env::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, inspect, pipeline, progress, query, report, score, trajectory};
+use pgser::{cli, collect, inspect, minari, pipeline, progress, query, report, score, trajectory};
 
 #[derive(Parser)]
 #[command(
     name = "pgser-etl",
     version,
     long_version = pgser::cli::LONG_VERSION.as_str(),
-    about = "pgser data jobs: convert, collect, inspect, query, score, report"
+    about = "pgser data jobs: convert, collect, export, inspect, query, score, report"
 )]
 struct Args {
     #[command(subcommand)]
@@ -23,12 +23,17 @@ struct Args {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Convert WGCSL-style pickles into a Parquet trajectory table, without executing them.
+    /// Convert WGCSL-style pickles (without executing them) or a Minari dataset into a Parquet trajectory table.
     #[command(after_help = "Examples:\n  pgser-etl convert expert.pkl -o traj.parquet --task FetchPush\n  \
         pgser-etl convert expert.pkl random.pkl --episodes 500,2000 -o mix.parquet --task FetchPush\n  \
-        pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05")]
+        pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05\n  \
+        pgser-etl convert ~/.minari/datasets/fetchreach-expert-v0 -o traj.parquet\n\n\
+        A Minari dataset (HDF5 or Arrow storage) must be goal-conditioned (a Dict observation with observation, \
+        achieved_goal, desired_goal) with episodes of one length: n steps become T = n+1 rows. The task is \
+        --task, else the id of the dataset's env_spec (FetchReach-v4 is FetchReach). See docs/minari.md.")]
     Convert {
-        /// Input pickles: dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal].
+        /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
+        /// Minari dataset folder (ID/ or ID/data/).
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
         /// Output Parquet file (written atomically).
@@ -202,6 +207,26 @@ enum Command {
         #[arg(long, group = "format")]
         parquet: bool,
     },
+    /// Write a trajectory table out as a Minari dataset (Arrow storage) or a WGCSL pickle.
+    #[command(
+        after_help = "Examples:\n  pgser-etl export traj.parquet --format minari -o ~/.minari/datasets/fetchreach-expert-v0\n  \
+        pgser-etl export traj.parquet --format wgcsl -o expert.pkl\n\n\
+        A Minari dataset is a folder named by its dataset id (NAME-vN); `minari.load_dataset(\"NAME-vN\")` opens \
+        it when MINARI_DATASETS_PATH is its parent folder. Its Arrow storage holds each episode's observations \
+        (Dict: observation, achieved_goal, desired_goal), actions, rewards recomputed from the goals (the task's \
+        sparse reward), no terminations, and a truncation on the last step. A WGCSL pickle holds float64 arrays \
+        (a float32 table widens exactly). The output must not exist; it appears whole or not at all."
+    )]
+    Export {
+        /// A trajectory table (`pgser-etl convert` / `collect`).
+        table: PathBuf,
+        /// What to write.
+        #[arg(long, value_enum)]
+        format: minari::ExportFormat,
+        /// The dataset folder (minari: its name is the dataset id, NAME-vN) or pickle (wgcsl) to create.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Show a table's schema, footer, counts, success rate and column statistics.
     #[command(after_help = "Example:\n  pgser-etl inspect traj.parquet --per-dim")]
     Inspect {
@@ -346,6 +371,9 @@ fn main() -> ExitCode {
             bar.finish_and_clear();
             for k in &s.skipped_keys {
                 eprintln!("pgser-etl: note: skipped {k} (not part of the WGCSL format)");
+            }
+            for note in &s.notes {
+                eprintln!("pgser-etl: note: {note}");
             }
             eprintln!(
                 "wrote {}: {} episodes, {} rows, task {}, {} ({:.1} MB)",
@@ -541,6 +569,11 @@ fn main() -> ExitCode {
             if let Some(out) = output {
                 eprintln!("wrote {}: {rows} rows", out.display());
             }
+            Ok(())
+        }
+        Command::Export { table, format, output } => {
+            let s = minari::export(&minari::ExportOptions { table, format, output: output.clone() })?;
+            eprintln!("wrote {}: {} episodes of {} (T = {})", output.display(), s.episodes, s.task, s.t);
             Ok(())
         }
         Command::Inspect { file, per_dim, json } => {

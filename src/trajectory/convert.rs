@@ -44,6 +44,8 @@ pub struct ConvertSummary {
     pub bytes: u64,
     /// "file: key" for keys that are not part of the WGCSL format and were left out.
     pub skipped_keys: Vec<String>,
+    /// Other things the user should know about the conversion, one line each.
+    pub notes: Vec<String>,
 }
 
 /// One input's four arrays, validated.
@@ -87,6 +89,9 @@ pub struct ConvertPlan {
 }
 
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
+    if let Some(dir) = minari_input(opts)? {
+        return crate::minari::check(opts, dir);
+    }
     let maps = open_inputs(opts)?;
     let (sources, _, float_type, task) = read_sources(opts, &maps)?;
     Ok(ConvertPlan {
@@ -95,6 +100,19 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
         episodes_in_file: sources.iter().map(|s| s.episodes).collect(),
         episodes_taken: sources.iter().map(|s| s.take).collect(),
     })
+}
+
+/// A folder input is a Minari dataset (`crate::minari`), converted on its own.
+fn minari_input(opts: &ConvertOptions) -> Result<Option<&Path>> {
+    match opts.inputs.iter().position(|p| p.is_dir()) {
+        None => Ok(None),
+        Some(_) if opts.inputs.len() == 1 => Ok(Some(&opts.inputs[0])),
+        Some(i) => bail!(
+            "{}: a folder (a Minari dataset) among {} inputs: convert takes pickles, or one Minari dataset folder",
+            opts.inputs[i].display(),
+            opts.inputs.len()
+        ),
+    }
 }
 
 fn open_inputs(opts: &ConvertOptions) -> Result<Vec<MappedFile>> {
@@ -137,6 +155,9 @@ fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<
 }
 
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
+    if let Some(dir) = minari_input(opts)? {
+        return crate::minari::convert(opts, dir, bar);
+    }
     let maps = open_inputs(opts)?;
     // Hash the inputs on a thread of their own while we parse, validate and write.
     std::thread::scope(|scope| {
@@ -177,7 +198,15 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
             })
             .collect();
         let bytes = writer.finish(&footer)?;
-        Ok(ConvertSummary { task, float_type, episodes: total, rows: total * footer.t, bytes, skipped_keys })
+        Ok(ConvertSummary {
+            task,
+            float_type,
+            episodes: total,
+            rows: total * footer.t,
+            bytes,
+            skipped_keys,
+            notes: vec![],
+        })
     })
 }
 
@@ -301,29 +330,45 @@ fn resolve_task(sources: &[Source], name: Option<&str>, threshold: Option<f64>) 
             );
         }
     }
+    let at = first.path.display().to_string();
+    task_for(&at, (t, obs, goal, act), ["key 'o'", "key 'ag'", "key 'u'"], "steps", name, threshold)
+}
+
+/// The task for data of T observations per episode and these dimensions: the named built-in
+/// task (dimensions and T must match), a custom one (a name pgser does not know, with
+/// `threshold`), or the single built-in task the dimensions fit. `keys` name the observation,
+/// goal and action arrays in messages and `t_unit` what T counts, in the words of the input's
+/// format (pickles and Minari datasets share this). `threshold` overrides a built-in task's.
+pub(crate) fn task_for(
+    at: &str,
+    (t, obs, goal, act): (usize, usize, usize, usize),
+    keys: [&str; 3],
+    t_unit: &str,
+    name: Option<&str>,
+    threshold: Option<f64>,
+) -> Result<Task> {
     if let Some(th) = threshold
         && !(th.is_finite() && th > 0.0)
     {
         bail!("--threshold must be a positive number, got {th}");
     }
-    let at = first.path.display();
     let mut task = match name {
         Some(name) => match Task::known(name) {
             Some(task) => {
                 for (key, have, want, what) in [
-                    ("o", obs, task.obs_dim, "observations"),
-                    ("ag", goal, task.goal_dim, "goals"),
-                    ("u", act, task.act_dim, "actions"),
+                    (keys[0], obs, task.obs_dim, "observations"),
+                    (keys[1], goal, task.goal_dim, "goals"),
+                    (keys[2], act, task.act_dim, "actions"),
                 ] {
                     if have != want {
                         bail!(
-                            "{at}: dimension mismatch: key '{key}' has {have} values per step but {} {what} have {want}",
+                            "{at}: dimension mismatch: {key} has {have} values per step but {} {what} have {want}",
                             task.name
                         );
                     }
                 }
                 if t != task.t {
-                    bail!("{at}: episodes have {t} steps but {} has T = {}", task.name, task.t);
+                    bail!("{at}: episodes have {t} {t_unit} but {} has T = {}", task.name, task.t);
                 }
                 task
             }

@@ -15,6 +15,7 @@ use crate::table::SCHEMA_VERSION;
 use crate::task::{GoalMetric, Task};
 
 pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
+pub(crate) use convert::task_for;
 pub use convert::{ConvertOptions, ConvertPlan, ConvertSummary, check as check_convert, convert};
 pub use read::Episodes;
 

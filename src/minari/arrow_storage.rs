@@ -1,0 +1,213 @@
+//! Minari's Arrow storage: `data/{i}/` holds episode i as Arrow IPC files (pyarrow's dataset
+//! writer names them `part-0.arrow`) next to a `metadata.json`.
+//!
+//! Every column has n + 1 rows for an episode of n steps: `observations` (a struct of the Dict's
+//! keys, each a fixed-size list), and `actions`, `rewards`, `terminations`, `truncations`, whose
+//! last row is padding (Minari drops it when it reads). pgser reads observations and actions;
+//! rewards are recomputed from the goals, like every pgser table's. The writer makes exactly
+//! this layout, one record batch per file, which is what Minari's reader expects.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type};
+use arrow_array::{
+    Array, ArrayRef, BooleanArray, FixedSizeListArray, Float32Array, Float64Array, RecordBatch, StructArray,
+};
+use arrow_schema::{DataType, Field, Fields, Schema};
+
+use super::{BoxSpace, Episode, Metadata, OBS_KEYS, Spaces};
+
+pub struct Reader {
+    data: PathBuf,
+    spaces: Spaces,
+    total: usize,
+}
+
+impl Reader {
+    pub fn new(meta: &Metadata) -> Reader {
+        Reader { data: meta.data.clone(), spaces: meta.spaces.clone(), total: meta.total_episodes }
+    }
+
+    /// Episode i's observations (n + 1 rows) and actions (n rows).
+    pub fn episode(&mut self, i: usize) -> Result<Episode> {
+        let dir = self.data.join(i.to_string());
+        if !dir.is_dir() {
+            bail!(
+                "{}: episode {i} is missing: no folder {i}/ (metadata.json says total_episodes {})",
+                self.data.display(),
+                self.total
+            );
+        }
+        let files = episode_files(&dir)?;
+        if files.is_empty() {
+            bail!("{}: episode {i} has no Arrow file", dir.display());
+        }
+        let mut arrays: [Vec<u8>; 4] = Default::default();
+        let mut rows = 0;
+        for path in &files {
+            let at = format!("{} (episode {i})", path.display());
+            let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+            let reader = arrow_ipc::reader::FileReader::try_new(file, None)
+                .map_err(|e| anyhow::anyhow!("{at}: not an Arrow IPC file ({e})"))?;
+            for batch in reader {
+                let batch = batch.map_err(|e| anyhow::anyhow!("{at}: cannot read a record batch ({e})"))?;
+                let obs = batch
+                    .column_by_name("observations")
+                    .and_then(|c| c.as_struct_opt())
+                    .with_context(|| format!("{at}: no `observations` struct column"))?;
+                for (k, key) in OBS_KEYS.iter().enumerate() {
+                    let col = obs.column_by_name(key).with_context(|| format!("{at}: no `observations.{key}`"))?;
+                    append(&at, &format!("observations.{key}"), col, &self.spaces.obs[k], rows, &mut arrays[k])?;
+                }
+                let actions = batch.column_by_name("actions").with_context(|| format!("{at}: no `actions` column"))?;
+                append(&at, "actions", actions, &self.spaces.action, rows, &mut arrays[3])?;
+                rows += batch.num_rows();
+            }
+        }
+        if rows == 0 {
+            bail!("{}: episode {i} has no rows", dir.display());
+        }
+        // The actions' last row is the storage's padding.
+        let act_row = self.spaces.action.dim * self.spaces.action.size;
+        arrays[3].truncate((rows - 1) * act_row);
+        Ok(Episode { steps: rows - 1, arrays })
+    }
+}
+
+/// The files of an episode folder that pyarrow's dataset reader reads: not `metadata.json`,
+/// nor hidden or `_`-prefixed ones (its `ignore_prefixes`), in name order.
+fn episode_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))? {
+        let path = entry.with_context(|| format!("{}: cannot list", dir.display()))?.path();
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if path.is_file() && name != "metadata.json" && !name.starts_with(['.', '_']) {
+            files.push(path);
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+/// Append one column's rows to `out` as little-endian bytes, checking it against its space:
+/// fixed-size lists of `space.dim` floats of the space's type, no nulls.
+fn append(at: &str, key: &str, col: &ArrayRef, space: &BoxSpace, first_row: usize, out: &mut Vec<u8>) -> Result<()> {
+    let Some(list) = col.as_fixed_size_list_opt() else {
+        bail!("{at}: `{key}` is {}, not a fixed-size list", col.data_type());
+    };
+    let want = if space.size == 4 { DataType::Float32 } else { DataType::Float64 };
+    if list.value_length() as usize != space.dim || list.value_type() != want {
+        bail!(
+            "{at}: `{key}` holds lists of {} {} but the space says {} {}",
+            list.value_length(),
+            list.value_type(),
+            space.dim,
+            space.dtype()
+        );
+    }
+    if let Some(r) = (0..list.len()).find(|&r| list.is_null(r)) {
+        bail!("{at}: `{key}` is null in row {}", first_row + r);
+    }
+    let values = list.values();
+    let (start, len) = (list.value_offset_at(0), list.len() * space.dim);
+    if let Some(j) = (start..start + len).find(|&j| values.is_null(j)) {
+        bail!("{at}: `{key}` has a null value in row {}", first_row + (j - start) / space.dim);
+    }
+    match values.data_type() {
+        DataType::Float32 => out.extend(
+            values.as_primitive::<Float32Type>().values()[start..start + len].iter().flat_map(|v| v.to_le_bytes()),
+        ),
+        _ => out.extend(
+            values.as_primitive::<Float64Type>().values()[start..start + len].iter().flat_map(|v| v.to_le_bytes()),
+        ),
+    }
+    Ok(())
+}
+
+/// One exported episode of T observations, its values as float64 (exact for float32 tables),
+/// cast to each space's float type when written.
+pub struct EpisodeOut {
+    /// observation, achieved_goal, desired_goal: T rows each, row-major.
+    pub obs: [Vec<f64>; 3],
+    /// T − 1 rows.
+    pub actions: Vec<f64>,
+    /// T − 1 rewards.
+    pub rewards: Vec<f32>,
+}
+
+/// The schema of an exported episode file, as Minari's Arrow storage writes it.
+pub fn schema(spaces: &Spaces) -> Arc<Schema> {
+    Arc::new(Schema::new(vec![
+        Field::new("observations", DataType::Struct(obs_fields(spaces)), true),
+        Field::new("actions", list_type(&spaces.action), true),
+        Field::new("rewards", DataType::Float32, true),
+        Field::new("terminations", DataType::Boolean, true),
+        Field::new("truncations", DataType::Boolean, true),
+    ]))
+}
+
+/// The Dict's keys in Gymnasium's order (sorted), each a list of its Box's floats.
+fn obs_fields(spaces: &Spaces) -> Fields {
+    let mut keys: Vec<(usize, &str)> = OBS_KEYS.iter().copied().enumerate().collect();
+    keys.sort_by_key(|k| k.1);
+    keys.iter().map(|&(k, name)| Field::new(name, list_type(&spaces.obs[k]), true)).collect()
+}
+
+fn list_type(space: &BoxSpace) -> DataType {
+    let item = if space.size == 4 { DataType::Float32 } else { DataType::Float64 };
+    DataType::FixedSizeList(Arc::new(Field::new("item", item, true)), space.dim as i32)
+}
+
+/// Write one episode as `dir/part-0.arrow`: one record batch of T rows, the step columns padded
+/// with a last row of zeros (false), as Minari pads them; the episode ends truncated (time limit).
+pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> {
+    let schema = schema(spaces);
+    let t = ep.obs[0].len() / spaces.obs[0].dim;
+    let DataType::Struct(fields) = schema.field(0).data_type().clone() else { unreachable!("a struct") };
+    let by_name = |name: &str| OBS_KEYS.iter().position(|k| *k == name).expect("an observation key");
+    let columns: Vec<ArrayRef> = fields
+        .iter()
+        .map(|f| {
+            let k = by_name(f.name());
+            list(&spaces.obs[k], &ep.obs[k])
+        })
+        .collect();
+    let observations = StructArray::try_new(fields, columns, None)?;
+    let mut actions = ep.actions;
+    actions.extend(std::iter::repeat_n(0.0, spaces.action.dim));
+    let mut rewards = ep.rewards;
+    rewards.push(0.0);
+    let truncations = BooleanArray::from_iter((0..t).map(|r| Some(r + 2 == t)));
+    let batch = RecordBatch::try_new(
+        schema.clone(),
+        vec![
+            Arc::new(observations),
+            list(&spaces.action, &actions),
+            Arc::new(Float32Array::from(rewards)),
+            Arc::new(BooleanArray::from(vec![false; t])),
+            Arc::new(truncations),
+        ],
+    )?;
+    let path = dir.join("part-0.arrow");
+    let fail = || format!("{}: write failed", path.display());
+    let file = File::create(&path).with_context(|| format!("{}: cannot create", path.display()))?;
+    let mut w = arrow_ipc::writer::FileWriter::try_new(std::io::BufWriter::new(file), &schema).with_context(fail)?;
+    w.write(&batch).with_context(fail)?;
+    w.finish().with_context(fail)?;
+    Ok(())
+}
+
+/// Rows of a Box space's values as a fixed-size list column of its float type.
+fn list(space: &BoxSpace, values: &[f64]) -> ArrayRef {
+    let DataType::FixedSizeList(item, size) = list_type(space) else { unreachable!("a list type") };
+    let values: ArrayRef = if space.size == 4 {
+        Arc::new(Float32Array::from_iter_values(values.iter().map(|&v| v as f32)))
+    } else {
+        Arc::new(Float64Array::from(values.to_vec()))
+    };
+    Arc::new(FixedSizeListArray::new(item, size, values, None))
+}

@@ -1,0 +1,288 @@
+//! `pgser-etl export TABLE --format minari|wgcsl -o PATH`: a trajectory table back out as a
+//! Minari dataset (Arrow storage) or a WGCSL pickle, so data pgser made or converted can go to
+//! tools that read those.
+//!
+//! Both read the table through the checks every pgser reader makes, in float64 (exact for a
+//! float32 table), and appear atomically: the pickle through [`AtomicFile`], the dataset as a
+//! hidden folder beside `PATH` renamed into place when complete. An existing `PATH` is refused,
+//! never overwritten: a dataset folder is many files, and half-replacing one is worse than failing.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use arrow_array::Array;
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type};
+use arrow_schema::DataType;
+use serde_json::json;
+
+use super::arrow_storage::{self, EpisodeOut};
+use super::{BoxSpace, Spaces};
+use crate::output::AtomicFile;
+use crate::pickle::write::{ArrayOut, write_f64_dict};
+use crate::task::{GoalMetric, Task};
+use crate::trajectory::read::{check_all_read, check_keys, open_checked};
+use crate::trajectory::{FloatType, Footer};
+
+/// The Minari version whose dataset layout the export writes (and `minari.load_dataset` checks
+/// against the versions it supports).
+const MINARI_VERSION: &str = "0.5.4";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFormat {
+    /// A Minari dataset folder (Arrow storage), named by its dataset id `NAME-vN`.
+    Minari,
+    /// A WGCSL pickle (dict of float64 arrays o, ag, u, g; protocol 3).
+    Wgcsl,
+}
+
+#[derive(Debug, Clone)]
+pub struct ExportOptions {
+    pub table: PathBuf,
+    pub format: ExportFormat,
+    pub output: PathBuf,
+}
+
+#[derive(Debug, Clone)]
+pub struct ExportSummary {
+    pub task: String,
+    pub episodes: usize,
+    /// Observations per episode.
+    pub t: usize,
+}
+
+/// A trajectory table in memory as float64: o, ag (`[N, T, ·]`), g, u (`[N, T−1, ·]`).
+struct Table {
+    footer: Footer,
+    arrays: [Vec<f64>; 4],
+}
+
+pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
+    let out = &opts.output;
+    if out.symlink_metadata().is_ok() {
+        bail!("{}: already exists; export never overwrites (remove it or choose another path)", out.display());
+    }
+    crate::output::check_not_an_input(out, std::slice::from_ref(&opts.table))?;
+    let dataset_id = match opts.format {
+        ExportFormat::Minari => Some(dataset_id(out)?),
+        ExportFormat::Wgcsl => None,
+    };
+    let table = read_table(&opts.table)?;
+    match dataset_id {
+        Some(id) => write_minari(&table, &opts.table, out, &id)?,
+        None => write_wgcsl(&table, out)?,
+    }
+    let f = &table.footer;
+    Ok(ExportSummary { task: f.task.clone(), episodes: f.episodes, t: f.t })
+}
+
+/// Minari finds a dataset by its id, the folder's name, which must parse as `NAME-vN`.
+fn dataset_id(out: &Path) -> Result<String> {
+    let name = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let valid = name.rsplit_once("-v").is_some_and(|(base, version)| {
+        !base.is_empty()
+            && base.chars().all(|c| c.is_alphanumeric() || c == '-' || c == '_')
+            && !version.is_empty()
+            && version.chars().all(|c| c.is_ascii_digit())
+    });
+    if !valid {
+        bail!(
+            "{}: a Minari dataset folder is named by its dataset id, NAME-vN (letters, digits, - and _, then a \
+             version: fetchreach-expert-v0), which `minari.load_dataset` finds under MINARI_DATASETS_PATH",
+            out.display()
+        );
+    }
+    Ok(name)
+}
+
+fn read_table(path: &Path) -> Result<Table> {
+    let at = path.display().to_string();
+    let names = ["obs", "achieved_goal", "desired_goal", "action"];
+    let (footer, reader) = open_checked(path, &names, 64)?;
+    let t = footer.t;
+    let mut arrays: [Vec<f64>; 4] = Default::default();
+    let mut row = 0;
+    for batch in reader {
+        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+        check_keys(&at, &batch, row, &footer)?;
+        for (k, name) in names.iter().enumerate() {
+            let list = batch.column_by_name(name).expect("projected").as_fixed_size_list();
+            let dim = list.value_length() as usize;
+            let (values, offset) = (list.values(), list.value_offset_at(0));
+            let values: std::borrow::Cow<[f64]> = match values.data_type() {
+                DataType::Float32 => values.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect(),
+                _ => std::borrow::Cow::Borrowed(values.as_primitive::<Float64Type>().values()),
+            };
+            for r in 0..batch.num_rows() {
+                let step = (row + r) % t;
+                if k >= 2 && step == t - 1 {
+                    continue; // desired goals and actions have T − 1 rows
+                }
+                if list.is_null(r) {
+                    bail!("{at}: row {} (episode {}, step {step}): `{name}` is null", row + r, (row + r) / t);
+                }
+                arrays[k].extend_from_slice(&values[offset + r * dim..offset + (r + 1) * dim]);
+            }
+        }
+        row += batch.num_rows();
+    }
+    check_all_read(&at, row, &footer)?;
+    Ok(Table { footer, arrays })
+}
+
+fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
+    let f = &table.footer;
+    let (n, t) = (f.episodes, f.t);
+    let file = AtomicFile::create(out)?;
+    let mut w = std::io::BufWriter::with_capacity(8 << 20, file.handle()?);
+    // Pickle key order o, ag, u, g (what `collect` writes); the table holds o, ag, g, u.
+    let layout =
+        [(0, "o", t, f.obs_dim), (1, "ag", t, f.goal_dim), (3, "u", t - 1, f.act_dim), (2, "g", t - 1, f.goal_dim)];
+    let mut arrays: Vec<ArrayOut> = layout
+        .iter()
+        .map(|&(k, key, steps, dim)| {
+            let values = &table.arrays[k];
+            ArrayOut {
+                key,
+                shape: vec![n, steps, dim],
+                data: Box::new(move |w: &mut dyn std::io::Write| {
+                    for chunk in values.chunks(1 << 16) {
+                        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+                        w.write_all(&bytes)?;
+                    }
+                    Ok(())
+                }),
+            }
+        })
+        .collect();
+    let fail = || format!("{}: write failed", out.display());
+    write_f64_dict(&mut w, &mut arrays).with_context(fail)?;
+    drop(arrays);
+    w.into_inner().map_err(|e| e.into_error()).with_context(fail)?;
+    file.commit()
+}
+
+/// The Gymnasium registration of pgser's built-in tasks (gymnasium-robotics 1.4.2), so an
+/// exported dataset's `recover_environment()` makes the environment its episodes came from.
+fn env_spec(task: &Task) -> Option<serde_json::Value> {
+    let (id, entry, kwargs) = match task.name.as_str() {
+        "FetchReach" => ("FetchReach-v4", "fetch.reach:MujocoFetchReachEnv", json!({"reward_type": "sparse"})),
+        "FetchPush" => ("FetchPush-v4", "fetch.push:MujocoFetchPushEnv", json!({"reward_type": "sparse"})),
+        "FetchPickAndPlace" => (
+            "FetchPickAndPlace-v4",
+            "fetch.pick_and_place:MujocoFetchPickAndPlaceEnv",
+            json!({"reward_type": "sparse"}),
+        ),
+        "FetchSlide" => ("FetchSlide-v4", "fetch.slide:MujocoFetchSlideEnv", json!({"reward_type": "sparse"})),
+        "HandManipulateBlockRotateZ" => (
+            "HandManipulateBlockRotateZ-v1",
+            "shadow_dexterous_hand.manipulate_block:MujocoHandBlockEnv",
+            json!({"target_position": "ignore", "target_rotation": "z", "reward_type": "sparse"}),
+        ),
+        "HandManipulateEggRotate" => (
+            "HandManipulateEggRotate-v1",
+            "shadow_dexterous_hand.manipulate_egg:MujocoHandEggEnv",
+            json!({"target_position": "ignore", "target_rotation": "xyz", "reward_type": "sparse"}),
+        ),
+        _ => return None,
+    };
+    Some(json!({
+        "id": id,
+        "entry_point": format!("gymnasium_robotics.envs.{entry}"),
+        "reward_threshold": null,
+        "nondeterministic": false,
+        "max_episode_steps": task.t - 1,
+        "order_enforce": true,
+        "disable_env_checker": false,
+        "kwargs": kwargs,
+        "additional_wrappers": [],
+        "vector_entry_point": null,
+    }))
+}
+
+fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()> {
+    let f = &table.footer;
+    let task = f.task();
+    let (n, t) = (f.episodes, f.t);
+    let size = if f.float_type == FloatType::Float32 { 4 } else { 8 };
+    let spaces = Spaces {
+        obs: [f.obs_dim, f.goal_dim, f.goal_dim].map(|dim| BoxSpace { dim, size }),
+        action: BoxSpace { dim: f.act_dim, size },
+    };
+    let parent = crate::output::folder_of(out);
+    let staging = tempfile::Builder::new()
+        .prefix(&format!(".{id}."))
+        .tempdir_in(&parent)
+        .with_context(|| format!("{}: cannot create a folder in {}", out.display(), parent.display()))?;
+    let data = staging.path().join("data");
+    let mkdir = |d: &Path| std::fs::create_dir_all(d).with_context(|| format!("{}: cannot create", d.display()));
+    let row = |k: usize, dim: usize, steps: usize, e: usize| &table.arrays[k][e * steps * dim..(e + 1) * steps * dim];
+    for e in 0..n {
+        let (o, ag) = (row(0, f.obs_dim, t, e), row(1, f.goal_dim, t, e));
+        let (g, u) = (row(2, f.goal_dim, t - 1, e), row(3, f.act_dim, t - 1, e));
+        // The last observation's desired goal: the episode's goal, that of the step before.
+        let mut dg = g.to_vec();
+        dg.extend_from_slice(&g[g.len() - f.goal_dim..]);
+        let rewards = rewards(&task, &ag[f.goal_dim..], g);
+        let dir = data.join(e.to_string());
+        mkdir(&dir)?;
+        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards };
+        arrow_storage::write_episode(&dir, &spaces, ep)?;
+        write_json(&dir.join("metadata.json"), &json!({"id": e, "total_steps": t - 1}))?;
+    }
+    // Fetch and hand actions lie in [-1, 1]; other tasks' bounds are not known to pgser.
+    let (low, high) = if env_spec(&task).is_some() { (-1.0, 1.0) } else { (f64::NEG_INFINITY, f64::INFINITY) };
+    let inf = |b: &BoxSpace| b.to_json(f64::NEG_INFINITY, f64::INFINITY);
+    // Gymnasium's Dict sorts its keys.
+    let observation_space = format!(
+        r#"{{"type": "Dict", "subspaces": {{"achieved_goal": {}, "desired_goal": {}, "observation": {}}}}}"#,
+        inf(&spaces.obs[1]),
+        inf(&spaces.obs[2]),
+        inf(&spaces.obs[0])
+    );
+    let mut meta = json!({
+        "total_episodes": n,
+        "total_steps": n * (t - 1),
+        "data_format": "arrow",
+        "observation_space": observation_space,
+        "action_space": spaces.action.to_json(low, high),
+        "dataset_id": id,
+        "minari_version": MINARI_VERSION,
+        "algorithm_name": format!("pgser-etl export of {}", source.display()),
+        "pgser": {
+            "task": f.task,
+            "success_threshold": f.success_threshold,
+            "goal_metric": f.goal_metric,
+            "source": {"path": source.display().to_string(), "sha256": crate::output::sha256_file(source)?},
+        },
+    });
+    if let Some(spec) = env_spec(&task) {
+        meta["env_spec"] = serde_json::Value::String(spec.to_string());
+    }
+    write_json(&data.join("metadata.json"), &meta)?;
+    // Renamed into place whole; `out` was checked absent, and rename refuses a non-empty folder.
+    // A staging folder is private (0700); the dataset is readable like any other output.
+    #[cfg(unix)]
+    std::fs::set_permissions(staging.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755))?;
+    let path = staging.keep();
+    if let Err(e) = std::fs::rename(&path, out) {
+        let _ = std::fs::remove_dir_all(&path);
+        bail!("{}: cannot move the finished dataset into place ({e})", out.display());
+    }
+    Ok(())
+}
+
+/// Rewards as gymnasium-robotics computes them, to the bit: Fetch's `-(d > threshold)` in
+/// float32 is −0.0 where the goal is reached; the hand tasks' `success − 1` is +0.0.
+fn rewards(task: &Task, next_achieved: &[f64], goals: &[f64]) -> Vec<f32> {
+    let mut out = vec![0f32; goals.len() / task.goal_dim];
+    task.rewards(next_achieved, goals, &mut out);
+    if task.metric == GoalMetric::Euclidean {
+        out.iter_mut().filter(|r| **r == 0.0).for_each(|r| *r = -0.0);
+    }
+    out
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    std::fs::write(path, serde_json::to_string(value)?).with_context(|| format!("{}: cannot write", path.display()))
+}

@@ -1,0 +1,95 @@
+//! Minari's HDF5 storage (its default): `data/main_data.hdf5` holds a group `episode_{i}` per
+//! episode, with datasets `observations/{key}` (n + 1 rows for a Dict observation), `actions`,
+//! `rewards`, `terminations`, `truncations` (n rows) and an `infos` group.
+//!
+//! Read through the HDF5 C library (hdf5-metno, linking the system's libhdf5): HDF5 is a large
+//! format (B-trees, chunking, filters, several object header versions) that h5py writes in
+//! whatever form its library version picks, and only the reference library reads all of them.
+//! Compiled with the cargo feature `hdf5` only (on by default), so a build with
+//! `--no-default-features` needs no C library (docs/minari.md).
+
+use std::path::PathBuf;
+
+use anyhow::{Result, anyhow, bail};
+use hdf5::types::{FloatSize, TypeDescriptor};
+use hdf5_metno as hdf5;
+
+use super::{BoxSpace, Episode, Metadata, OBS_KEYS, Spaces};
+
+pub struct Reader {
+    path: PathBuf,
+    file: hdf5::File,
+    spaces: Spaces,
+    total: usize,
+}
+
+/// An HDF5 error as one line (the library's messages may hold line breaks).
+fn one_line(e: hdf5::Error) -> String {
+    e.to_string().split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+impl Reader {
+    pub fn open(meta: &Metadata) -> Result<Reader> {
+        let path = meta.data.join("main_data.hdf5");
+        if !path.is_file() {
+            bail!("{}: no main_data.hdf5, though metadata.json says data_format 'hdf5'", meta.data.display());
+        }
+        let file = hdf5::File::open(&path)
+            .map_err(|e| anyhow!("{}: not a readable HDF5 file ({})", path.display(), one_line(e)))?;
+        Ok(Reader { path, file, spaces: meta.spaces.clone(), total: meta.total_episodes })
+    }
+
+    /// Episode i's observations (n + 1 rows) and actions (n rows).
+    pub fn episode(&mut self, i: usize) -> Result<Episode> {
+        let at = self.path.display().to_string();
+        let name = format!("episode_{i}");
+        let group = self.file.group(&name).map_err(|_| {
+            anyhow!("{at}: episode {i} is missing: no group {name} (metadata.json says total_episodes {})", self.total)
+        })?;
+        let mut arrays: [Vec<u8>; 4] = Default::default();
+        let mut rows = [0; 4];
+        for (k, key) in OBS_KEYS.iter().enumerate() {
+            let key = format!("observations/{key}");
+            (rows[k], arrays[k]) = read(&at, &name, &group, &key, &self.spaces.obs[k])?;
+        }
+        (rows[3], arrays[3]) = read(&at, &name, &group, "actions", &self.spaces.action)?;
+        if rows[1] != rows[0] || rows[2] != rows[0] || rows[3] + 1 != rows[0] {
+            bail!(
+                "{at}: {name} has {} observation, {} achieved_goal, {} desired_goal rows and {} actions; an \
+                 episode of n steps has n + 1 observations and n actions",
+                rows[0],
+                rows[1],
+                rows[2],
+                rows[3]
+            );
+        }
+        Ok(Episode { steps: rows[3], arrays })
+    }
+}
+
+/// One dataset of an episode group as little-endian bytes: its rows, checked to be
+/// `[rows, space.dim]` values of the space's float type.
+fn read(at: &str, episode: &str, group: &hdf5::Group, key: &str, space: &BoxSpace) -> Result<(usize, Vec<u8>)> {
+    let where_ = format!("{at}: {episode}/{key}");
+    let ds = group.dataset(key).map_err(|_| anyhow!("{where_} is missing"))?;
+    let shape = ds.shape();
+    if shape.len() != 2 || shape[1] != space.dim {
+        bail!("{where_} has shape {shape:?}; the space says [rows, {}]", space.dim);
+    }
+    let descriptor = ds.dtype().and_then(|t| t.to_descriptor()).map_err(|e| anyhow!("{where_}: {}", one_line(e)))?;
+    let size = match descriptor {
+        TypeDescriptor::Float(FloatSize::U4) => 4,
+        TypeDescriptor::Float(FloatSize::U8) => 8,
+        other => bail!("{where_} holds {other} values; the space says {}", space.dtype()),
+    };
+    if size != space.size {
+        bail!("{where_} holds float{} values but the space says {}", size * 8, space.dtype());
+    }
+    let failed = |e: hdf5::Error| anyhow!("{where_}: cannot read ({})", one_line(e));
+    let bytes: Vec<u8> = if size == 4 {
+        ds.read_raw::<f32>().map_err(failed)?.iter().flat_map(|v| v.to_le_bytes()).collect()
+    } else {
+        ds.read_raw::<f64>().map_err(failed)?.iter().flat_map(|v| v.to_le_bytes()).collect()
+    };
+    Ok((shape[0], bytes))
+}

@@ -1,0 +1,360 @@
+//! Minari datasets (Farama's offline-RL format, the successor of D4RL) in and out of pgser.
+//!
+//! A Minari dataset is a folder `ID/data/` with a `metadata.json` (counts, spaces, the
+//! environment's spec) and its episodes in one of two storages: HDF5, Minari's default
+//! (`main_data.hdf5`, a group `episode_{i}` per episode), or Arrow (`{i}/part-0.arrow`, an IPC
+//! file per episode). pgser reads goal-conditioned datasets, whose observation is a Dict with
+//! `observation`, `achieved_goal` and `desired_goal`, and writes Arrow-storage datasets
+//! ([`export`]). docs/minari.md is the user's side of this.
+//!
+//! An episode of n steps has n + 1 observations and n actions, exactly a WGCSL episode of
+//! T = n + 1 (o and ag: T rows, u and g: T − 1). So the episodes become the same four arrays a
+//! pickle holds and go through the same [`TrajectoryWriter`]: a table made from a Minari dataset
+//! is made by the code path that makes every other table. The desired goal of the last
+//! observation has no row in a pgser table (WGCSL keeps T − 1 goals); goal-conditioned
+//! environments keep the goal fixed through an episode, and episodes where it changed on the
+//! last step are counted in the summary.
+//!
+//! The dataset is read whole into memory (a few arrays per episode), unlike pickles, which are
+//! memory-mapped: Minari's storages keep every episode apart, so there is no single array to map.
+
+mod arrow_storage;
+mod export;
+#[cfg(feature = "hdf5")]
+mod hdf5_storage;
+mod space;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use indicatif::ProgressBar;
+
+pub use export::{ExportFormat, ExportOptions, ExportSummary, export};
+pub use space::{BoxSpace, Spaces};
+
+use crate::task::{GoalMetric, Task};
+use crate::trajectory::{
+    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, FloatArray, FloatType, Footer, SourceFile,
+    TrajectoryWriter,
+};
+
+/// The Dict observation's keys pgser needs, in the order [`Episode::arrays`] holds them (after
+/// which come the actions).
+pub const OBS_KEYS: [&str; 3] = ["observation", "achieved_goal", "desired_goal"];
+
+/// The two storages Minari writes and pgser reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Storage {
+    Hdf5,
+    Arrow,
+}
+
+impl Storage {
+    /// The name in a footer's `sources[].format`.
+    pub fn format_name(self) -> &'static str {
+        match self {
+            Storage::Hdf5 => "minari-hdf5",
+            Storage::Arrow => "minari-arrow",
+        }
+    }
+}
+
+/// What pgser uses of a dataset's `metadata.json`.
+#[derive(Debug, Clone)]
+pub struct Metadata {
+    /// The `data/` folder holding `metadata.json`.
+    pub data: PathBuf,
+    pub storage: Storage,
+    pub total_episodes: usize,
+    pub spaces: Spaces,
+    /// Subspaces of the Dict observation that pgser leaves out.
+    pub skipped_keys: Vec<String>,
+    /// The Gymnasium id of `env_spec` (`FetchReach-v4`), when the dataset names one.
+    pub env_id: Option<String>,
+    /// What pgser's own export recorded about the task (`pgser` key): name, threshold, metric.
+    pub pgser_task: Option<(String, f64, GoalMetric)>,
+}
+
+/// One episode of n steps as read from storage: observation, achieved_goal and desired_goal
+/// (n + 1 rows each) and actions (n rows), as little-endian bytes of the spaces' float types.
+pub(crate) struct Episode {
+    pub steps: usize,
+    pub arrays: [Vec<u8>; 4],
+}
+
+/// The `data/` folder of a dataset given as `ID/` (as under MINARI_DATASETS_PATH) or as `ID/data/`.
+pub fn data_folder(dir: &Path) -> Result<PathBuf> {
+    for d in [dir.join("data"), dir.to_path_buf()] {
+        if d.join("metadata.json").is_file() {
+            return Ok(d);
+        }
+    }
+    bail!(
+        "{}: a folder, but not a Minari dataset: neither data/metadata.json nor metadata.json is in it \
+         (convert reads WGCSL pickles and Minari dataset folders)",
+        dir.display()
+    )
+}
+
+/// Read and check `metadata.json`: the storage, the episode count and a goal-conditioned Dict
+/// observation with float Box spaces.
+pub fn read_metadata(dir: &Path) -> Result<Metadata> {
+    let data = data_folder(dir)?;
+    let path = data.join("metadata.json");
+    let at = path.display().to_string();
+    let text = std::fs::read_to_string(&path).with_context(|| format!("{at}: cannot read"))?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{at}: not valid JSON ({e})"))?;
+    let string = |key: &str| json.get(key).and_then(|v| v.as_str());
+    let storage = match string("data_format") {
+        Some("hdf5") => Storage::Hdf5,
+        Some("arrow") => Storage::Arrow,
+        Some(other) => bail!("{at}: data_format '{other}'; pgser reads Minari's 'hdf5' and 'arrow' storages"),
+        None => bail!("{at}: no data_format (a Minari dataset names its storage, 'hdf5' or 'arrow')"),
+    };
+    let total_episodes =
+        json.get("total_episodes").and_then(|v| v.as_u64()).with_context(|| format!("{at}: no total_episodes count"))?
+            as usize;
+    let obs = string("observation_space").with_context(|| format!("{at}: no observation_space"))?;
+    let act = string("action_space").with_context(|| format!("{at}: no action_space"))?;
+    let (spaces, skipped_keys) = Spaces::parse(&at, obs, act)?;
+    // env_spec is Gymnasium's EnvSpec as a JSON string; only its id matters here.
+    let env_id = string("env_spec")
+        .and_then(|s| serde_json::from_str::<serde_json::Value>(s).ok())
+        .and_then(|v| v.get("id").and_then(|id| id.as_str()).map(str::to_string));
+    let pgser_task = json.get("pgser").and_then(|p| {
+        let name = p.get("task")?.as_str()?.to_string();
+        let threshold = p.get("success_threshold")?.as_f64()?;
+        let metric = serde_json::from_value(p.get("goal_metric")?.clone()).ok()?;
+        Some((name, threshold, metric))
+    });
+    Ok(Metadata { data, storage, total_episodes, spaces, skipped_keys, env_id, pgser_task })
+}
+
+/// Reads the episodes of one storage; both check every array against the spaces, naming the
+/// episode and key of a fault.
+enum Reader {
+    Arrow(arrow_storage::Reader),
+    #[cfg(feature = "hdf5")]
+    Hdf5(hdf5_storage::Reader),
+}
+
+impl Reader {
+    fn open(meta: &Metadata) -> Result<Reader> {
+        match meta.storage {
+            Storage::Arrow => Ok(Reader::Arrow(arrow_storage::Reader::new(meta))),
+            #[cfg(feature = "hdf5")]
+            Storage::Hdf5 => Ok(Reader::Hdf5(hdf5_storage::Reader::open(meta)?)),
+            #[cfg(not(feature = "hdf5"))]
+            Storage::Hdf5 => bail!(
+                "{}: a Minari dataset in HDF5 storage, and this pgser was built without HDF5 support \
+                 (--no-default-features): build it with the default feature `hdf5` (needs libhdf5-dev, which \
+                 `make deps` installs), or save the dataset with Minari's Arrow storage",
+                meta.data.display()
+            ),
+        }
+    }
+
+    fn episode(&mut self, i: usize) -> Result<Episode> {
+        match self {
+            Reader::Arrow(r) => r.episode(i),
+            #[cfg(feature = "hdf5")]
+            Reader::Hdf5(r) => r.episode(i),
+        }
+    }
+}
+
+/// A dataset's episodes as the four WGCSL arrays, checked: every episode of the same length.
+struct Loaded {
+    meta: Metadata,
+    /// o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`, `[N, T−1, act]`, `[N, T−1, goal]`.
+    arrays: [Vec<u8>; 4],
+    /// Bytes per value of o, ag, u, g.
+    sizes: [usize; 4],
+    episodes: usize,
+    t: usize,
+    /// Episodes whose last observation's desired goal differs from the step before's.
+    goal_changed_last: usize,
+}
+
+fn load(dir: &Path, take: Option<usize>, bar: &ProgressBar) -> Result<Loaded> {
+    let meta = read_metadata(dir)?;
+    let at = meta.data.display().to_string();
+    if meta.total_episodes == 0 {
+        bail!("{at}: the dataset has no episodes (total_episodes 0)");
+    }
+    let n = match take {
+        Some(k) if k > meta.total_episodes => {
+            bail!("{at}: --episodes asks for {k} episodes but the dataset has {}", meta.total_episodes)
+        }
+        Some(0) => bail!("{at}: no episodes to write (--episodes 0)"),
+        Some(k) => k,
+        None => meta.total_episodes,
+    };
+    let s = &meta.spaces;
+    let sizes = [s.obs[0].size, s.obs[1].size, s.action.size, s.obs[2].size];
+    let dims = [s.obs[0].dim, s.obs[1].dim, s.obs[2].dim];
+    let mut reader = Reader::open(&meta)?;
+    let mut arrays: [Vec<u8>; 4] = Default::default();
+    let (mut steps, mut goal_changed_last) = (0, 0);
+    bar.set_length(n as u64);
+    for i in 0..n {
+        let ep = reader.episode(i)?;
+        if i == 0 {
+            steps = ep.steps;
+            if steps == 0 {
+                bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
+            }
+        } else if ep.steps != steps {
+            bail!(
+                "{at}: episode {i} has {} steps where episode 0 has {steps}: a pgser table holds episodes of one \
+                 length (T = {} observations); --episodes {i} takes the episodes before it",
+                ep.steps,
+                steps + 1
+            );
+        }
+        let [obs, ag, dg, act] = ep.arrays;
+        let goal_row = dims[2] * s.obs[2].size;
+        let (goals, last) = dg.split_at(steps * goal_row);
+        let before_last = &goals[goals.len() - goal_row..];
+        goal_changed_last += usize::from(last != before_last);
+        arrays[0].extend_from_slice(&obs);
+        arrays[1].extend_from_slice(&ag);
+        arrays[2].extend_from_slice(&act);
+        arrays[3].extend_from_slice(goals);
+        bar.inc(1);
+    }
+    Ok(Loaded { meta, arrays, sizes, episodes: n, t: steps + 1, goal_changed_last })
+}
+
+impl Loaded {
+    fn view(&self) -> EpisodeArrays<'_> {
+        let s = &self.meta.spaces;
+        let dims = [s.obs[0].dim, s.obs[1].dim, s.action.dim, s.obs[2].dim];
+        let steps = [self.t, self.t, self.t - 1, self.t - 1];
+        let arrays = std::array::from_fn(|k| FloatArray {
+            data: &self.arrays[k],
+            size: self.sizes[k],
+            steps: steps[k],
+            dim: dims[k],
+        });
+        EpisodeArrays { origin: self.meta.data.display().to_string(), arrays, episodes: self.episodes }
+    }
+
+    /// float64 when any array is (float32 widens exactly), float32 when all are or `--float32`.
+    fn float_type(&self, float32: bool) -> FloatType {
+        if float32 || self.sizes.iter().all(|&s| s == 4) { FloatType::Float32 } else { FloatType::Float64 }
+    }
+
+    /// `--task`, else the env spec's id, else what pgser's export recorded, else the dimensions.
+    fn task(&self, name: Option<&str>, threshold: Option<f64>) -> Result<Task> {
+        let s = &self.meta.spaces;
+        let dims = (self.t, s.obs[0].dim, s.obs[1].dim, s.action.dim);
+        let keys = ["observation", "achieved_goal", "actions"];
+        let at = self.meta.data.display().to_string();
+        let unit = "observations (Minari steps + 1)";
+        let recorded = self.meta.pgser_task.as_ref();
+        let name = name.or(self.meta.env_id.as_deref()).or(recorded.map(|r| r.0.as_str()));
+        let custom = name.is_some_and(|n| Task::known(n).is_none());
+        // A custom task pgser exported keeps its threshold and metric without flags.
+        let from_export = recorded.filter(|r| custom && threshold.is_none() && Some(r.0.as_str()) == name);
+        let threshold = threshold.or(from_export.map(|r| r.1));
+        let mut task = crate::trajectory::task_for(&at, dims, keys, unit, name, threshold)?;
+        if let Some(r) = from_export {
+            task.metric = r.2;
+        }
+        Ok(task)
+    }
+}
+
+/// `convert`'s plan for a Minari dataset: the whole dataset is read and checked.
+pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
+    let take = take_option(opts)?;
+    let loaded = load(dir, take, &ProgressBar::hidden())?;
+    let task = loaded.task(opts.task.as_deref(), opts.threshold)?;
+    Ok(ConvertPlan {
+        task,
+        float_type: loaded.float_type(opts.float32),
+        episodes_in_file: vec![loaded.meta.total_episodes],
+        episodes_taken: vec![loaded.episodes],
+    })
+}
+
+fn take_option(opts: &ConvertOptions) -> Result<Option<usize>> {
+    match opts.episodes.as_deref() {
+        None => Ok(None),
+        Some([k]) => Ok(Some(*k)),
+        Some(ks) => bail!("--episodes has {} values for 1 input: give one count", ks.len()),
+    }
+}
+
+/// `pgser-etl convert DIR -o out.parquet` for a Minari dataset folder.
+pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
+    crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
+    let take = take_option(opts)?;
+    let loaded = load(dir, take, bar)?;
+    let task = loaded.task(opts.task.as_deref(), opts.threshold)?;
+    let float_type = loaded.float_type(opts.float32);
+    // Hashed before the table's temporary file exists, which may be in the dataset's folder.
+    let sha256 = sha256_folder(&loaded.meta.data)?;
+    let mut writer =
+        TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
+    let view = loaded.view();
+    let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
+    for start in (0..loaded.episodes).step_by(window) {
+        writer.append(&view, start, (start + window).min(loaded.episodes))?;
+    }
+    let mut footer = Footer::new(&task, float_type, loaded.episodes, opts.command.clone());
+    footer.sources = vec![SourceFile {
+        path: dir.display().to_string(),
+        sha256,
+        format: loaded.meta.storage.format_name().into(),
+        episodes_in_file: loaded.meta.total_episodes,
+        episodes_taken: loaded.episodes,
+    }];
+    let bytes = writer.finish(&footer)?;
+    let skipped_keys = loaded.meta.skipped_keys.iter().map(|k| format!("{}: {k}", dir.display())).collect();
+    let mut notes = Vec::new();
+    if loaded.goal_changed_last > 0 {
+        notes.push(format!(
+            "{}: the last observation's desired goal (no row in a pgser table) differs from the step before's \
+             in {} episodes",
+            dir.display(),
+            loaded.goal_changed_last
+        ));
+    }
+    Ok(ConvertSummary {
+        task,
+        float_type,
+        episodes: loaded.episodes,
+        rows: loaded.episodes * footer.t,
+        bytes,
+        skipped_keys,
+        notes,
+    })
+}
+
+/// The sha256 recorded for a dataset folder: over its files in sorted path order, each as its
+/// path relative to the folder, a NUL byte, its length (u64 little-endian) and its bytes. A
+/// folder has no bytes of its own; this changes when any file is added, removed or edited.
+pub fn sha256_folder(dir: &Path) -> Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut files = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).with_context(|| format!("{}: cannot list", d.display()))? {
+            let path = entry.with_context(|| format!("{}: cannot list", d.display()))?.path();
+            if path.is_dir() { stack.push(path) } else { files.push(path) }
+        }
+    }
+    files.sort();
+    let mut h = Sha256::new();
+    for f in &files {
+        let bytes = std::fs::read(f).with_context(|| format!("{}: cannot read", f.display()))?;
+        h.update(f.strip_prefix(dir).unwrap_or(f).to_string_lossy().as_bytes());
+        h.update([0]);
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(&bytes);
+    }
+    Ok(crate::output::hex(&h.finalize()))
+}
