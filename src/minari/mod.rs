@@ -15,8 +15,9 @@
 //! environments keep the goal fixed through an episode, and episodes where it changed on the
 //! last step are counted in the summary.
 //!
-//! The dataset is read whole into memory (a few arrays per episode), unlike pickles, which are
-//! memory-mapped: Minari's storages keep every episode apart, so there is no single array to map.
+//! Minari's storages keep every episode apart, so there is no single array to memory-map as for a
+//! pickle: `convert` reads a window of episodes at a time (the rows of a few row groups per
+//! thread) and writes them before reading on, so its memory does not grow with the dataset.
 
 mod arrow_storage;
 mod export;
@@ -164,81 +165,99 @@ impl Reader {
     }
 }
 
-/// A dataset's episodes as the four WGCSL arrays, checked: every episode of the same length.
-struct Loaded {
+/// A dataset opened for reading, its episodes streamed a window at a time: memory holds one
+/// window of episodes, never the dataset (Minari datasets run to millions of steps).
+struct Source {
     meta: Metadata,
-    /// o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`, `[N, T−1, act]`, `[N, T−1, goal]`.
-    arrays: [Vec<u8>; 4],
+    reader: Reader,
+    /// Episode 0, read to learn T; the first window starts with it.
+    first: Option<Episode>,
     /// Bytes per value of o, ag, u, g.
     sizes: [usize; 4],
+    /// Episodes to take.
     episodes: usize,
     t: usize,
     /// Episodes whose last observation's desired goal differs from the step before's.
     goal_changed_last: usize,
 }
 
-fn load(dir: &Path, take: Option<usize>, bar: &ProgressBar) -> Result<Loaded> {
-    let meta = read_metadata(dir)?;
-    let at = meta.data.display().to_string();
-    if meta.total_episodes == 0 {
-        bail!("{at}: the dataset has no episodes (total_episodes 0)");
-    }
-    let n = match take {
-        Some(k) if k > meta.total_episodes => {
-            bail!("{at}: --episodes asks for {k} episodes but the dataset has {}", meta.total_episodes)
-        }
-        Some(0) => bail!("{at}: no episodes to write (--episodes 0)"),
-        Some(k) => k,
-        None => meta.total_episodes,
-    };
-    let s = &meta.spaces;
-    let sizes = [s.obs[0].size, s.obs[1].size, s.action.size, s.obs[2].size];
-    let dims = [s.obs[0].dim, s.obs[1].dim, s.obs[2].dim];
-    let mut reader = Reader::open(&meta)?;
-    let mut arrays: [Vec<u8>; 4] = Default::default();
-    let (mut steps, mut goal_changed_last) = (0, 0);
-    bar.set_length(n as u64);
-    for i in 0..n {
-        let ep = reader.episode(i)?;
-        if i == 0 {
-            steps = ep.steps;
-            if steps == 0 {
-                bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
-            }
-        } else if ep.steps != steps {
-            bail!(
-                "{at}: episode {i} has {} steps where episode 0 has {steps}: a pgser table holds episodes of one \
-                 length (T = {} observations); --episodes {i} takes the episodes before it",
-                ep.steps,
-                steps + 1
-            );
-        }
-        let [obs, ag, dg, act] = ep.arrays;
-        let goal_row = dims[2] * s.obs[2].size;
-        let (goals, last) = dg.split_at(steps * goal_row);
-        let before_last = &goals[goals.len() - goal_row..];
-        goal_changed_last += usize::from(last != before_last);
-        arrays[0].extend_from_slice(&obs);
-        arrays[1].extend_from_slice(&ag);
-        arrays[2].extend_from_slice(&act);
-        arrays[3].extend_from_slice(goals);
-        bar.inc(1);
-    }
-    Ok(Loaded { meta, arrays, sizes, episodes: n, t: steps + 1, goal_changed_last })
+/// One window of episodes as the four WGCSL arrays: o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`,
+/// `[N, T−1, act]`, `[N, T−1, goal]`.
+#[derive(Default)]
+struct Window {
+    arrays: [Vec<u8>; 4],
+    episodes: usize,
 }
 
-impl Loaded {
-    fn view(&self) -> EpisodeArrays<'_> {
+impl Source {
+    /// Reads the metadata and episode 0 (for T); checks the count to take.
+    fn open(dir: &Path, take: Option<usize>) -> Result<Source> {
+        let meta = read_metadata(dir)?;
+        let at = meta.data.display().to_string();
+        if meta.total_episodes == 0 {
+            bail!("{at}: the dataset has no episodes (total_episodes 0)");
+        }
+        let episodes = match take {
+            Some(k) if k > meta.total_episodes => {
+                bail!("{at}: --episodes asks for {k} episodes but the dataset has {}", meta.total_episodes)
+            }
+            Some(0) => bail!("{at}: no episodes to write (--episodes 0)"),
+            Some(k) => k,
+            None => meta.total_episodes,
+        };
+        let s = &meta.spaces;
+        let sizes = [s.obs[0].size, s.obs[1].size, s.action.size, s.obs[2].size];
+        let mut reader = Reader::open(&meta)?;
+        let first = reader.episode(0)?;
+        if first.steps == 0 {
+            bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
+        }
+        let t = first.steps + 1;
+        Ok(Source { meta, reader, first: Some(first), sizes, episodes, t, goal_changed_last: 0 })
+    }
+
+    /// Reads episodes `range` into `w` (replacing what it held), checking each has T − 1 steps.
+    fn read(&mut self, range: std::ops::Range<usize>, w: &mut Window) -> Result<()> {
+        let at = self.meta.data.display().to_string();
+        let steps = self.t - 1;
+        let goal_row = self.meta.spaces.obs[2].dim * self.meta.spaces.obs[2].size;
+        w.arrays.iter_mut().for_each(Vec::clear);
+        w.episodes = range.len();
+        for i in range {
+            let ep = match self.first.take().filter(|_| i == 0) {
+                Some(first) => first,
+                None => self.reader.episode(i)?,
+            };
+            if ep.steps != steps {
+                bail!(
+                    "{at}: episode {i} has {} steps where episode 0 has {steps}: a pgser table holds episodes of \
+                     one length (T = {} observations); --episodes {i} takes the episodes before it",
+                    ep.steps,
+                    self.t
+                );
+            }
+            let [obs, ag, dg, act] = ep.arrays;
+            let (goals, last) = dg.split_at(steps * goal_row);
+            self.goal_changed_last += usize::from(last != &goals[goals.len() - goal_row..]);
+            w.arrays[0].extend_from_slice(&obs);
+            w.arrays[1].extend_from_slice(&ag);
+            w.arrays[2].extend_from_slice(&act);
+            w.arrays[3].extend_from_slice(goals);
+        }
+        Ok(())
+    }
+
+    fn view<'a>(&self, w: &'a Window) -> EpisodeArrays<'a> {
         let s = &self.meta.spaces;
         let dims = [s.obs[0].dim, s.obs[1].dim, s.action.dim, s.obs[2].dim];
         let steps = [self.t, self.t, self.t - 1, self.t - 1];
         let arrays = std::array::from_fn(|k| FloatArray {
-            data: &self.arrays[k],
+            data: &w.arrays[k],
             size: self.sizes[k],
             steps: steps[k],
             dim: dims[k],
         });
-        EpisodeArrays { origin: self.meta.data.display().to_string(), arrays, episodes: self.episodes }
+        EpisodeArrays { origin: self.meta.data.display().to_string(), arrays, episodes: w.episodes }
     }
 
     /// float64 when any array is (float32 widens exactly), float32 when all are or `--float32`.
@@ -267,16 +286,18 @@ impl Loaded {
     }
 }
 
-/// `convert`'s plan for a Minari dataset: the whole dataset is read and checked.
+/// `convert`'s plan for a Minari dataset, from its metadata and first episode: the task, the
+/// float type and the counts. The other episodes are checked as `convert` reads them (a fault
+/// there leaves no output either).
 pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
     let take = take_option(opts)?;
-    let loaded = load(dir, take, &ProgressBar::hidden())?;
-    let task = loaded.task(opts.task.as_deref(), opts.threshold)?;
+    let source = Source::open(dir, take)?;
+    let task = source.task(opts.task.as_deref(), opts.threshold)?;
     Ok(ConvertPlan {
         task,
-        float_type: loaded.float_type(opts.float32),
-        episodes_in_file: vec![loaded.meta.total_episodes],
-        episodes_taken: vec![loaded.episodes],
+        float_type: source.float_type(opts.float32),
+        episodes_in_file: vec![source.meta.total_episodes],
+        episodes_taken: vec![source.episodes],
     })
 }
 
@@ -288,46 +309,51 @@ fn take_option(opts: &ConvertOptions) -> Result<Option<usize>> {
     }
 }
 
-/// `pgser-etl convert DIR -o out.parquet` for a Minari dataset folder.
+/// `pgser-etl convert DIR -o out.parquet` for a Minari dataset folder, a window of episodes at a
+/// time (the rows of a few row groups per thread), so memory does not grow with the dataset.
 pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
     let take = take_option(opts)?;
-    let loaded = load(dir, take, bar)?;
-    let task = loaded.task(opts.task.as_deref(), opts.threshold)?;
-    let float_type = loaded.float_type(opts.float32);
+    let mut source = Source::open(dir, take)?;
+    let task = source.task(opts.task.as_deref(), opts.threshold)?;
+    let float_type = source.float_type(opts.float32);
     // Hashed before the table's temporary file exists, which may be in the dataset's folder.
-    let sha256 = sha256_folder(&loaded.meta.data)?;
+    let sha256 = sha256_folder(&source.meta.data)?;
     let mut writer =
         TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
-    let view = loaded.view();
     let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
-    for start in (0..loaded.episodes).step_by(window) {
-        writer.append(&view, start, (start + window).min(loaded.episodes))?;
+    bar.set_length(source.episodes as u64);
+    let mut w = Window::default();
+    for start in (0..source.episodes).step_by(window) {
+        let end = (start + window).min(source.episodes);
+        source.read(start..end, &mut w)?;
+        writer.append(&source.view(&w), 0, w.episodes)?;
+        bar.inc(w.episodes as u64);
     }
-    let mut footer = Footer::new(&task, float_type, loaded.episodes, opts.command.clone());
+    let mut footer = Footer::new(&task, float_type, source.episodes, opts.command.clone());
     footer.sources = vec![SourceFile {
         path: dir.display().to_string(),
         sha256,
-        format: loaded.meta.storage.format_name().into(),
-        episodes_in_file: loaded.meta.total_episodes,
-        episodes_taken: loaded.episodes,
+        format: source.meta.storage.format_name().into(),
+        episodes_in_file: source.meta.total_episodes,
+        episodes_taken: source.episodes,
     }];
     let bytes = writer.finish(&footer)?;
-    let skipped_keys = loaded.meta.skipped_keys.iter().map(|k| format!("{}: {k}", dir.display())).collect();
+    let skipped_keys = source.meta.skipped_keys.iter().map(|k| format!("{}: {k}", dir.display())).collect();
     let mut notes = Vec::new();
-    if loaded.goal_changed_last > 0 {
+    if source.goal_changed_last > 0 {
         notes.push(format!(
             "{}: the last observation's desired goal (no row in a pgser table) differs from the step before's \
              in {} episodes",
             dir.display(),
-            loaded.goal_changed_last
+            source.goal_changed_last
         ));
     }
     Ok(ConvertSummary {
         task,
         float_type,
-        episodes: loaded.episodes,
-        rows: loaded.episodes * footer.t,
+        episodes: source.episodes,
+        rows: source.episodes * footer.t,
         bytes,
         skipped_keys,
         notes,
@@ -349,12 +375,27 @@ pub fn sha256_folder(dir: &Path) -> Result<String> {
     }
     files.sort();
     let mut h = Sha256::new();
+    // Each file is read in blocks: an HDF5 file may be larger than memory.
+    let mut block = vec![0u8; 1 << 20];
     for f in &files {
-        let bytes = std::fs::read(f).with_context(|| format!("{}: cannot read", f.display()))?;
+        let cannot = || format!("{}: cannot read", f.display());
+        let mut file = std::fs::File::open(f).with_context(cannot)?;
+        let len = file.metadata().with_context(cannot)?.len();
         h.update(f.strip_prefix(dir).unwrap_or(f).to_string_lossy().as_bytes());
         h.update([0]);
-        h.update((bytes.len() as u64).to_le_bytes());
-        h.update(&bytes);
+        h.update(len.to_le_bytes());
+        let mut read = 0u64;
+        loop {
+            let n = std::io::Read::read(&mut file, &mut block).with_context(cannot)?;
+            if n == 0 {
+                break;
+            }
+            h.update(&block[..n]);
+            read += n as u64;
+        }
+        if read != len {
+            bail!("{}: changed while it was read ({len} bytes, then {read})", f.display());
+        }
     }
     Ok(crate::output::hex(&h.finalize()))
 }
