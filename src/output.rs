@@ -116,18 +116,26 @@ pub fn relative_to_folder_of(target: &Path, file: &Path) -> Result<PathBuf> {
 /// The sha256 of a file, read in 1 MiB blocks (footers and checkpoints record their inputs').
 pub fn sha256_file(path: &Path) -> Result<String> {
     use sha2::Digest;
-    use std::io::Read;
-    let mut f = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
     let mut hasher = sha2::Sha256::new();
+    feed_file(&mut hasher, File::open(path).with_context(|| format!("{}: cannot open", path.display()))?, path)?;
+    Ok(hex(&hasher.finalize()))
+}
+
+/// Feeds `file`'s bytes into `hasher` in 1 MiB blocks (a file may be larger than memory);
+/// returns how many were read. `path` names it in errors.
+pub fn feed_file(hasher: &mut sha2::Sha256, mut file: File, path: &Path) -> Result<u64> {
+    use sha2::Digest;
+    use std::io::Read;
     let mut buf = vec![0u8; 1 << 20];
+    let mut read = 0u64;
     loop {
-        let k = f.read(&mut buf).with_context(|| format!("{}: read failed", path.display()))?;
+        let k = file.read(&mut buf).with_context(|| format!("{}: read failed", path.display()))?;
         if k == 0 {
-            break;
+            return Ok(read);
         }
         hasher.update(&buf[..k]);
+        read += k as u64;
     }
-    Ok(hex(&hasher.finalize()))
 }
 
 /// Lower-case hex, as `sha256sum` prints digests.

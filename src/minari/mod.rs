@@ -375,24 +375,14 @@ pub fn sha256_folder(dir: &Path) -> Result<String> {
     }
     files.sort();
     let mut h = Sha256::new();
-    // Each file is read in blocks: an HDF5 file may be larger than memory.
-    let mut block = vec![0u8; 1 << 20];
     for f in &files {
         let cannot = || format!("{}: cannot read", f.display());
-        let mut file = std::fs::File::open(f).with_context(cannot)?;
+        let file = std::fs::File::open(f).with_context(cannot)?;
         let len = file.metadata().with_context(cannot)?.len();
         h.update(f.strip_prefix(dir).unwrap_or(f).to_string_lossy().as_bytes());
         h.update([0]);
         h.update(len.to_le_bytes());
-        let mut read = 0u64;
-        loop {
-            let n = std::io::Read::read(&mut file, &mut block).with_context(cannot)?;
-            if n == 0 {
-                break;
-            }
-            h.update(&block[..n]);
-            read += n as u64;
-        }
+        let read = crate::output::feed_file(&mut h, file, f)?;
         if read != len {
             bail!("{}: changed while it was read ({len} bytes, then {read})", f.display());
         }
