@@ -365,6 +365,22 @@ fn draw_block(rows: &Rows, beta: &Episodes, d: &Draw, block: u64) -> Result<Vec<
         .collect())
 }
 
+/// The pool the samplers' threads read row groups on, as many threads as the global pool. Not
+/// the global pool itself: the trainer draws its batches there (`next_batch` inside a
+/// `par_iter_mut`) and blocks until this sampler delivers. A global worker waiting inside a
+/// fetch's join may pick up such a blocking draw, and then never returns to finish the fetch
+/// the draw waits for: a hang, seen in tests/mem.rs once the update itself used the pool more.
+fn fetch_pool() -> &'static rayon::ThreadPool {
+    static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(rayon::current_num_threads())
+            .thread_name(|i| format!("pgser-fetch-{i}"))
+            .build()
+            .expect("the samplers' thread pool starts")
+    })
+}
+
 /// Reads the keys of every row a block needs, one pass over the row groups that hold any (in
 /// parallel), and returns them batch by batch.
 fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<Vec<Vec<RowKey>>> {
@@ -380,10 +396,12 @@ fn fetch(table: &ScoredTable, beta: &Episodes, drawn: &[Vec<usize>]) -> Result<V
             _ => groups.push((rg, vec![r])),
         }
     }
-    let parts: Vec<(Vec<usize>, Vec<RowKey>)> = groups
-        .into_par_iter()
-        .map(|(rg, rows)| table.read_rows(rg, &rows, beta).map(|k| (rows, k)))
-        .collect::<Result<_>>()?;
+    let parts: Vec<(Vec<usize>, Vec<RowKey>)> = fetch_pool().install(|| {
+        groups
+            .into_par_iter()
+            .map(|(rg, rows)| table.read_rows(rg, &rows, beta).map(|k| (rows, k)))
+            .collect::<Result<_>>()
+    })?;
     // The fetched rows' keys in row order, and each row's position among them.
     let mut keys = Vec::new();
     let mut order = Vec::new();
