@@ -68,8 +68,8 @@ pub fn evaluate(task_name: &str, policy: &dyn Policy, episodes: usize, seed: u64
 /// Every agent of a stack on the same `episodes` episodes (seeds `seed`, `seed + 1`, ...): one
 /// report per agent, each what `evaluate` gives that agent alone, with one forward pass of the
 /// whole stack per environment step.
-pub fn evaluate_stack(agent: &crate::agent::Agent, episodes: usize, seed: u64) -> Result<Vec<EvalReport>> {
-    run(&agent.task.name, agent.agents(), episodes, seed, &|rows, n| agent.act_all(rows, n))
+pub fn evaluate_stack(agents: &crate::agent::Shards, episodes: usize, seed: u64) -> Result<Vec<EvalReport>> {
+    run(&agents.task().name, agents.agents(), episodes, seed, &|rows, n| agents.act_all(rows, n))
 }
 
 /// Agent i's policy on rows[i] = (observations, desired goals) of n rows each.

@@ -17,7 +17,7 @@ use clap::Args;
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{Agent, AgentConfig, Batch, Normalizer, checkpoint};
+use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, checkpoint, shard_count};
 use crate::env::rng::NpRandom;
 use crate::eval::{self, EvalReport};
 use crate::output::{AtomicFile, sha256_file};
@@ -176,7 +176,9 @@ impl Run {
         Ok(batch)
     }
 
-    fn save(&self, agent: &Agent, i: usize) -> Result<()> {
+    /// Writes agent i of the stack as this cell's checkpoint, resume state and metrics.
+    fn save(&self, agents: &Shards, i: usize) -> Result<()> {
+        let (agent, i) = agents.locate(i);
         let out = &self.cell.out;
         let mut resume_extra = BTreeMap::new();
         resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.words())?);
@@ -237,9 +239,11 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         runs.push(run);
         agents.push(agent);
     }
-    let mut agent = Agent::stack(agents);
+    // One part per worker thread on the CPU (agent/shards.rs): the same bits, both cores busy.
+    let shards = shard_count(agents.len(), &device);
+    let mut agent = Shards::new(agents, shards);
     let cfg = first.cfg.clone();
-    let evaluate = |agent: &Agent| -> Result<Option<Vec<EvalReport>>> {
+    let evaluate = |agent: &Shards| -> Result<Option<Vec<EvalReport>>> {
         if cfg.eval_episodes == 0 {
             return Ok(None);
         }
@@ -247,28 +251,28 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
     };
 
     bar.set_length(cfg.updates);
-    bar.set_position(agent.updates);
+    bar.set_position(agent.updates());
     let mut update_time = 0.0f64;
-    let start_updates = agent.updates;
+    let start_updates = agent.updates();
     let mut saved_at = None;
     loop {
         // SIGTERM (`stop`): save where we are (unless a scheduled save just did) and stop.
-        if stop::requested() && agent.updates < cfg.updates {
-            if saved_at != Some(agent.updates) {
+        if stop::requested() && agent.updates() < cfg.updates {
+            if saved_at != Some(agent.updates()) {
                 for (i, run) in runs.iter().enumerate() {
                     run.save(&agent, i)?;
                 }
             }
-            return Err(stop::Interrupted { updates: agent.updates, of: cfg.updates }.into());
+            return Err(stop::Interrupted { updates: agent.updates(), of: cfg.updates }.into());
         }
-        if agent.updates >= cfg.updates {
+        if agent.updates() >= cfg.updates {
             break;
         }
         let t0 = Instant::now();
         // Each cell samples from its own streams, so doing it in parallel changes no draw.
         let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
         let stats = agent.update(&batches);
-        let u = agent.updates;
+        let u = agent.updates();
         let log = cfg.log_every > 0 && u.is_multiple_of(cfg.log_every);
         let mut lines: Vec<MetricsLine> = (0..runs.len())
             .map(|_| MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None })
@@ -305,8 +309,8 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         bar.set_position(u);
     }
     // The final evaluation and checkpoint (also when resuming a run that had already finished).
-    if agent.updates > start_updates || runs.iter().any(|r| r.last_eval.is_none()) {
-        let u = agent.updates;
+    if agent.updates() > start_updates || runs.iter().any(|r| r.last_eval.is_none()) {
+        let u = agent.updates();
         for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
             let run = &mut runs[i];
             run.last_eval = Some(report);
@@ -324,11 +328,11 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         run.save(&agent, i)?;
     }
     bar.finish_and_clear();
-    let done = agent.updates - start_updates;
+    let done = agent.updates() - start_updates;
     Ok(runs
         .iter()
         .map(|r| Summary {
-            updates: agent.updates,
+            updates: agent.updates(),
             updates_per_sec: if update_time > 0.0 { done as f64 / update_time } else { 0.0 },
             eval: r.last_eval,
             checkpoint: r.cell.out.clone(),

@@ -16,6 +16,7 @@
 mod adam;
 pub mod checkpoint;
 mod host;
+mod shards;
 mod td3;
 #[cfg(test)]
 mod tests;
@@ -28,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
 pub use host::HostActor;
+pub use shards::{Shards, shard_count};
 pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
 use crate::env::rng::NpRandom;

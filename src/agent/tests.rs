@@ -390,3 +390,49 @@ fn a_stack_of_separately_trained_agents_continues_each_exactly() {
         assert_eq!(a.critics.member(1), stack.critics.member(2 * i + 1));
     }
 }
+
+#[test]
+fn a_grid_split_across_cores_trains_each_agent_as_alone() {
+    // Three agents in two shards on a 2-thread pool vs each alone on 1 thread, with layers wide
+    // enough (256 rows × 192 × 192) that gemm splits a lone agent's products across threads and
+    // burn splits a stack's batched products by matrix: neither may change a bit.
+    let task = Task::known("FetchPush").unwrap();
+    let cfg = AgentConfig { algo: Algo::Td3, hidden: 192, layers: 2, ..AgentConfig::default() };
+    let seeds = [4u64, 9, 30];
+    let batches: Vec<Vec<Batch>> =
+        (0..4).map(|u| seeds.iter().map(|&s| random_batch(&task, 256, 7 * s + u)).collect()).collect();
+    let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let (grid, stats) = two.install(|| {
+        let alone: Vec<Agent> =
+            seeds.iter().map(|&s| Agent::new(cfg.clone(), task.clone(), unit_norm(&task), s, device())).collect();
+        let mut grid = Shards::new(alone, shard_count(seeds.len(), &device()));
+        let stats: Vec<_> = batches.iter().map(|b| grid.update(b).read()).collect();
+        (grid, stats)
+    });
+    assert_eq!(grid.parts().len(), 2, "two shards on two threads");
+    assert_eq!((grid.agents(), grid.updates()), (3, 4));
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    for (i, &seed) in seeds.iter().enumerate() {
+        let mut alone = Agent::new(cfg.clone(), task.clone(), unit_norm(&task), seed, device());
+        let mut alone2 = Agent::new(cfg.clone(), task.clone(), unit_norm(&task), seed, device());
+        for (u, b) in batches.iter().enumerate() {
+            let got = one.install(|| alone.update(std::slice::from_ref(&b[i])).read()[0]);
+            assert_eq!(got, stats[u][i], "agent {i}, update {u}: losses");
+            two.install(|| alone2.update(std::slice::from_ref(&b[i])));
+        }
+        assert_eq!(alone.critics.member(0), alone2.critics.member(0), "agent {i}: alone on 1 vs 2 threads");
+        let (part, j) = grid.locate(i);
+        assert_eq!(alone.actor.member(0), part.actor.member(j), "agent {i}: actor");
+        assert_eq!(alone.critics.member(1), part.critics.member(2 * j + 1), "agent {i}: critic 2");
+        assert_eq!(alone.critics_target.member(0), part.critics_target.member(2 * j), "agent {i}: target");
+    }
+    // Batched evaluation: each agent's actions are its own policy's, in order.
+    let rows: Vec<(Vec<f32>, Vec<f32>)> = batches[0].iter().map(|b| (b.obs.clone(), b.goal.clone())).collect();
+    let refs: Vec<(&[f32], &[f32])> = rows.iter().map(|(o, g)| (&o[..], &g[..])).collect();
+    let acts = two.install(|| grid.act_all(&refs, 256));
+    for (i, (o, g)) in refs.iter().enumerate() {
+        let (part, j) = grid.locate(i);
+        let mine = part.act_all(&vec![(*o, *g); part.agents()], 256).swap_remove(j);
+        assert_eq!(acts[i], mine, "agent {i}: actions");
+    }
+}

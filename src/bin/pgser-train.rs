@@ -233,13 +233,14 @@ fn main() -> ExitCode {
                     println!("{}", serde_json::to_string(&r)?);
                 } else {
                     println!(
-                        "{} {:?} batch {} on {} ({} threads), {} agent(s): {:.1} updates/s, {:.1} agent-updates/s",
+                        "{} {:?} batch {} on {} ({} threads), {} agent(s) in {} stack(s): {:.1} updates/s, {:.1} agent-updates/s",
                         r.task,
                         r.algo,
                         r.batch_size,
                         r.backend,
                         r.threads,
                         r.agents,
+                        r.shards,
                         r.updates_per_sec,
                         r.agent_updates_per_sec
                     );

@@ -10,7 +10,7 @@ use burn::tensor::Device;
 use serde::Serialize;
 
 use super::beta_of;
-use crate::agent::{Agent, AgentConfig, Batch, Normalizer};
+use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, shard_count};
 use crate::env::rng::NpRandom;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
@@ -26,6 +26,8 @@ pub struct BenchReport {
     pub threads: usize,
     pub batch_size: usize,
     pub agents: usize,
+    /// Stacks the agents were split into, updated side by side (one per worker thread on CPU).
+    pub shards: usize,
     pub updates: u64,
     pub seconds: f64,
     pub updates_per_sec: f64,
@@ -63,8 +65,11 @@ pub fn bench_agents(
         })
         .collect();
     let norm = Normalizer::identity(task, agent_cfg.norm_clip);
-    let seeds: Vec<u64> = (0..agents as u64).collect();
-    let mut agent = Agent::stack_new(agent_cfg.clone(), task.clone(), vec![norm; agents], &seeds, device);
+    // As the trainer holds a grid: one part per worker thread on the CPU (agent/shards.rs).
+    let shards = shard_count(agents, &device);
+    let alone =
+        (0..agents as u64).map(|s| Agent::new(agent_cfg.clone(), task.clone(), norm.clone(), s, device.clone()));
+    let mut agent = Shards::new(alone.collect(), shards);
     let mut run = |k: u64| {
         let mut last = None;
         for i in 0..k {
@@ -86,6 +91,7 @@ pub fn bench_agents(
         threads: rayon::current_num_threads(),
         batch_size,
         agents,
+        shards,
         updates,
         seconds,
         updates_per_sec: updates as f64 / seconds,

@@ -1,0 +1,163 @@
+//! A stack of agents split across the CPU's cores.
+//!
+//! On the flex backend one stack runs each layer as one batched product, but the rest of an
+//! update (burn's elementwise ops, its autodiff bookkeeping, Adam, Polyak) runs on the thread that
+//! calls it, so two cores ran a stack of 10 at one core's worth (BENCHMARKS.md). Shards are
+//! independent sub-stacks, one per worker thread, that update side by side. An agent's numbers do
+//! not depend on the stack it sits in (its rows of every batched product are its own; the tests
+//! below and in `tests.rs` check this to the bit), so the shard count changes the speed, never the
+//! checkpoints: a run on 2 threads writes the bytes of the same run on 1. A GPU gets one shard: a
+//! stack there is one queue of kernels, and splitting it only adds launches.
+
+use burn::tensor::{Device, Tensor};
+use rayon::prelude::*;
+
+use super::{Agent, Batch, UpdateStats};
+use crate::task::Task;
+
+/// Agents trained in lockstep, held as `parts`: contiguous sub-stacks of near-equal size. Agent i
+/// of the whole is agent `i - starts[p]` of part p.
+pub struct Shards {
+    parts: Vec<Agent>,
+    starts: Vec<usize>,
+    /// With more than one part, a one-thread pool per part that runs its work. Inside a part
+    /// burn's own rayon use (the batched product's per-matrix split, gemm's threads) must stay
+    /// on that part's core: in the shared pool the two parts' small tasks interleave and wait on
+    /// each other, and a stack of 10 in two parts ran no faster than in one (measured).
+    pools: Vec<rayon::ThreadPool>,
+}
+
+/// Parts for a stack of `agents` on `device`: one per worker thread of the current rayon pool on
+/// the CPU (at most one per agent), one on a GPU.
+pub fn shard_count(agents: usize, device: &Device) -> usize {
+    if *device == Device::flex() { rayon::current_num_threads().clamp(1, agents.max(1)) } else { 1 }
+}
+
+impl Shards {
+    /// `agents` (stacks, each usually of one agent, all with the same settings, task and update
+    /// count) regrouped in order into `shards` stacks; the first `len % shards` get one more.
+    pub fn new(agents: Vec<Agent>, shards: usize) -> Shards {
+        assert!(!agents.is_empty(), "no agent to shard");
+        let total: usize = agents.iter().map(Agent::agents).sum();
+        let k = shards.clamp(1, agents.len());
+        let mut rest = agents.into_iter();
+        let (mut parts, mut starts, mut start) = (Vec::with_capacity(k), Vec::with_capacity(k), 0);
+        let units = rest.len();
+        for p in 0..k {
+            let take = units / k + usize::from(p < units % k);
+            let group: Vec<Agent> = rest.by_ref().take(take).collect();
+            starts.push(start);
+            start += group.iter().map(Agent::agents).sum::<usize>();
+            parts.push(if group.len() == 1 { group.into_iter().next().expect("one") } else { Agent::stack(group) });
+        }
+        debug_assert_eq!(start, total);
+        let pools = if k > 1 {
+            (0..k)
+                .map(|p| {
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(1)
+                        .thread_name(move |_| format!("pgser-shard-{p}"))
+                        .build()
+                        .expect("a one-thread pool")
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Shards { parts, starts, pools }
+    }
+
+    /// Agents in all parts.
+    pub fn agents(&self) -> usize {
+        self.parts.iter().map(Agent::agents).sum()
+    }
+
+    /// Updates done so far (the same for every agent).
+    pub fn updates(&self) -> u64 {
+        self.parts[0].updates
+    }
+
+    pub fn task(&self) -> &Task {
+        &self.parts[0].task
+    }
+
+    /// The stacks, in order.
+    pub fn parts(&self) -> &[Agent] {
+        &self.parts
+    }
+
+    /// Agent i of the whole as (its part, its index there): what checkpoints are written from.
+    pub fn locate(&self, i: usize) -> (&Agent, usize) {
+        let p = self.starts.partition_point(|&s| s <= i) - 1;
+        (&self.parts[p], i - self.starts[p])
+    }
+
+    /// One update of every agent, agent i on `batches[i]`; the parts run side by side.
+    pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
+        assert_eq!(batches.len(), self.agents(), "one batch per agent");
+        let sizes: Vec<usize> = self.parts.iter().map(Agent::agents).collect();
+        let chunks = split(batches, &sizes);
+        if self.pools.is_empty() {
+            return self.parts[0].update(batches);
+        }
+        let pools = &self.pools;
+        let stats: Vec<UpdateStats> = self
+            .parts
+            .par_iter_mut()
+            .zip(chunks)
+            .enumerate()
+            .map(|(p, (part, b))| pools[p].install(|| part.update(b)))
+            .collect();
+        UpdateStats::cat(stats)
+    }
+
+    /// Every agent's policy on its rows (as [`Agent::act_all`]); the parts run side by side.
+    pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Vec<Vec<f32>> {
+        let sizes: Vec<usize> = self.parts.iter().map(Agent::agents).collect();
+        let chunks = split(rows, &sizes);
+        if self.pools.is_empty() {
+            return self.parts[0].act_all(rows, n);
+        }
+        let outs: Vec<Vec<Vec<f32>>> = self
+            .parts
+            .par_iter()
+            .zip(chunks)
+            .enumerate()
+            .map(|(p, (part, r))| self.pools[p].install(|| part.act_all(r, n)))
+            .collect();
+        outs.into_iter().flatten().collect()
+    }
+}
+
+/// `items` cut into consecutive pieces of the given sizes.
+fn split<'a, T>(mut items: &'a [T], sizes: &[usize]) -> Vec<&'a [T]> {
+    sizes
+        .iter()
+        .map(|&s| {
+            let (head, tail) = items.split_at(s);
+            items = tail;
+            head
+        })
+        .collect()
+}
+
+impl UpdateStats {
+    /// The stats of consecutive parts as one, in order.
+    pub fn cat(parts: Vec<UpdateStats>) -> UpdateStats {
+        if parts.len() == 1 {
+            return parts.into_iter().next().expect("one part");
+        }
+        let actor = parts.iter().all(|p| p.actor_loss.is_some());
+        let (mut critic, mut q, mut actor_loss) = (Vec::new(), Vec::new(), Vec::new());
+        for p in parts {
+            critic.push(p.critic_loss);
+            q.push(p.q_mean);
+            actor_loss.extend(p.actor_loss);
+        }
+        UpdateStats {
+            critic_loss: Tensor::cat(critic, 0),
+            q_mean: Tensor::cat(q, 0),
+            actor_loss: actor.then(|| Tensor::cat(actor_loss, 0)),
+        }
+    }
+}
