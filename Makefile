@@ -79,16 +79,9 @@ build: deps
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-# The wgpu check runs beside the build and the tests, at low priority, in a target folder of its
-# own (one cargo per folder at a time): on 2 cores the build's long serial stretch (polars) and
-# the tests leave a core mostly idle, which the check fills. Its result decides `make test` too.
 WGPU_CHECK = $(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
-test: deps venv slurm-deps
-	@mkdir -p target
-	@{ nice -n 10 $(WGPU_CHECK) --target-dir target/wgpu-check >target/check-wgpu.log 2>&1; echo $$? >target/check-wgpu.rc; } & \
-	$(CARGO) test --release $(FEATURES); rc=$$?; wait; \
-	if [ "$$(cat target/check-wgpu.rc)" != 0 ]; then tail -40 target/check-wgpu.log; echo "make test: the wgpu build does not compile (make check-wgpu)"; exit 1; fi; \
-	echo "make test: the wgpu build compiles (cargo check --features wgpu)"; exit $$rc
+test: deps venv check-wgpu slurm-deps
+	$(CARGO) test --release $(FEATURES)
 	@pkg-config --exists hdf5 2>/dev/null || \
 	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
