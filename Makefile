@@ -79,7 +79,6 @@ build: deps
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-WGPU_CHECK = $(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
 test: deps venv check-wgpu slurm-deps
 	$(CARGO) test --release $(FEATURES)
 	@pkg-config --exists hdf5 2>/dev/null || \
@@ -104,7 +103,7 @@ slurm-deps:
 # The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
 # wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).
 check-wgpu:
-	$(WGPU_CHECK)
+	$(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and

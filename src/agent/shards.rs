@@ -5,7 +5,7 @@
 //! calls it, so two cores ran a stack of 10 at one core's worth (BENCHMARKS.md). Shards are
 //! independent sub-stacks, one per worker thread, that update side by side. An agent's numbers do
 //! not depend on the stack it sits in (its rows of every batched product are its own; the tests
-//! below and in `tests.rs` check this to the bit), so the shard count changes the speed, never the
+//! in `tests.rs` check this to the bit), so the shard count changes the speed, never the
 //! checkpoints: a run on 2 threads writes the bytes of the same run on 1. A GPU gets one shard: a
 //! stack there is one queue of kernels, and splitting it only adds launches.
 
@@ -38,7 +38,6 @@ impl Shards {
     /// count) regrouped in order into `shards` stacks; the first `len % shards` get one more.
     pub fn new(agents: Vec<Agent>, shards: usize) -> Shards {
         assert!(!agents.is_empty(), "no agent to shard");
-        let total: usize = agents.iter().map(Agent::agents).sum();
         let k = shards.clamp(1, agents.len());
         let mut rest = agents.into_iter();
         let (mut parts, mut starts, mut start) = (Vec::with_capacity(k), Vec::with_capacity(k), 0);
@@ -50,7 +49,6 @@ impl Shards {
             start += group.iter().map(Agent::agents).sum::<usize>();
             parts.push(if group.len() == 1 { group.into_iter().next().expect("one") } else { Agent::stack(group) });
         }
-        debug_assert_eq!(start, total);
         let pools = if k > 1 {
             (0..k)
                 .map(|p| {
@@ -92,14 +90,19 @@ impl Shards {
         (&self.parts[p], i - self.starts[p])
     }
 
+    /// `items` (one per agent, in order) cut into each part's piece.
+    fn pieces<'a, T>(&self, items: &'a [T]) -> Vec<&'a [T]> {
+        let ends = self.starts[1..].iter().copied().chain([items.len()]);
+        self.starts.iter().zip(ends).map(|(&s, e)| &items[s..e]).collect()
+    }
+
     /// One update of every agent, agent i on `batches[i]`; the parts run side by side.
     pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
         assert_eq!(batches.len(), self.agents(), "one batch per agent");
-        let sizes: Vec<usize> = self.parts.iter().map(Agent::agents).collect();
-        let chunks = split(batches, &sizes);
         if self.pools.is_empty() {
             return self.parts[0].update(batches);
         }
+        let chunks = self.pieces(batches);
         let pools = &self.pools;
         let stats: Vec<UpdateStats> = self
             .parts
@@ -113,11 +116,10 @@ impl Shards {
 
     /// Every agent's policy on its rows (as [`Agent::act_all`]); the parts run side by side.
     pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Vec<Vec<f32>> {
-        let sizes: Vec<usize> = self.parts.iter().map(Agent::agents).collect();
-        let chunks = split(rows, &sizes);
         if self.pools.is_empty() {
             return self.parts[0].act_all(rows, n);
         }
+        let chunks = self.pieces(rows);
         let outs: Vec<Vec<Vec<f32>>> = self
             .parts
             .par_iter()
@@ -127,18 +129,6 @@ impl Shards {
             .collect();
         outs.into_iter().flatten().collect()
     }
-}
-
-/// `items` cut into consecutive pieces of the given sizes.
-fn split<'a, T>(mut items: &'a [T], sizes: &[usize]) -> Vec<&'a [T]> {
-    sizes
-        .iter()
-        .map(|&s| {
-            let (head, tail) = items.split_at(s);
-            items = tail;
-            head
-        })
-        .collect()
 }
 
 impl UpdateStats {
