@@ -49,6 +49,22 @@ pub struct StepCost {
     pub seconds: Option<f64>,
 }
 
+impl StepCost {
+    /// Several steps' costs added up (a stack's cells); seconds only where every one has them.
+    pub fn total(steps: &[&StepCost]) -> StepCost {
+        let sum = |f: fn(&StepCost) -> u64| steps.iter().map(|s| f(s)).sum::<u64>();
+        StepCost {
+            name: steps.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(","),
+            updates: sum(|s| s.updates),
+            env_steps: sum(|s| s.env_steps),
+            envs_created: sum(|s| s.envs_created),
+            scored_rows: sum(|s| s.scored_rows),
+            bytes: sum(|s| s.bytes),
+            seconds: steps.iter().map(|s| s.seconds).sum(),
+        }
+    }
+}
+
 /// Rates measured on this machine, with the pipeline's settings.
 #[derive(Debug, Clone, Serialize)]
 pub struct Measured {
@@ -94,6 +110,13 @@ pub fn estimate(
     let (t, eps) = (task.t as u64, data.episodes as u64);
     let mut per_step = Vec::new();
     let mut trains = Vec::new();
+    // Cells of one stack train together, so each is priced at the stack's agent-updates/s.
+    let mut stack_sizes = BTreeMap::new();
+    for (step, _) in steps.iter().zip(forecast).filter(|(_, f)| f.runs) {
+        if let Some(id) = super::stack_of(step) {
+            *stack_sizes.entry(id).or_insert(0usize) += 1;
+        }
+    }
     for (step, f) in steps.iter().zip(forecast).filter(|(_, f)| f.runs) {
         let mut c = StepCost {
             name: step.name.clone(),
@@ -122,7 +145,9 @@ pub fn estimate(
                 c.env_steps = c.envs_created * t;
                 let lines = c.updates / cfg.log_every.max(1) + evaluations(cfg, 0);
                 c.bytes = 4 * parameters(&cfg.agent, task) * 4 + lines * 160;
-                trains.push((per_step.len(), cfg.as_ref().clone(), step.inputs[0].ends_with("scored.parquet")));
+                let agents = super::stack_of(step).map_or(1, |id| stack_sizes[&id]);
+                let scored = step.inputs[0].ends_with("scored.parquet");
+                trains.push(Priced { step: per_step.len(), cfg: cfg.as_ref().clone(), scored, agents });
             }
             Action::Score(o) => {
                 c.scored_rows = eps * (t - 1) * (o.swaps as u64 + o.include_original as u64);
@@ -142,7 +167,7 @@ pub fn estimate(
                 let mut as_train = super::train_config(&[])?;
                 as_train.agent = cfg.agent();
                 as_train.batch_size = cfg.batch_size;
-                trains.push((per_step.len(), as_train, false));
+                trains.push(Priced { step: per_step.len(), cfg: as_train, scored: false, agents: 1 });
             }
             Action::Report(_) | Action::Results(_) => {}
         }
@@ -172,9 +197,9 @@ pub fn estimate(
                 c.seconds = c.seconds.map(|s| s + c.scored_rows as f64 / rate);
             }
         }
-        for (i, cfg, scored) in &trains {
-            let c = &mut cost.per_step[*i];
-            if let Some(rate) = m.updates_per_sec.get(&setting(cfg, *scored)) {
+        for t in &trains {
+            let c = &mut cost.per_step[t.step];
+            if let Some(rate) = m.updates_per_sec.get(&t.setting()) {
                 c.seconds = Some(c.seconds.unwrap_or(0.0) + c.updates as f64 / rate);
             }
         }
@@ -220,39 +245,51 @@ fn parameters(a: &AgentConfig, task: &Task) -> u64 {
     net(o + g, u) + 2 * net(o + g + u, 1)
 }
 
-/// A training setting as far as its speed goes: the networks, the batch and how it is drawn.
-fn setting(cfg: &TrainConfig, scored: bool) -> String {
-    let a = &cfg.agent;
-    let mut s = format!("{}, batch {}", super::algo_name(a.algo), cfg.batch_size);
-    if (a.hidden, a.layers) != (256, 3) {
-        s += &format!(", {}×{}", a.layers, a.hidden);
-    }
-    s += match (scored, cfg.sampler.swap) {
-        (true, _) => ", scored table",
-        (false, crate::sampler::Swap::Random) => ", swap random",
-        (false, _) => "",
-    };
-    s
+/// A training step to price: its settings, whether it reads the scored table, and how many
+/// agents train in its stack (1 alone).
+#[derive(Clone)]
+struct Priced {
+    step: usize,
+    cfg: TrainConfig,
+    scored: bool,
+    agents: usize,
 }
 
-fn measure_rates(
-    p: &Pipeline,
-    task: &Task,
-    trains: &[(usize, TrainConfig, bool)],
-    cost: &Cost,
-    backend: Backend,
-) -> Result<Measured> {
+impl Priced {
+    /// The setting as far as its speed goes: the networks, the batch, how it is drawn and the
+    /// stack it trains in ("td3bc, batch 512, swap random, stack of 15"). Rates are per agent.
+    fn setting(&self) -> String {
+        let a = &self.cfg.agent;
+        let mut s = format!("{}, batch {}", super::algo_name(a.algo), self.cfg.batch_size);
+        if (a.hidden, a.layers) != (256, 3) {
+            s += &format!(", {}×{}", a.layers, a.hidden);
+        }
+        s += match (self.scored, self.cfg.sampler.swap) {
+            (true, _) => ", scored table",
+            (false, crate::sampler::Swap::Random) => ", swap random",
+            (false, _) => "",
+        };
+        if self.agents > 1 {
+            s += &format!(", stack of {}", self.agents);
+        }
+        s
+    }
+}
+
+fn measure_rates(p: &Pipeline, task: &Task, trains: &[Priced], cost: &Cost, backend: Backend) -> Result<Measured> {
     let t0 = Instant::now();
     let device = backend.device()?;
     let mut updates_per_sec = BTreeMap::new();
-    let mut update_secs: BTreeMap<(String, usize), f64> = BTreeMap::new();
+    let mut update_secs: BTreeMap<(String, usize, usize), f64> = BTreeMap::new();
     let data = random_episodes(task, 64);
-    for (i, cfg, scored) in trains {
-        let name = setting(cfg, *scored);
-        if cost.per_step[*i].updates == 0 || updates_per_sec.contains_key(&name) {
+    for t in trains {
+        let (cfg, name) = (&t.cfg, t.setting());
+        if cost.per_step[t.step].updates == 0 || updates_per_sec.contains_key(&name) {
             continue;
         }
-        let key = (serde_json::to_string(&cfg.agent)?, cfg.batch_size);
+        // Seconds per agent-update: a stack is timed as the trainer runs it (split over the
+        // worker threads on the CPU), which is faster per agent than one agent alone.
+        let key = (serde_json::to_string(&cfg.agent)?, cfg.batch_size, t.agents);
         let update = match update_secs.get(&key) {
             Some(&s) => s,
             None => {
@@ -265,19 +302,19 @@ fn measure_rates(
                         warmup,
                         device.clone(),
                         backend.name(),
-                        1,
+                        t.agents,
                     )
                 };
                 let probe = bench(2, 1).updates_per_sec;
                 let n = (probe * UPDATE_SECONDS).clamp(3.0, 2000.0) as u64;
-                let s = 1.0 / bench(n, 2).updates_per_sec;
+                let s = 1.0 / bench(n, 2).agent_updates_per_sec;
                 update_secs.insert(key, s);
                 s
             }
         };
         // Batch sampling runs on the training thread, between updates. The -mem agents draw
         // part of the batch from the scored table in the background: not measured.
-        let k_aug = if *scored { (cfg.batch_size as f64 * cfg.aug_ratio).round() as usize } else { 0 };
+        let k_aug = if t.scored { (cfg.batch_size as f64 * cfg.aug_ratio).round() as usize } else { 0 };
         let (mut rng, mut batch) = (NpRandom::new(0), Batch::default());
         let s0 = Instant::now();
         let draws = 20;
@@ -451,6 +488,31 @@ mod tests {
         assert_eq!(evaluations(&cfg(30_001, 2_500, 50), 0), 13);
         assert_eq!(evaluations(&cfg(30_000, 0, 50), 0), 1);
         assert_eq!(evaluations(&cfg(30_000, 2_500, 0), 0), 0);
+    }
+
+    #[test]
+    fn a_stack_is_priced_per_agent_and_added_up_for_its_log_line() {
+        let cfg = crate::pipeline::train_config(&[]).unwrap();
+        let alone = Priced { step: 0, cfg: cfg.clone(), scored: false, agents: 1 };
+        let stacked = Priced { agents: 15, ..alone.clone() };
+        // A stack is timed apart from a lone agent of the same networks: it is faster per agent.
+        assert_ne!(alone.setting(), stacked.setting());
+        assert!(stacked.setting().ends_with(", stack of 15"), "{}", stacked.setting());
+        let cell = |updates, seconds| StepCost {
+            name: "a".into(),
+            updates,
+            env_steps: 10,
+            envs_created: 1,
+            scored_rows: 0,
+            bytes: 5,
+            seconds,
+        };
+        let (a, b) = (cell(100, Some(2.0)), cell(50, Some(1.5)));
+        let t = StepCost::total(&[&a, &b]);
+        assert_eq!((t.updates, t.env_steps, t.envs_created, t.bytes, t.seconds), (150, 20, 2, 10, Some(3.5)));
+        assert_eq!(brief(&t), "150 updates ≈ 4 s");
+        // Unmeasured (--no-measure): no time for the stack, rather than a part of one.
+        assert_eq!(StepCost::total(&[&a, &cell(50, None)]).seconds, None);
     }
 
     #[test]

@@ -122,13 +122,19 @@ pub(crate) fn run_unit(c: &Ctx, members: &[usize], hashes: &mut Hashes) -> Resul
     if todo.is_empty() {
         return Ok(done);
     }
-    let brief = |name: &str| match c.cost.and_then(|k| k.per_step.iter().find(|s| s.name == name)).map(cost::brief) {
-        Some(b) if !b.is_empty() => format!(" ({b})"),
-        _ => String::new(),
+    // The cost of what runs now: one step, or every cell of the stack together.
+    let priced: Vec<&cost::StepCost> = todo
+        .iter()
+        .filter_map(|(i, _)| c.cost.and_then(|k| k.per_step.iter().find(|s| s.name == steps[*i].name)))
+        .collect();
+    let brief = match cost::brief(&cost::StepCost::total(&priced)) {
+        b if b.is_empty() || priced.is_empty() => String::new(),
+        b if todo.len() > 1 => format!(" ({b} for the stack)"),
+        b => format!(" ({b})"),
     };
     let first = todo[0].0;
     let more = if todo.len() > 1 { format!(" with {} more in one stack", todo.len() - 1) } else { String::new() };
-    (c.log)(&format!("{}: running{}{more}", head(first), brief(&steps[first].name)));
+    (c.log)(&format!("{}: running{more}{brief}", head(first)));
     let t0 = Instant::now();
     // A training step may continue from its checkpoint after a crash (no record) or a change of
     // settings (another key; `train` refuses what cannot continue), but not when a finished
