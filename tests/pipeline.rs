@@ -298,6 +298,16 @@ fn sigterm_saves_a_training_step_that_resumes_to_the_uninterrupted_bytes() {
     assert!(updates > 0 && updates < 1500, "stopped at update {updates}: {said}");
     assert_eq!(said.trim().lines().filter(|l| l.contains("error")).count(), 1, "{said}");
     assert!(!out.join(".pipeline/pretrain.json").exists(), "an interrupted step was recorded");
+    // `pipeline status` says how far it got, from its checkpoint.
+    let o = etl().current_dir(dir.path()).args(["pipeline", "status", "tiny.toml", "--json"]).output().unwrap();
+    let states: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let pretrain = states.as_array().unwrap().iter().find(|s| s["name"] == "pretrain").unwrap();
+    assert_eq!(pretrain["state"], "stopped", "{pretrain}");
+    assert_eq!(pretrain["progress"]["updates"], updates, "{pretrain}");
+    assert_eq!(pretrain["progress"]["of"], 1500, "{pretrain}");
+    let o = etl().current_dir(dir.path()).args(["pipeline", "status", "tiny.toml"]).output().unwrap();
+    let line = text(&o.stdout).lines().find(|l| l.contains("] pretrain:")).unwrap().to_string();
+    assert!(line.contains(&format!("pretrain: stopped — {updates} of 1.5k updates saved")), "{line}");
 
     let resumed = here(dir.path(), &["--until", "pretrain"]);
     assert_eq!(resumed["pretrain"], "resumed", "{resumed:?}");

@@ -325,10 +325,13 @@ enum PipelineCommand {
         #[arg(long)]
         threads: Option<usize>,
     },
-    /// Where each step of a pipeline stands: up to date, pending, running, failed or not started.
+    /// Where each step of a pipeline stands: up to date, pending, running, failed, stopped or not started.
     #[command(after_help = "Example:\n  pgser-etl pipeline status pipelines/fetch_push.toml\n\n\
         From the step records, the step locks and, for steps submitted with --executor slurm, squeue.\n\
-        A failed step's line names its log.")]
+        A failed step's line names its log. A training step that saved part of its run (running, or\n\
+        stopped: the next run continues it) says how far it got and its last evaluation, e.g.\n\
+        \"agent td3_mem_s4: running (process 6655 on vm) — 7.5k of 30.0k updates saved; last\n\
+        evaluation at 7.5k: paper score 21.20, success 0.54\".")]
     Status {
         /// The pipeline file.
         file: PathBuf,

@@ -212,7 +212,7 @@ pub fn estimate(
 /// The updates a training step's checkpoint already has, when the run will continue it (as
 /// `train --resume` would: same settings but for `updates`, no more updates than asked, the
 /// same data); else 0.
-fn resumes_from(out: &Path, step: &Step, f: &Forecast, cfg: &TrainConfig) -> u64 {
+pub(super) fn resumes_from(out: &Path, step: &Step, f: &Forecast, cfg: &TrainConfig) -> u64 {
     let ckpt = &step.outputs[0];
     if !state::may_resume(out, step, f.key.as_deref()) || !checkpoint::resume_path(ckpt).exists() {
         return 0;
@@ -439,7 +439,7 @@ pub fn brief(c: &StepCost) -> String {
     parts.join(" ")
 }
 
-fn count(n: u64) -> String {
+pub(super) fn count(n: u64) -> String {
     match n {
         0..1_000 => n.to_string(),
         1_000..1_000_000 => format!("{:.1}k", n as f64 / 1e3),

@@ -4,6 +4,10 @@
 //! A submitted step that left the queue unfinished `failed` when its job wrote a log, and was
 //! cancelled before it started (a step it reads failed) otherwise. Only `squeue` is asked:
 //! `sacct` needs job accounting, which many clusters (and small test ones) do not run.
+//!
+//! A training step that has saved part of its run (a checkpoint the next run continues, as
+//! `train --resume` would) also says how far it got and its last evaluation: grids run for
+//! hours, and this is how far along they are, from any machine that sees the out folder.
 
 use std::path::PathBuf;
 
@@ -11,13 +15,15 @@ use anyhow::Result;
 use serde::Serialize;
 
 use super::state::{self, Hashes};
-use super::{Pipeline, lock, slurm};
+use super::{Action, Pipeline, Step, cost, lock, slurm};
+use crate::train::{MetricsLine, metrics_path};
 
 /// One step's state.
 #[derive(Debug, Clone, Serialize)]
 pub struct StepState {
     pub name: String,
-    /// `up to date`, `pending`, `running`, `failed`, `not started`.
+    /// `up to date`, `pending`, `running`, `failed`, `stopped` (saved part of its run, which the
+    /// next run continues), `not started`.
     pub state: String,
     /// The Slurm job (element) of its latest submission, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -28,6 +34,21 @@ pub struct StepState {
     /// Who runs it now (from its lock), when it runs.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub holder: Option<String>,
+    /// How far a training step got, when it has saved part of its run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub progress: Option<Progress>,
+}
+
+/// A training step's saved progress: its checkpoint's update count and last evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct Progress {
+    /// Updates in the checkpoint the next run continues from.
+    pub updates: u64,
+    /// Updates the step asks for.
+    pub of: u64,
+    /// The last evaluation in its metrics, at or before `updates`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_eval: Option<MetricsLine>,
 }
 
 /// The state of every step of `p`, in plan order.
@@ -36,8 +57,9 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
     let jobs = slurm::jobs(&p.out)?;
     let queue = if jobs.is_empty() { None } else { slurm::queue() };
     let mut hashes = Hashes::default();
+    let forecast = state::forecast(&p.out, &steps, &mut hashes)?;
     let mut all = Vec::with_capacity(steps.len());
-    for step in &steps {
+    for (step, f) in steps.iter().zip(&forecast) {
         // The latest job that holds this step, and which element.
         let latest = jobs.iter().rev().find_map(|j| {
             let k = j.elements.iter().position(|e| e.contains(&step.name))?;
@@ -46,7 +68,7 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
         let job = latest.map(|(j, k)| j.element_id(k));
         let log = latest.map(|(j, k)| j.log(&p.out, k)).filter(|l| l.exists());
         let key = hashes.key(step)?;
-        let mut s = StepState { name: step.name.clone(), state: String::new(), job, log, holder: None };
+        let mut s = StepState { name: step.name.clone(), state: String::new(), job, log, holder: None, progress: None };
         s.state = if key.as_ref().is_some_and(|k| state::up_to_date(&p.out, step, k, &mut hashes)) {
             "up to date".into()
         } else if let Some(h) = lock::holder(&p.out, &step.name) {
@@ -65,9 +87,45 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
                 _ => "not started".into(),
             }
         };
+        if f.runs {
+            s.progress = progress(p, step, f);
+            if s.state == "not started" && s.progress.is_some() {
+                s.state = "stopped".into();
+            }
+        }
         all.push(s);
     }
     Ok(all)
+}
+
+/// The saved progress of a training step that will continue from its checkpoint.
+fn progress(p: &Pipeline, step: &Step, f: &state::Forecast) -> Option<Progress> {
+    let Action::Train { cfg, out, .. } = &step.action else { return None };
+    let updates = cost::resumes_from(&p.out, step, f, cfg);
+    if updates == 0 {
+        return None;
+    }
+    let text = std::fs::read_to_string(metrics_path(out)).unwrap_or_default();
+    let last_eval = text
+        .lines()
+        .rev()
+        .filter_map(|l| serde_json::from_str::<MetricsLine>(l).ok())
+        .find(|m| m.eval.is_some() && m.updates <= updates);
+    Some(Progress { updates, of: cfg.updates, last_eval })
+}
+
+/// "7.5k of 30.0k updates saved; last evaluation at 5.0k: paper score 1.38, success 0.04".
+fn render_progress(g: &Progress) -> String {
+    let mut s = format!("{} of {} updates saved", cost::count(g.updates), cost::count(g.of));
+    if let Some((m, e)) = g.last_eval.as_ref().and_then(|m| Some((m, m.eval.as_ref()?))) {
+        s += &format!(
+            "; last evaluation at {}: paper score {:.2}, success {:.2}",
+            cost::count(m.updates),
+            e.paper_score,
+            e.success_rate
+        );
+    }
+    s
 }
 
 /// One line per step.
@@ -83,6 +141,9 @@ pub fn render(p: &Pipeline, states: &[StepState]) -> String {
         }
         if let Some(h) = &s.holder {
             line += &format!(" ({h})");
+        }
+        if let Some(g) = &s.progress {
+            line += &format!(" — {}", render_progress(g));
         }
         text += &line;
         text.push('\n');
