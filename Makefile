@@ -130,7 +130,7 @@ bench: build venv
 	$(PY) bench/bench_sampler.py --python $(BENCH_PY) --json bench-out/sampler.json
 	$(PY) bench/bench_score.py --python $(BENCH_PY) --threads 2 --swaps 4 --repeat 3 --json bench-out/score.json
 	$(BENCH_PY) bench/sgemm_peak.py
-	$(PY) bench/bench_grid.py --python $(BENCH_PY) --jax-python $(JAX_PY) --threads 2 --json bench-out/grid.json
+	$(PY) bench/bench_grid.py --python $(BENCH_PY) --jax-python $(JAX_PY) --threads 2 --rounds 3 --json bench-out/grid.json
 
 # The benchmark peers' interpreter: PyTorch (a large download), cpprb, pyarrow. Kept apart from
 # the test venv so `make test` never downloads torch.

@@ -41,7 +41,7 @@ Usage:
     bench_grid.py [--device cpu|cuda] [--agents 1,3,10,30] [--python PY] [--jax-python PY]
                   [--peers single,stacked,jax | all] [--threads 2] [--seconds 4 | --updates N]
                   [--warmup 4] [--task FetchPush] [--algo td3bc] [--batch-size 512] [--hidden 256]
-                  [--repeat 1] [--timeout 300] [--workdir bench-out] [--json OUT.json]
+                  [--repeat 1] [--rounds 1] [--timeout 300] [--workdir bench-out] [--json OUT.json]
 
 On a GPU machine whose python3 has torch and jax:
     python3 bench/bench_grid.py --device cuda --python python3 --jax-python python3 --json bench-out/grid-gpu.json
@@ -167,7 +167,10 @@ def main(argv=None):
     ap.add_argument("--algo", choices=("td3bc", "td3"), default="td3bc")
     ap.add_argument("--batch-size", type=int, default=512)
     ap.add_argument("--hidden", type=int, default=256)
-    ap.add_argument("--repeat", type=int, default=1, help="runs per cell; the median is shown (default 1)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per cell in a row; the median is used (default 1)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="passes over every peer and A, peers in a rotated order each pass; each cell shows the "
+                         "median over the passes and the table lists every pass's figure (default 1)")
     ap.add_argument("--timeout", type=float, default=300, help="seconds before a child is killed (default 300)")
     ap.add_argument("--jax-pin", action="store_true", help="CPU: pin the JAX peer to --threads CPUs")
     ap.add_argument("--tf32", action="store_true", help="GPU: let stacked and JAX peers use TF32 matmuls")
@@ -177,8 +180,8 @@ def main(argv=None):
     ap.add_argument("--workdir", default=str(REPO / "bench-out"))
     ap.add_argument("--json", help="write all figures to this file")
     a = ap.parse_args(argv)
-    if a.threads < 1 or a.repeat < 1 or a.seconds <= 0 or (a.updates is not None and a.updates < 2):
-        ap.error("--threads/--repeat >= 1, --seconds > 0, --updates >= 2")
+    if a.threads < 1 or a.repeat < 1 or a.rounds < 1 or a.seconds <= 0 or (a.updates is not None and a.updates < 2):
+        ap.error("--threads/--repeat/--rounds >= 1, --seconds > 0, --updates >= 2")
     gpu = a.device == "cuda"
     agents = [int(x) for x in (a.agents or ("1,10,30,60" if gpu else "1,3,10,30")).split(",")]
     if a.peers in (None, ""):
@@ -221,8 +224,6 @@ def main(argv=None):
             print(f"note: {why}", file=sys.stderr)
 
     load_before = os.getloadavg()
-    cells: dict[str, dict[int, dict]] = {p: {} for p in peers}
-    single_info = {}
 
     def med(runs):
         ok = [r for r in runs if r["ok"]]
@@ -243,7 +244,8 @@ def main(argv=None):
                 f"train_peer.HIDDEN = {a.hidden}; train_peer.main()")
         return [py, "-c", code, *args]
 
-    if "single" in peers:
+    def run_single(cells):
+        single_info = {}
         if missing.get("torch"):
             single_info = {"ok": False, "why": missing["torch"], "missing": True}
         else:
@@ -306,9 +308,10 @@ def main(argv=None):
             if isinstance(v, dict):
                 print(f"single {k:10s} " + (f"{v['report']['agent_updates_per_sec']:10.1f} agent-updates/s"
                                             if v.get("ok") else f"FAILED ({v.get('why')})"), flush=True)
+        return single_info
 
     # ---- pgser: the stacked agent of pgser-train ----------------------------------------------------
-    if "pgser" in peers:
+    def run_pgser(cells):
         dev = a.pgser_device or ("wgpu" if gpu else "cpu")
         for A in agents:
             if not Path(a.pgser).exists():
@@ -333,9 +336,7 @@ def main(argv=None):
                                                 if x["ok"] else f"FAILED ({x['why']})"), flush=True)
 
     # ---- many-agent peers -------------------------------------------------------------------------
-    for p in peers:
-        if p in ("single", "pgser"):
-            continue
+    def run_many(cells, p):
         fw = "jax" if p == "jax" else "torch"
         for A in agents:
             if missing.get(fw):
@@ -361,6 +362,37 @@ def main(argv=None):
             cells[p][A] = x
             print(f"{p:14s} A={A:<4d} " + (f"{x['agent_updates_per_sec']:10.1f} agent-updates/s"
                                           if x["ok"] else f"FAILED ({x['why']})"), flush=True)
+
+    # ---- rounds -------------------------------------------------------------------------------
+    # Each round measures every peer and A once, the peers in a rotated order, so that a machine
+    # whose speed drifts from minute to minute (shared hosts do) does not favour whichever peer
+    # runs first; each cell shows the median over the rounds.
+    passes = []
+    for r in range(a.rounds):
+        order = peers[r % len(peers):] + peers[:r % len(peers)]
+        if a.rounds > 1:
+            print(f"round {r + 1}/{a.rounds}: {', '.join(order)}", flush=True)
+        got: dict[str, dict[int, dict]] = {p: {} for p in peers}
+        info = {}
+        for p in order:
+            if p == "single":
+                info = run_single(got)
+            elif p == "pgser":
+                run_pgser(got)
+            else:
+                run_many(got, p)
+        passes.append((got, info))
+    cells: dict[str, dict[int, dict]] = {p: {} for p in peers}
+    for p in peers:
+        for A in agents:
+            runs = [got[p][A] for got, _ in passes if A in got[p]]
+            ok = sorted((x for x in runs if x.get("ok")), key=lambda x: x["agent_updates_per_sec"])
+            if not ok:
+                cells[p][A] = runs[-1]
+                continue
+            cells[p][A] = dict(ok[len(ok) // 2])
+            cells[p][A]["rounds"] = [x["agent_updates_per_sec"] for x in runs if x.get("ok")]
+    single_info = passes[0][1] if a.rounds == 1 else {"rounds": [info for _, info in passes]}
     load_after = os.getloadavg()
 
     # ---- table --------------------------------------------------------------------------------
@@ -373,7 +405,8 @@ def main(argv=None):
     print(f"agent-updates/s (GFLOP/s) — {a.task} {a.algo}, batch {a.batch_size}/agent, hidden {a.hidden}, "
           f"{flops / 1e9:.3f} GFLOP per agent-update (train_flops.py), device {a.device}"
           + (f" ({gpu_name})" if gpu_name else f", {T} threads")
-          + (f", {a.updates} updates" if a.updates else f", ~{a.seconds:g} s per run"))
+          + (f", {a.updates} updates" if a.updates else f", ~{a.seconds:g} s per run")
+          + (f", median of {a.rounds} rounds" if a.rounds > 1 else ""))
     print(f"machine: {os.cpu_count()} cores, load {load_before[0]:.2f} before / {load_after[0]:.2f} after; "
           f"torch python {py}; jax python {jpy}")
     w = 22
@@ -396,6 +429,11 @@ def main(argv=None):
 
     for A in agents:
         print(f"{A:>4d}  " + "".join(f"{cell(cells[p].get(A)):>{w}s}" for p in peers))
+    if a.rounds > 1:
+        print(f"medians of {a.rounds} rounds; each round's figure, in round order:")
+        for A in agents:
+            figs = lambda c: "/".join(f"{v:.0f}" if v >= 100 else f"{v:.1f}" for v in (c or {}).get("rounds", []))
+            print(f"{A:>4d}  " + "".join(f"{figs(cells[p].get(A)) or '-':>{w}s}" for p in peers))
     fails = {(p, A): c["why"] for p in peers for A, c in cells[p].items() if not c.get("ok")}
     seen = set()
     for (p, A), why in fails.items():
@@ -410,6 +448,7 @@ def main(argv=None):
     if a.json:
         doc = {"device": a.device, "task": a.task, "algo": a.algo, "batch_size": a.batch_size, "hidden": a.hidden,
                "threads": T, "seconds": a.seconds, "updates": a.updates, "warmup": a.warmup, "agents": agents,
+               "rounds": a.rounds,
                "peers": peers, "flops_per_update": flops, "python": py, "jax_python": jpy,
                "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "gpu": gpu_name,
                            "loadavg_before": load_before, "loadavg_after": load_after},
