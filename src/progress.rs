@@ -1,5 +1,7 @@
 //! Progress bars for long jobs. indicatif draws nothing when stderr is not a terminal, so
-//! logs and CI output stay clean without a flag.
+//! logs and CI output stay clean without a flag; there, jobs of hours (a grid of agents, a
+//! Slurm job's log) write a line at each milestone instead (`milestone`), so a log is never
+//! silent for hours.
 
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -12,4 +14,46 @@ pub fn bar(message: &'static str, unit: &str) -> ProgressBar {
     bar.set_style(ProgressStyle::with_template(&template).expect("valid template"));
     bar.set_message(message);
     bar
+}
+
+/// For logs: when the bar draws nothing (stderr is not a terminal), one line, prefixed with the
+/// bar's message, at a milestone of a long job (a training run's scheduled checkpoint). On a
+/// terminal the bar already shows it.
+pub fn milestone(bar: &ProgressBar, line: &str) {
+    if bar.is_hidden() {
+        eprintln!("{}: {line}", bar.message());
+    }
+}
+
+/// A count in a few characters: "950", "7.5k", "31.0M".
+pub fn count(n: u64) -> String {
+    match n {
+        0..1_000 => n.to_string(),
+        1_000..1_000_000 => format!("{:.1}k", n as f64 / 1e3),
+        _ => format!("{:.1}M", n as f64 / 1e6),
+    }
+}
+
+/// Seconds as a person reads them: "38 s", "6.6 min", "3.0 h", "5.1 days".
+pub fn duration(s: f64) -> String {
+    match s {
+        s if s < 90.0 => format!("{s:.0} s"),
+        s if s < 5400.0 => format!("{:.1} min", s / 60.0),
+        s if s < 172_800.0 => format!("{:.1} h", s / 3600.0),
+        s => format!("{:.1} days", s / 86400.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_and_durations_read_naturally() {
+        assert_eq!(duration(38.0), "38 s");
+        assert_eq!(duration(396.0), "6.6 min");
+        assert_eq!(duration(3.0 * 3600.0), "3.0 h");
+        assert_eq!(duration(5.1 * 86400.0), "5.1 days");
+        assert_eq!((count(950), count(7_500), count(31_000_000)), ("950".into(), "7.5k".into(), "31.0M".into()));
+    }
 }

@@ -21,6 +21,7 @@ use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, checkpoint, sh
 use crate::env::rng::NpRandom;
 use crate::eval::{self, EvalReport};
 use crate::output::{AtomicFile, sha256_file};
+use crate::progress;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
 use crate::sampler::{self, SamplerConfig};
@@ -254,6 +255,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
     bar.set_position(agent.updates());
     let mut update_time = 0.0f64;
     let start_updates = agent.updates();
+    let started = Instant::now();
     let mut saved_at = None;
     loop {
         // SIGTERM (`stop`): save where we are (unless a scheduled save just did) and stop.
@@ -305,6 +307,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
                 run.save(&agent, i)?;
             }
             saved_at = Some(u);
+            progress::milestone(bar, &saved_line(&runs, u, cfg.updates, (u - start_updates, started.elapsed())));
         }
         bar.set_position(u);
     }
@@ -339,6 +342,34 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
             metrics: metrics_path(&r.cell.out),
         })
         .collect())
+}
+
+/// A log line at a scheduled save: "10.0k of 30.0k updates saved (15 agents), 5.1 updates/s, ≈ 1.1 h
+/// left; last evaluation (10.0k): paper score 20.12 (15.98–25.04)". The rate counts this run's
+/// updates over its wall time, evaluations and saves included, as the time left will.
+fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Duration)) -> String {
+    let k = progress::count;
+    let mut s = format!("{} of {} updates saved", k(u), k(of));
+    if runs.len() > 1 {
+        s += &format!(" ({} agents)", runs.len());
+    }
+    let rate = done as f64 / took.as_secs_f64();
+    if rate > 0.0 {
+        s += &format!(", {rate:.1} updates/s, ≈ {} left", progress::duration((of - u) as f64 / rate));
+    }
+    let scores: Vec<f64> = runs.iter().filter_map(|r| r.last_eval.map(|e| e.paper_score)).collect();
+    if let Some(m) =
+        runs.iter().filter_map(|r| r.metrics.iter().rev().find(|m| m.eval.is_some())).map(|m| m.updates).max()
+        && !scores.is_empty()
+    {
+        let mean = scores.iter().sum::<f64>() / scores.len() as f64;
+        s += &format!("; last evaluation ({}): paper score {mean:.2}", k(m));
+        if scores.len() > 1 {
+            let (lo, hi) = scores.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            s += &format!(" ({lo:.2}–{hi:.2})");
+        }
+    }
+    s
 }
 
 /// The metrics of a checkpoint at update `u` as an uninterrupted run would have them there: a run

@@ -233,3 +233,38 @@ fn seeds_train_as_one_stack_with_the_weights_of_separate_runs() {
     let out = run(&["--data", table, "-o", runs.to_str().unwrap(), "--seeds", "1,2", "--seed", "3"]);
     assert!(!out.status.success() && text(&out.stderr).contains("--seed"), "{}", text(&out.stderr));
 }
+
+#[test]
+fn a_log_gets_a_line_at_each_scheduled_save() {
+    // stderr is a pipe here, as in a Slurm job's log or under nohup: no bar is drawn, so each
+    // scheduled save says how far the run is and how its last evaluation went.
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let args = ["--data", reach_table().to_str().unwrap(), "-o", runs.to_str().unwrap(), "--seeds", "4,7"];
+    let more = ["--updates", "12", "--batch-size", "64", "--hidden", "32", "--eval-episodes", "2", "--eval-every", "4"];
+    let out = train_cmd().args(args).args(more).args(["--save-every", "4"]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("training: ")).collect();
+    assert_eq!(lines.len(), 2, "one line per save before the end:\n{err}");
+    for (line, at) in lines.iter().zip([4u64, 8]) {
+        assert!(line.starts_with(&format!("training: {at} of 12 updates saved (2 agents), ")), "{line}");
+        // The mean and range of the two agents' evaluations at that update, from their metrics.
+        let scores: Vec<f64> = ["s4", "s7"]
+            .iter()
+            .map(|s| {
+                let m = std::fs::read_to_string(pgser::train::metrics_path(&runs.join(format!("{s}.ckpt")))).unwrap();
+                let line: serde_json::Value = m
+                    .lines()
+                    .map(|l| serde_json::from_str(l).unwrap())
+                    .find(|v: &serde_json::Value| v["updates"] == at)
+                    .unwrap();
+                line["eval"]["paper_score"].as_f64().unwrap()
+            })
+            .collect();
+        let (lo, hi) = (scores[0].min(scores[1]), scores[0].max(scores[1]));
+        let want =
+            format!("; last evaluation ({at}): paper score {:.2} ({lo:.2}–{hi:.2})", (scores[0] + scores[1]) / 2.0);
+        assert!(line.ends_with(&want), "{line}\nwant …{want}");
+    }
+}

@@ -24,6 +24,7 @@ use super::state::{self, Forecast};
 use super::{Action, Pipeline, Step};
 use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, checkpoint};
 use crate::env::rng::NpRandom;
+use crate::progress::{count, duration};
 use crate::task::Task;
 use crate::train::TrainConfig;
 use crate::trajectory::{Episodes, FloatType, Footer};
@@ -439,14 +440,6 @@ pub fn brief(c: &StepCost) -> String {
     parts.join(" ")
 }
 
-pub(super) fn count(n: u64) -> String {
-    match n {
-        0..1_000 => n.to_string(),
-        1_000..1_000_000 => format!("{:.1}k", n as f64 / 1e3),
-        _ => format!("{:.1}M", n as f64 / 1e6),
-    }
-}
-
 fn bytes(b: u64) -> String {
     match b {
         0..1_000_000 => format!("{:.0} kB", b as f64 / 1e3),
@@ -458,15 +451,6 @@ fn bytes(b: u64) -> String {
 /// "≈ 6.6 min", or "under 1 s".
 fn about(s: f64) -> String {
     if s < 1.0 { "under 1 s".into() } else { format!("≈ {}", duration(s)) }
-}
-
-fn duration(s: f64) -> String {
-    match s {
-        s if s < 90.0 => format!("{s:.0} s"),
-        s if s < 5400.0 => format!("{:.1} min", s / 60.0),
-        s if s < 172_800.0 => format!("{:.1} h", s / 3600.0),
-        s => format!("{:.1} days", s / 86400.0),
-    }
 }
 
 #[cfg(test)]
@@ -513,14 +497,5 @@ mod tests {
         assert_eq!(brief(&t), "150 updates ≈ 4 s");
         // Unmeasured (--no-measure): no time for the stack, rather than a part of one.
         assert_eq!(StepCost::total(&[&a, &cell(50, None)]).seconds, None);
-    }
-
-    #[test]
-    fn durations_read_naturally() {
-        assert_eq!(duration(38.0), "38 s");
-        assert_eq!(duration(396.0), "6.6 min");
-        assert_eq!(duration(3.0 * 3600.0), "3.0 h");
-        assert_eq!(duration(5.1 * 86400.0), "5.1 days");
-        assert_eq!(count(31_000_000), "31.0M");
     }
 }

@@ -331,6 +331,10 @@ fn execute_stack(steps: &[&Step], device: Backend, resume: &[bool]) -> Result<Ve
         let stack: Vec<crate::train::Cell> = members.iter().map(|&i| cells[i].clone()).collect();
         let commands: Vec<String> = members.iter().map(|&i| format!("pgser pipeline step {}", steps[i].name)).collect();
         let names: Vec<&str> = members.iter().map(|&i| steps[i].name.as_str()).collect();
+        bar.set_message(match names.len() {
+            1 => names[0].to_string(),
+            n => format!("{} (+{} in its stack)", names[0], n - 1),
+        });
         crate::train::train_stack(&stack, device.device()?, &commands, &bar).with_context(|| {
             format!("training {} (one stack); checkpoints are left as they were at their last save", names.join(", "))
         })?;

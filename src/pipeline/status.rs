@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use super::state::{self, Hashes};
 use super::{Action, Pipeline, Step, cost, lock, slurm};
+use crate::progress;
 use crate::train::{MetricsLine, metrics_path};
 
 /// One step's state.
@@ -116,11 +117,11 @@ fn progress(p: &Pipeline, step: &Step, f: &state::Forecast) -> Option<Progress> 
 
 /// "7.5k of 30.0k updates saved; last evaluation at 5.0k: paper score 1.38, success 0.04".
 fn render_progress(g: &Progress) -> String {
-    let mut s = format!("{} of {} updates saved", cost::count(g.updates), cost::count(g.of));
+    let mut s = format!("{} of {} updates saved", progress::count(g.updates), progress::count(g.of));
     if let Some((m, e)) = g.last_eval.as_ref().and_then(|m| Some((m, m.eval.as_ref()?))) {
         s += &format!(
             "; last evaluation at {}: paper score {:.2}, success {:.2}",
-            cost::count(m.updates),
+            progress::count(m.updates),
             e.paper_score,
             e.success_rate
         );
