@@ -12,7 +12,6 @@
 //! (convert, report, results). Table sizes are uncompressed, an upper bound of the zstd files.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Result;
@@ -22,7 +21,7 @@ use serde::Serialize;
 use super::check::Checked;
 use super::state::{self, Forecast};
 use super::{Action, Pipeline, Step};
-use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, checkpoint};
+use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer};
 use crate::env::rng::NpRandom;
 use crate::progress::{count, duration};
 use crate::task::Task;
@@ -140,7 +139,7 @@ pub fn estimate(
                 c.bytes = eps * t * (12 + vectors as u64);
             }
             Action::Train { cfg, .. } => {
-                let start = resumes_from(&p.out, step, f, cfg);
+                let start = state::resumes_from(&p.out, step, f, cfg);
                 c.updates = cfg.updates.saturating_sub(start);
                 c.envs_created = evaluations(cfg, start) * cfg.eval_episodes as u64;
                 c.env_steps = c.envs_created * t;
@@ -208,21 +207,6 @@ pub fn estimate(
         cost.measured = Some(m);
     }
     Ok(cost)
-}
-
-/// The updates a training step's checkpoint already has, when the run will continue it (as
-/// `train --resume` would: same settings but for `updates`, no more updates than asked, the
-/// same data); else 0.
-pub(super) fn resumes_from(out: &Path, step: &Step, f: &Forecast, cfg: &TrainConfig) -> u64 {
-    let ckpt = &step.outputs[0];
-    if !state::may_resume(out, step, f.key.as_deref()) || !checkpoint::resume_path(ckpt).exists() {
-        return 0;
-    }
-    let Ok((agent, meta)) = Backend::Cpu.device().and_then(|d| checkpoint::load(ckpt, d)) else { return 0 };
-    let saved: Option<TrainConfig> = meta.get("train").and_then(|t| serde_json::from_str(t).ok());
-    let same = saved.is_some_and(|s| TrainConfig { updates: cfg.updates, ..s } == *cfg);
-    let data = meta.get("data_sha256").is_some_and(|sha| f.inputs[0].as_ref() == Some(sha));
-    if same && data && agent.updates <= cfg.updates { agent.updates } else { 0 }
 }
 
 /// Evaluations a run from `start` to `cfg.updates` makes: one every `eval_every` updates and one

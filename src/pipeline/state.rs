@@ -24,7 +24,9 @@ use serde::{Deserialize, Serialize};
 use sha2::Digest;
 
 use super::Step;
+use crate::agent::{Backend, checkpoint};
 use crate::output::{AtomicFile, hex, sha256_file};
+use crate::train::TrainConfig;
 
 /// Bump when the meaning of a key changes, so old records are not trusted (2: the key holds
 /// pgser's version).
@@ -111,6 +113,21 @@ pub fn may_resume(out: &Path, step: &Step, key: Option<&str>) -> bool {
     // An unreadable or older-format record is of an older pgser.
     let Ok(r) = serde_json::from_str::<Record>(&text) else { return false };
     r.format == FORMAT && r.pgser_version == VERSION && Some(r.key.as_str()) != key
+}
+
+/// The updates a training step's checkpoint already has, when the run will continue it (as
+/// `train --resume` would: same settings but for `updates`, no more updates than asked, the
+/// same data); else 0.
+pub fn resumes_from(out: &Path, step: &Step, f: &Forecast, cfg: &TrainConfig) -> u64 {
+    let ckpt = &step.outputs[0];
+    if !may_resume(out, step, f.key.as_deref()) || !checkpoint::resume_path(ckpt).exists() {
+        return 0;
+    }
+    let Ok((agent, meta)) = Backend::Cpu.device().and_then(|d| checkpoint::load(ckpt, d)) else { return 0 };
+    let saved: Option<TrainConfig> = meta.get("train").and_then(|t| serde_json::from_str(t).ok());
+    let same = saved.is_some_and(|s| TrainConfig { updates: cfg.updates, ..s } == *cfg);
+    let data = meta.get("data_sha256").is_some_and(|sha| f.inputs[0].as_ref() == Some(sha));
+    if same && data && agent.updates <= cfg.updates { agent.updates } else { 0 }
 }
 
 /// Whether the step's record has `key` and its outputs are the bytes it wrote.

@@ -15,7 +15,7 @@ use anyhow::Result;
 use serde::Serialize;
 
 use super::state::{self, Hashes};
-use super::{Action, Pipeline, Step, cost, lock, slurm};
+use super::{Action, Pipeline, Step, lock, slurm};
 use crate::progress;
 use crate::train::{MetricsLine, metrics_path};
 
@@ -102,7 +102,7 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
 /// The saved progress of a training step that will continue from its checkpoint.
 fn progress(p: &Pipeline, step: &Step, f: &state::Forecast) -> Option<Progress> {
     let Action::Train { cfg, out, .. } = &step.action else { return None };
-    let updates = cost::resumes_from(&p.out, step, f, cfg);
+    let updates = state::resumes_from(&p.out, step, f, cfg);
     if updates == 0 {
         return None;
     }
