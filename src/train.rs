@@ -357,13 +357,15 @@ fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Dura
     if rate > 0.0 {
         s += &format!(", {rate:.1} updates/s, ≈ {} left", progress::duration((of - u) as f64 / rate));
     }
-    let scores: Vec<f64> = runs.iter().filter_map(|r| r.last_eval.map(|e| e.paper_score)).collect();
-    if let Some(m) =
-        runs.iter().filter_map(|r| r.metrics.iter().rev().find(|m| m.eval.is_some())).map(|m| m.updates).max()
-        && !scores.is_empty()
-    {
+    // Each agent's latest evaluation line (the agents of a stack are evaluated together).
+    let last: Vec<(u64, f64)> = runs
+        .iter()
+        .filter_map(|r| r.metrics.iter().rev().find_map(|m| Some((m.updates, m.eval?.paper_score))))
+        .collect();
+    if let Some(at) = last.iter().map(|&(u, _)| u).max() {
+        let scores: Vec<f64> = last.iter().map(|&(_, p)| p).collect();
         let mean = scores.iter().sum::<f64>() / scores.len() as f64;
-        s += &format!("; last evaluation ({}): paper score {mean:.2}", k(m));
+        s += &format!("; last evaluation ({}): paper score {mean:.2}", k(at));
         if scores.len() > 1 {
             let (lo, hi) = scores.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
             s += &format!(" ({lo:.2}–{hi:.2})");
