@@ -19,7 +19,7 @@ ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
-.PHONY: all build test check-wgpu slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
+.PHONY: all build test test-wgpu check-wgpu vulkan-deps slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
@@ -85,6 +85,7 @@ test: deps venv check-wgpu slurm-deps
 	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
 	  echo "make test: tests/slurm.rs NOT run (each test printed SKIPPED): no Slurm here (slurm-wlm, munge)"
+	@echo "make test: tests/wgpu.rs (the GPU backend against the CPU's) NOT run: it needs a release build with --features wgpu, 16+ more minutes on 2 cores; the wgpu code was only compiled (check-wgpu). Run it with: make test-wgpu"
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
 	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release $(FEATURES) --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
@@ -99,6 +100,22 @@ slurm-deps:
 	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
 	      slurm-wlm munge >/dev/null; }; } || echo "make slurm-deps: could not install slurm-wlm and munge"; \
 	else echo "make slurm-deps: no slurm-wlm/munge, and not root with apt-get: tests/slurm.rs will be skipped"; fi
+
+# tests/wgpu.rs: the GPU backend's weights and Q-scores against the CPU's, on the adapter wgpu
+# finds (a GPU, or Mesa's software Vulkan driver, lavapipe, which vulkan-deps installs when no
+# Vulkan driver is present, as slurm-deps installs Slurm). Not part of `make test`: its release
+# build with wgpu takes 16+ minutes more on 2 cores. Own target folder, so the default build's
+# binaries are never replaced by wgpu ones.
+test-wgpu: deps vulkan-deps
+	XDG_RUNTIME_DIR=$${XDG_RUNTIME_DIR:-/tmp} CARGO_TARGET_DIR=target-wgpu $(CARGO) test --release $(FEATURES) --features wgpu --test wgpu
+
+vulkan-deps:
+	@if ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  { DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends mesa-vulkan-drivers libvulkan1 >/dev/null || \
+	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+	      mesa-vulkan-drivers libvulkan1 >/dev/null; }; } || echo "make vulkan-deps: could not install mesa-vulkan-drivers"; \
+	else echo "make vulkan-deps: no Vulkan driver, and not root with apt-get: wgpu will use what it finds (OpenGL) or fail"; fi
 
 # The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
 # wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).

@@ -424,7 +424,7 @@ impl Backend {
         match self {
             Backend::Cpu => Ok(Device::flex()),
             #[cfg(feature = "wgpu")]
-            Backend::Wgpu => Ok(Device::wgpu(burn::tensor::DeviceKind::default())),
+            Backend::Wgpu => Ok(wgpu_device()),
             #[allow(unreachable_patterns)]
             other => anyhow::bail!(
                 "--device {}: this pgser was built without that backend (rebuild with `cargo build --release --features {}`)",
@@ -440,4 +440,24 @@ impl Backend {
             Backend::Wgpu => "wgpu",
         }
     }
+}
+
+/// The adapter wgpu picks by its own heuristics (a discrete GPU first). Which one it picked is
+/// logged once per process: wgpu falls back to whatever the machine offers, down to a software
+/// rasterizer such as Mesa's lavapipe, and a grid meant for a GPU must not run for hours on a
+/// CPU-emulated one without saying so. Opening the device here also makes a machine without any
+/// adapter fail before a step starts, not at its first tensor.
+#[cfg(feature = "wgpu")]
+fn wgpu_device() -> Device {
+    static LOGGED: std::sync::Once = std::sync::Once::new();
+    let device = Device::wgpu(burn::tensor::DeviceKind::default());
+    LOGGED.call_once(|| match device.identity() {
+        Some(id) if id.physical.is_none() => eprintln!(
+            "--device wgpu: running on {} (no GPU: a software adapter; a GPU needs its vendor's Vulkan driver)",
+            id.name
+        ),
+        Some(id) => eprintln!("--device wgpu: running on {}", id.name),
+        None => eprintln!("--device wgpu: running on an adapter that does not name itself"),
+    });
+    device
 }
