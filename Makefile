@@ -107,7 +107,7 @@ slurm-deps:
 # build with wgpu takes 16+ minutes more on 2 cores. Own target folder, so the default build's
 # binaries are never replaced by wgpu ones.
 test-wgpu: deps vulkan-deps
-	XDG_RUNTIME_DIR=$${XDG_RUNTIME_DIR:-/tmp} CARGO_TARGET_DIR=target-wgpu $(CARGO) test --release $(FEATURES) --features wgpu --test wgpu
+	CARGO_TARGET_DIR=target-wgpu $(CARGO) test --release $(FEATURES) --features wgpu --test wgpu
 
 vulkan-deps:
 	@if ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then :; \

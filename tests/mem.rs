@@ -77,7 +77,7 @@ fn the_mem_agent_learns_fetch_reach() {
         "1",
         "--json",
     ]);
-    let summary: serde_json::Value = serde_json::from_str(out.trim_end().lines().last().unwrap()).unwrap();
+    let summary = last_json(&out);
     let ret = summary["eval"]["return_mean"].as_f64().unwrap();
     assert!(ret > -30.0, "mem agent return {ret}");
 }

@@ -48,7 +48,7 @@ fn online(out: &Path, threads: usize, args: &[&str]) -> Output {
 fn online_ok(out: &Path, threads: usize, args: &[&str]) -> serde_json::Value {
     let o = online(out, threads, &[args, &["--json"]].concat());
     assert!(o.status.success(), "pgser-train online {args:?} failed:\n{}", text(&o.stderr));
-    serde_json::from_str(text(&o.stdout).trim_end().lines().last().unwrap()).unwrap()
+    last_json(&text(&o.stdout))
 }
 
 /// Every tensor of a safetensors file, by name, as bytes.
@@ -191,7 +191,7 @@ fn ddpg_her_learns_fetch_reach_in_a_few_epochs() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let s: serde_json::Value = serde_json::from_str(text(&o.stdout).trim_end().lines().last().unwrap()).unwrap();
+    let s = last_json(&text(&o.stdout));
     let eval: EvalReport = serde_json::from_value(s["eval"].clone()).unwrap();
     assert!(eval.success_rate >= 0.8, "{eval:?}");
     // The expert's data: `collect --policy checkpoint:FILE` runs the trained actor.

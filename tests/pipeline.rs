@@ -7,7 +7,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use common::{etl, snapshot, text, tiny_pipeline as pipeline};
+use common::{etl, last_json, snapshot, text, tiny_pipeline as pipeline};
 
 /// Runs the pipeline; returns step name → status.
 fn run(file: &Path, extra: &[&str]) -> BTreeMap<String, String> {
@@ -268,7 +268,7 @@ fn sigterm_saves_a_training_step_that_resumes_to_the_uninterrupted_bytes() {
     let here = |dir: &Path, args: &[&str]| {
         let o = etl().current_dir(dir).args(["pipeline", "run", "tiny.toml", "--json"]).args(args).output().unwrap();
         assert!(o.status.success(), "pipeline failed: {}", text(&o.stderr));
-        let r: serde_json::Value = serde_json::from_str(text(&o.stdout).lines().last().unwrap()).unwrap();
+        let r = last_json(&text(&o.stdout));
         r["steps"]
             .as_array()
             .unwrap()

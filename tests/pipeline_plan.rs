@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use common::{etl, repo, text};
+use common::{etl, last_json, repo, text};
 
 /// A FetchReach pipeline on the committed sample pickles, small enough for seconds; `pickles`
 /// are file names under data/, `extra` is appended to the file.
@@ -53,7 +53,7 @@ fn run(file: &Path, extra: &[&str]) -> Output {
 fn report(file: &Path, extra: &[&str]) -> serde_json::Value {
     let out = run(file, &[&["--json"], extra].concat());
     assert!(out.status.success(), "pipeline failed: {}", text(&out.stderr));
-    serde_json::from_str(text(&out.stdout).lines().last().unwrap()).unwrap()
+    last_json(&text(&out.stdout))
 }
 
 /// The run fails with one line that says `says`, and the folder holds only what it held.
@@ -159,7 +159,7 @@ fn the_cost_counts_the_updates_that_will_run_and_is_measured_by_default() {
     let err = text(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("cost: 9 steps, 160 updates ") && err.contains("updates/s measured"), "{err}");
-    let first: serde_json::Value = serde_json::from_str(text(&out.stdout).lines().last().unwrap()).unwrap();
+    let first = last_json(&text(&out.stdout));
     let r = &first;
     let cost = &r["cost"];
     assert_eq!((cost["steps"].as_u64(), cost["updates"].as_u64(), updates(r)), (Some(9), Some(160), 160));

@@ -45,10 +45,6 @@ fn reach_table() -> &'static Path {
     p
 }
 
-fn last_json(stdout: &str) -> serde_json::Value {
-    serde_json::from_str(stdout.trim_end().lines().last().unwrap()).unwrap()
-}
-
 #[test]
 fn td3bc_learns_fetch_reach_far_beyond_a_random_policy() {
     let dir = tempfile::tempdir().unwrap();

@@ -90,8 +90,7 @@ fn stacked_agents_on_wgpu_end_with_the_weights_they_have_on_the_cpu() {
     let eval = |device: &str| {
         let ckpt = on_gpu.join("s1.ckpt");
         let out = train(&["eval", "--ckpt", ckpt.to_str().unwrap(), "--episodes", "10", "--json"], device);
-        let summary: serde_json::Value =
-            serde_json::from_str(text(&out.stdout).trim_end().lines().last().unwrap()).unwrap();
+        let summary = last_json(&text(&out.stdout));
         (summary["return_mean"].as_f64().unwrap(), summary["success_rate"].as_f64().unwrap())
     };
     assert_eq!(eval("wgpu"), eval("cpu"));

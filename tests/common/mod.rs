@@ -33,6 +33,12 @@ pub fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
 
+/// The `--json` summary a command prints as the last line of its stdout.
+pub fn last_json(stdout: &str) -> serde_json::Value {
+    let line = stdout.trim_end().lines().last().unwrap_or_else(|| panic!("no JSON line on stdout"));
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("last stdout line is not JSON ({e}): {line}"))
+}
+
 pub fn manifest(dir: &Path) -> Vec<serde_json::Value> {
     let t = std::fs::read_to_string(dir.join("manifest.json")).unwrap();
     serde_json::from_str(&t).unwrap()
