@@ -31,7 +31,7 @@ fn main() {
     let root = std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
     let assets = std::path::Path::new(&root).join(".deps/gymnasium_robotics/assets");
     println!("cargo::rustc-env=PGSER_FETCH_ASSETS={}", assets.display());
-    // numpy's ziggurat tables for the hand tasks' normals (`pgser::env::ziggurat`), same rule.
+    // numpy's ziggurat tables for the hand tasks' normals (`pgser::nprandom::ziggurat`), same rule.
     let zig = std::path::Path::new(&root).join(".deps/numpy_ziggurat.bin");
     println!("cargo::rustc-env=PGSER_ZIGGURAT={}", zig.display());
 }

@@ -5,7 +5,7 @@
 //! episodes are asked for. Nothing depends on the thread count: episode i resets with seed
 //! S + i from a newly made environment (`GoalEnv::restart`; Python reproduces it with
 //! `gym.make(id).reset(seed=S+i)`, or `env.reset(seed=S+i)` for Fetch), its policy draws from a
-//! generator of its own (`env::policy`), and chunks are written in order. The parquet path
+//! generator of its own (`policy`), and chunks are written in order. The parquet path
 //! goes through the same [`TrajectoryWriter`] as `convert`, so a `.pkl` from here converts to
 //! the very table `.parquet` gets.
 //!
@@ -14,6 +14,8 @@
 //! taken for, and `o[i,t+1]`, `ag[i,t+1]` what the step returned. u holds the action as the
 //! environment applied it: clipped to [−1, 1] and rounded to float32 (the action space's
 //! dtype), so replaying u as float32 in gymnasium reproduces the episode.
+
+pub mod policy;
 
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
@@ -26,7 +28,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
-use crate::env::policy::{EpisodePolicy, PolicySpec};
+use self::policy::{EpisodePolicy, PolicySpec};
 use crate::env::{self, GoalEnv};
 use crate::output::AtomicFile;
 use crate::pickle::write::{ArrayOut, write_f64_dict};

@@ -43,12 +43,12 @@ impl Policy for crate::agent::Agent {
 /// Seeded, and drawn from one stream in episode order, so its report is reproducible.
 pub struct RandomPolicy {
     pub act_dim: usize,
-    pub rng: std::sync::Mutex<crate::env::rng::NpRandom>,
+    pub rng: std::sync::Mutex<crate::nprandom::NpRandom>,
 }
 
 impl RandomPolicy {
     pub fn new(act_dim: usize, seed: u64) -> RandomPolicy {
-        RandomPolicy { act_dim, rng: std::sync::Mutex::new(crate::env::rng::NpRandom::new(seed)) }
+        RandomPolicy { act_dim, rng: std::sync::Mutex::new(crate::nprandom::NpRandom::new(seed)) }
     }
 }
 

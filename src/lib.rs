@@ -2,19 +2,35 @@
 //!
 //! Data flows one way: files → record batches → tensors. Each pipeline stage is one module:
 //! [`pickle`] reads WGCSL buffers without executing them (and writes them), [`minari`] reads
-//! and writes Minari datasets, [`trajectory`]
+//! and writes Minari datasets, [`convert`] picks one of those readers for an input, [`trajectory`]
 //! writes and reads the trajectory table, [`collect`] simulates episodes in [`env`](mod@env) and writes
 //! them as either, [`inspect`] summarises any pgser table, [`query`] runs SQL over tables.
 //! [`table`] and [`output`] hold what every writer shares (parallel row-group encoding, the
-//! footer, atomic files).
+//! footer, atomic files); [`nprandom`] is numpy's generator, which every stage draws from.
+//!
+//! Imports run down these layers, never up or across (`tests/layers.rs` checks it):
+//!
+//! | layer | modules |
+//! |---:|---|
+//! | 8 | [`pipeline`] |
+//! | 7 | [`report`] |
+//! | 6 | [`train`] |
+//! | 5 | [`sampler`], [`inspect`] |
+//! | 4 | [`score`], [`convert`] |
+//! | 3 | [`collect`], [`eval`], [`swap`], [`minari`] |
+//! | 2 | [`agent`], [`trajectory`] |
+//! | 1 | [`env`](mod@env), [`query`], [`table`] |
+//! | 0 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
 
 pub mod agent;
 pub mod cli;
 pub mod collect;
+pub mod convert;
 pub mod env;
 pub mod eval;
 pub mod inspect;
 pub mod minari;
+pub mod nprandom;
 pub mod output;
 pub mod pickle;
 pub mod pipeline;

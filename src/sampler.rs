@@ -15,7 +15,7 @@ use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
 use crate::agent::Batch;
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::swap;
 use crate::trajectory::Episodes;
 

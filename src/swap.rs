@@ -8,7 +8,7 @@
 //! swapping (`sampler`) and the materialized swapped table (`score`, via [`swap_block`]) both
 //! call it, so the two variants of the paper draw goals from the same distribution.
 
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::task::Task;
 use crate::trajectory::Episodes;
 

@@ -18,8 +18,8 @@ use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
 use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, checkpoint, shard_count};
-use crate::env::rng::NpRandom;
 use crate::eval::{self, EvalReport};
+use crate::nprandom::NpRandom;
 use crate::output::{AtomicFile, sha256_file};
 use crate::progress;
 use crate::sampler::priority::PriorityConfig;

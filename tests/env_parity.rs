@@ -9,8 +9,9 @@ mod common;
 
 use pgser::env::fetch::{FetchEnv, TASKS};
 use pgser::env::hand::{self, HandEnv};
-use pgser::env::rng::NpRandom;
-use pgser::env::{GoalEnv, Obs, assets_dir, ziggurat};
+use pgser::env::{GoalEnv, Obs, assets_dir};
+use pgser::nprandom::NpRandom;
+use pgser::nprandom::ziggurat;
 use serde_json::Value;
 
 const SEEDS: [u64; 3] = [0, 1, 7];
@@ -200,8 +201,8 @@ fn random_hand_episodes_succeed_as_in_python() {
         let py_return: f64 = py["returns"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).sum();
         let opts = pgser::collect::CollectOptions {
             task: task.to_string(),
-            policy: pgser::env::policy::PolicySpec {
-                kind: pgser::env::policy::PolicyKind::Random,
+            policy: pgser::collect::policy::PolicySpec {
+                kind: pgser::collect::policy::PolicyKind::Random,
                 noise: 0.0,
                 epsilon: 0.0,
             },

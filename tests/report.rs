@@ -11,7 +11,7 @@ use std::sync::Arc;
 use arrow_array::{Float32Array, Int32Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema};
 use common::*;
-use pgser::env::rng::NpRandom;
+use pgser::nprandom::NpRandom;
 use pgser::report;
 
 /// Width and height from a PNG's IHDR chunk (after checking the signature).

@@ -152,7 +152,7 @@ fn the_checkpoint_is_a_plain_safetensors_file_numpy_can_run() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     // Inputs and the Rust policy's outputs, for numpy to recompute from the file alone.
     let (agent, _) = checkpoint::load(&ckpt, burn::tensor::Device::flex()).unwrap();
-    let mut rng = pgser::env::rng::NpRandom::new(5);
+    let mut rng = pgser::nprandom::NpRandom::new(5);
     let n = 7;
     let mut draw = |k: usize| (0..k).map(|_| rng.uniform(-2.0, 2.0) as f32).collect::<Vec<f32>>();
     let (obs, goal, action) = (draw(n * 10), draw(n * 3), draw(n * 4));

@@ -21,7 +21,7 @@ use burn::tensor::Device;
 use safetensors::tensor::{Dtype, SafeTensors};
 
 use super::{Adam, Agent, AgentConfig, Member, Mlp, Normalizer, member_of, net_sizes, transpose};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::output::AtomicFile;
 use crate::task::Task;
 

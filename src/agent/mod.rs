@@ -32,7 +32,7 @@ pub use host::HostActor;
 pub use shards::{Shards, shard_count};
 pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 
 /// Which learner: TD3 (Fujimoto et al. 2018), TD3+BC (Fujimoto & Gu 2021), or DDPG (Lillicrap et
 /// al. 2016) as HER and MRN train it online (`pgser-train online`, docs/online.md): one critic,

@@ -10,7 +10,7 @@ use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::{Adam, AgentConfig, Algo, Mlp, Normalizer, host, init_member};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::task::Task;
 
 /// A training batch on the host: row i is (s, g, a, r, s'). `goal` is the goal the transition is

@@ -6,8 +6,8 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
-use pgser::env::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, inspect, minari, pipeline, progress, query, report, score, trajectory};
+use pgser::collect::policy::{PolicyKind, PolicySpec};
+use pgser::{cli, collect, convert, inspect, minari, pipeline, progress, query, report, score};
 
 #[derive(Parser)]
 #[command(
@@ -358,7 +358,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-etl", || match args.command {
         Command::Convert { inputs, output, task, threshold, episodes, float32, allow_nonfinite, row_group_rows } => {
-            let opts = trajectory::ConvertOptions {
+            let opts = convert::ConvertOptions {
                 inputs,
                 output,
                 task,
@@ -370,7 +370,7 @@ fn main() -> ExitCode {
                 command: cli::command_line(),
             };
             let bar = progress::bar("convert", "rows");
-            let s = trajectory::convert(&opts, &bar)?;
+            let s = convert::convert(&opts, &bar)?;
             bar.finish_and_clear();
             for k in &s.skipped_keys {
                 eprintln!("pgser-etl: note: skipped {k} (not part of the WGCSL format)");

@@ -11,8 +11,8 @@ use std::path::Path;
 use anyhow::{Context, Result, anyhow, bail, ensure};
 use mujoco_rs::prelude::*;
 
-use super::rng::NpRandom;
 use super::{GoalEnv, Obs, Step, asset};
+use crate::nprandom::NpRandom;
 use crate::task::Task;
 
 /// The tasks this module simulates, by their pgser (gymnasium id minus version) names.

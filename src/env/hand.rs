@@ -8,7 +8,7 @@
 //!   but controls, warm-start accelerations and everything else carry over from the previous
 //!   episode;
 //! * the object's start pose is drawn (a rotation, then Gaussian position noise from numpy's
-//!   ziggurat, [`super::ziggurat`]), the hand holds still for 10 × 20 steps, and the reset is
+//!   ziggurat, [`crate::nprandom::ziggurat`]), the hand holds still for 10 × 20 steps, and the reset is
 //!   redrawn until the object rests above the palm;
 //! * actions are absolute: each of the 20 values maps [−1, 1] onto its actuator's control range;
 //! * only the rotation counts (`target_position = "ignore"`): success is a rotation distance
@@ -20,9 +20,9 @@ use std::path::Path;
 use anyhow::{Result, anyhow, bail, ensure};
 use mujoco_rs::prelude::*;
 
-use super::rng::NpRandom;
-use super::ziggurat::{self, Ziggurat};
 use super::{GoalEnv, Obs, Step, asset};
+use crate::nprandom::NpRandom;
+use crate::nprandom::ziggurat::{self, Ziggurat};
 use crate::task::Task;
 
 /// The tasks this module simulates, by their pgser names.

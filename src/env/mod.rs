@@ -10,9 +10,6 @@
 pub mod expert;
 pub mod fetch;
 pub mod hand;
-pub mod policy;
-pub mod rng;
-pub mod ziggurat;
 
 use std::path::{Path, PathBuf};
 

@@ -4,7 +4,7 @@
 //! costs those days; found here it costs a second, and nothing has been written (no out folder
 //! is created: its writability is probed in the deepest folder that already exists).
 //!
-//! Each check calls the code the step itself runs (`collect::check`, `trajectory::check_convert`,
+//! Each check calls the code the step itself runs (`collect::check`, `convert::check`,
 //! `Backend::device`) or repeats a check its step makes before doing any work, so the two cannot
 //! disagree about what is valid. Errors name the pipeline key or the file.
 
@@ -14,7 +14,7 @@ use anyhow::{Context, Result, bail};
 
 use super::{Action, Data, Pipeline, Step};
 use crate::agent::Backend;
-use crate::env::policy::{PolicyKind, PolicySpec};
+use crate::collect::policy::{PolicyKind, PolicySpec};
 use crate::task::Task;
 use crate::train::TrainConfig;
 use crate::trajectory::FloatType;
@@ -61,7 +61,7 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
                 cfg.validate(&task).context("[expert]")?;
             }
             Action::Convert(o) if beta.is_none() => {
-                let plan = crate::trajectory::check_convert(o).context("[data] pickles")?;
+                let plan = crate::convert::check(o).context("[data] pickles")?;
                 let sources = o.inputs.iter().cloned().zip(plan.episodes_taken.iter().copied()).collect();
                 let bytes = if plan.float_type == FloatType::Float32 { 4 } else { 8 };
                 beta = Some((plan.task, sources, bytes));

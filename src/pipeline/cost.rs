@@ -22,7 +22,7 @@ use super::check::Checked;
 use super::state::{self, Forecast};
 use super::{Action, Pipeline, Step};
 use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::progress::{count, duration};
 use crate::task::Task;
 use crate::train::TrainConfig;

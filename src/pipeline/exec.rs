@@ -21,7 +21,7 @@ use super::{Action, Cost, Pipeline, Step, cost, stack_of};
 use crate::agent::{Backend, checkpoint};
 use crate::train::metrics_path;
 use crate::train::online::{OnlineConfig, buffer_path, train_online};
-use crate::{collect, progress, report, score, trajectory};
+use crate::{collect, convert, progress, report, score};
 
 /// Steps that run together, and the units whose outputs they read.
 pub(crate) struct Unit {
@@ -259,7 +259,7 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
     match &step.action {
         Action::Collect(c) => drop(collect::collect(&c.options()?, &bar)?),
         Action::Online { cfg, out } => how = execute_online(step, cfg, out, device, resume, &bar)?,
-        Action::Convert(o) => drop(trajectory::convert(o, &bar)?),
+        Action::Convert(o) => drop(convert::convert(o, &bar)?),
         // The threads of the pool this unit runs on (all of `--threads` alone, its share with
         // `--jobs`); the scores do not depend on it.
         Action::Score(o) => {

@@ -53,10 +53,10 @@ use state::Hashes;
 pub use status::{StepState, render as render_status, status};
 
 use crate::agent::{Algo, Backend};
-use crate::env::policy::{PolicyKind, PolicySpec};
+use crate::collect::policy::{PolicyKind, PolicySpec};
 use crate::train::online::OnlineConfig;
 use crate::train::{TrainConfig, metrics_path};
-use crate::{collect, report, score, trajectory};
+use crate::{collect, convert, report, score};
 
 /// What one step does, with everything it needs.
 enum Action {
@@ -66,7 +66,7 @@ enum Action {
         cfg: Box<OnlineConfig>,
         out: PathBuf,
     },
-    Convert(trajectory::ConvertOptions),
+    Convert(convert::ConvertOptions),
     /// `stack`: agent cells of one stack id train at once as one stack of networks.
     Train {
         data: PathBuf,
@@ -223,7 +223,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         params: json!({"task": p.task, "episodes": episodes}),
         inputs: pickles.clone(),
         outputs: vec![traj.clone()],
-        action: Action::Convert(trajectory::ConvertOptions {
+        action: Action::Convert(convert::ConvertOptions {
             inputs: pickles,
             output: traj.clone(),
             task: Some(p.task.clone()),

@@ -12,7 +12,7 @@ use smartcore::neighbors::knn_classifier::{KNNClassifier, KNNClassifierParameter
 use smartcore::svm::Kernels;
 use smartcore::svm::svc::{SVC, SVCParameters};
 
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 
 /// k of the k-NN classifier.
 pub const KNN_K: usize = 5;

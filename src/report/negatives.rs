@@ -22,7 +22,7 @@ use arrow_array::types::{Float32Type, Int32Type, Int64Type};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 
 /// Spawn keys of the two samples under the report's seed (1 and 3 are the positives' subsample
 /// and the classifiers' train/test split).

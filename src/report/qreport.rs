@@ -24,7 +24,7 @@ use super::negatives::{Negatives, negatives};
 use super::plot::{self, HistSeries, PALETTE};
 use super::{FIG_SIZE, ensure_dir, write_text};
 use crate::agent::{Backend, checkpoint};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::output::sha256_file;
 use crate::score::{self, Q_BATCH};
 use crate::trajectory::{self, Episodes};

@@ -18,7 +18,7 @@ use anyhow::{Result, bail};
 
 use super::{SamplerConfig, Swap, sample};
 use crate::agent::Batch;
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::output::AtomicFile;
 use crate::task::Task;
 use crate::trajectory::{EpisodeArrays, Episodes, FloatArray, FloatType, Footer, TrajectoryWriter};

@@ -36,7 +36,7 @@ use rayon::prelude::*;
 
 use super::priority::{PriorityConfig, SumTree};
 use crate::agent::Batch;
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::task::Task;
 use crate::trajectory::Episodes;
 

@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::agent::{Agent, Backend, checkpoint};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::output::{check_not_an_input, relative_to_folder_of, sha256_file};
 use crate::swap::{self, GoalPool, SwappedRows};
 use crate::table::{SCHEMA_VERSION, TableWriter};

@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use super::beta_of;
 use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, shard_count};
-use crate::env::rng::NpRandom;
+use crate::nprandom::NpRandom;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
 

@@ -28,9 +28,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::agent::{Agent, AgentConfig, Algo, Batch};
-use crate::env::rng::NpRandom;
 use crate::env::{self, GoalEnv, Obs, applied_action};
 use crate::eval::{self, EvalReport};
+use crate::nprandom::NpRandom;
 use crate::sampler::replay::{self, Replay};
 use crate::task::Task;
 use crate::trajectory::Episodes;

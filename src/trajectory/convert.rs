@@ -1,4 +1,6 @@
-//! `pgser-etl convert`: WGCSL pickles → trajectory table.
+//! WGCSL pickles → trajectory table: the pickle reader of `pgser-etl convert`. The module that
+//! picks this reader or the Minari one for an input sits above both (`src/convert.rs`); the
+//! options, plan and summary types here are shared by both readers.
 //!
 //! Every input is memory-mapped and parsed by the safe pickle reader; all keys, shapes, dtypes
 //! and dimensions are validated before the output is created. Then episodes stream out in row
@@ -89,9 +91,6 @@ pub struct ConvertPlan {
 }
 
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
-    if let Some(dir) = minari_input(opts)? {
-        return crate::minari::check(opts, dir);
-    }
     let maps = open_inputs(opts)?;
     let (sources, _, float_type, task) = read_sources(opts, &maps)?;
     Ok(ConvertPlan {
@@ -100,19 +99,6 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
         episodes_in_file: sources.iter().map(|s| s.episodes).collect(),
         episodes_taken: sources.iter().map(|s| s.take).collect(),
     })
-}
-
-/// A folder input is a Minari dataset (`crate::minari`), converted on its own.
-fn minari_input(opts: &ConvertOptions) -> Result<Option<&Path>> {
-    match opts.inputs.iter().position(|p| p.is_dir()) {
-        None => Ok(None),
-        Some(_) if opts.inputs.len() == 1 => Ok(Some(&opts.inputs[0])),
-        Some(i) => bail!(
-            "{}: a folder (a Minari dataset) among {} inputs: convert takes pickles, or one Minari dataset folder",
-            opts.inputs[i].display(),
-            opts.inputs.len()
-        ),
-    }
 }
 
 fn open_inputs(opts: &ConvertOptions) -> Result<Vec<MappedFile>> {
@@ -155,9 +141,6 @@ fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<
 }
 
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
-    if let Some(dir) = minari_input(opts)? {
-        return crate::minari::convert(opts, dir, bar);
-    }
     let maps = open_inputs(opts)?;
     // Hash the inputs on a thread of their own while we parse, validate and write.
     std::thread::scope(|scope| {

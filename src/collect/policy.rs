@@ -1,6 +1,14 @@
 //! The policies `collect` runs: the scripted experts and trained actors (`checkpoint:FILE`),
 //! optionally noisy, and uniform random actions, each drawing from its own episode's generator.
 //!
+//! Why here and not in `env`: a `checkpoint:FILE` policy is a trained actor
+//! ([`crate::agent::HostActor`]), and `env` sits below `agent` (the simulator knows nothing of
+//! learning). `collect` is the lowest module that sees both, and the only one that runs these
+//! policies. `eval` does not share them: its `Policy` trait is deterministic and
+//! batched (one forward pass for every live episode of a stack per step), while these act one
+//! observation at a time inside the worker that owns the episode, drawing noise from that
+//! episode's own generator. One trait for both would have to be the slower shape for one of them.
+//!
 //! An episode's randomness depends on (seed, episode index) only, never on the thread that
 //! simulates it: episode i draws from numpy's `default_rng(SeedSequence(seed,
 //! spawn_key=(i,)))`, i.e. child i of `SeedSequence(seed).spawn(n)`, numpy's own recipe for
@@ -17,10 +25,10 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::Obs;
-use super::expert::Expert;
-use super::rng::NpRandom;
 use crate::agent::HostActor;
+use crate::env::Obs;
+use crate::env::expert::Expert;
+use crate::nprandom::NpRandom;
 
 /// Which policy acts.
 #[derive(Debug, Clone)]

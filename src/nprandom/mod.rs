@@ -1,12 +1,36 @@
-//! numpy's default random generator, bit for bit: `Generator(PCG64(SeedSequence(seed)))`.
+//! `numpy.random` in Rust, bit for bit: `Generator(PCG64(SeedSequence(seed)))`, the generator
+//! `np.random.default_rng(seed)` and gymnasium's `seeding.np_random(seed)` build.
 //!
-//! gymnasium's `seeding.np_random(seed)` builds exactly this generator, and the Fetch
-//! environments draw object and goal positions from it. Reproducing it (rather than using any
-//! Rust RNG) is what lets `reset(Some(seed))` here give the same episode as
-//! `env.reset(seed=seed)` in Python, so a dataset collected by one can be checked against the
-//! other. Ported from numpy's `bit_generator.pyx` (SeedSequence), `pcg64.h` (PCG64 XSL-RR
-//! 128/64) and `distributions.c` (`next_double`, `random_uniform`); checked against numpy itself
-//! in `tests/env_parity.rs`.
+//! It is the bottom of pgser's randomness, below every stage that draws: the environments' resets,
+//! collect's policies, swap, score, the samplers, the agents' initialisation and noise, and the
+//! reports. It sits in a module of its own (it used to live in `env/`) because all of them share
+//! it and none of them owns it.
+//!
+//! Why numpy's generator and not a Rust RNG: gymnasium's environments draw object and goal
+//! positions from it, so `reset(Some(seed))` here gives the same episode as `env.reset(seed=seed)`
+//! in Python, and a dataset or an evaluation made by one can be checked against the other; and
+//! every other stream pgser draws can be recomputed from Python with numpy alone.
+//!
+//! What equals which numpy function, and the test that checks it:
+//!
+//! | here | numpy | checked by |
+//! |---|---|---|
+//! | [`seed_sequence_state`] | `SeedSequence(seed).generate_state(4, np.uint64)` | `tests::seed_sequence_matches_numpy` |
+//! | [`seed_sequence_state_spawned`], [`NpRandom::spawned`] | `SeedSequence(seed, spawn_key=key)`, child `key` of `.spawn(n)` | `tests::spawned_streams_match_numpy` |
+//! | [`NpRandom::next_u64`] | `Generator.bit_generator.random_raw()` | `tests::doubles_match_numpy` |
+//! | [`NpRandom::random`] | `Generator.random()` | `tests::doubles_match_numpy`; 1,000 draws for 5 seeds in `tests/env_parity.rs` `numpy_generator_is_reproduced` |
+//! | [`NpRandom::uniform`], [`NpRandom::uniform_n`] | `Generator.uniform(low, high[, size])` | `tests::uniform_is_affine_in_the_double`; `numpy_generator_is_reproduced` |
+//! | [`ziggurat::Ziggurat::standard_normal`], [`ziggurat::Ziggurat::normal`] | `Generator.standard_normal()`, `Generator.normal(loc, scale)` | `numpy_generator_is_reproduced` (needs numpy's tables from `make deps`) |
+//!
+//! Two draws are pgser's own and equal no numpy function: [`NpRandom::below`] (Lemire's
+//! multiply-shift, not numpy's `integers`) and [`NpRandom::standard_normal`] (Box–Muller from two
+//! `random()` draws, recomputable from `rng.random(2)`); `tests::normals_have_unit_variance`
+//! checks the latter's moments.
+//!
+//! Ported from numpy's `bit_generator.pyx` (SeedSequence), `pcg64.h` (PCG64 XSL-RR 128/64) and
+//! `distributions.c` (`next_double`, `random_uniform`, `random_standard_normal`).
+
+pub mod ziggurat;
 
 /// SeedSequence's hash constants (numpy `bit_generator.pyx`).
 const INIT_A: u32 = 0x43b0_d7e5;
@@ -161,8 +185,8 @@ impl NpRandom {
     }
 
     /// A standard normal by Box–Muller from two `random()` draws: `sqrt(-2 ln(1 − u1)) ·
-    /// cos(2π u2)`. Not numpy's ziggurat (whose tables we do not carry), but a fixed, documented
-    /// function of the numpy stream, so Python can recompute it from `rng.random(2)`.
+    /// cos(2π u2)`. Not numpy's ziggurat ([`ziggurat`] is, for the hand resets that need it), but a
+    /// fixed, documented function of the numpy stream, so Python can recompute it from `rng.random(2)`.
     pub fn standard_normal(&mut self) -> f64 {
         let (u1, u2) = (self.random(), self.random());
         (-2.0 * (1.0 - u1).ln()).sqrt() * (std::f64::consts::TAU * u2).cos()

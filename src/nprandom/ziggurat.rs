@@ -14,7 +14,7 @@ use std::sync::OnceLock;
 
 use anyhow::{Context, Result, anyhow, ensure};
 
-use super::rng::NpRandom;
+use super::NpRandom;
 
 /// The tail cut-off r of the outermost layer, and 1/r (numpy's `ziggurat_nor_r`/`_inv_r`).
 const NOR_R: f64 = 3.654_152_885_361_009;
