@@ -16,6 +16,16 @@ pub fn main_with(program: &str, body: impl FnOnce() -> anyhow::Result<()>) -> Ex
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // A write past the file-size limit (`ulimit -f`, a quota'd batch system's RLIMIT_FSIZE)
+    // raises SIGXFSZ, whose default action kills the process at once: no message, exit 153, and
+    // the atomic output's temporary file left behind. Ignored, the write fails with EFBIG
+    // instead, which the writer reports in one line naming the file, and the temporary file is
+    // removed as on any other error.
+    #[cfg(unix)]
+    // SAFETY: as above; SIG_IGN is a valid action for SIGXFSZ.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     // Training allocates and frees tensors of a few MB many times per update. glibc serves those
     // with mmap and gives them back on free, so every update paid for page faults and zeroing
     // of fresh pages (15 % of a stacked update's time in a profile). Kept on the heap, freed

@@ -102,3 +102,72 @@ fn a_closed_stdout_ends_the_command_quietly() {
     let err = text(&out.stderr);
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// A full disk or a file-size limit mid-write: under `ulimit -f` (RLIMIT_FSIZE) every writer
+/// gets EFBIG instead of being killed by SIGXFSZ, says so in one line naming the file, leaves no
+/// temporary file, and keeps the previous complete output; with the limit lifted the same
+/// command writes the bytes an unlimited run writes.
+#[test]
+fn a_file_size_limit_mid_write_fails_in_one_line_and_keeps_the_old_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let pkl = repo().join("data/fetch_reach_random_200.pkl");
+    let exe = env!("CARGO_BIN_EXE_pgser-etl");
+    let cases: [(&str, Vec<String>); 3] = [
+        ("traj.parquet", vec!["convert".into(), pkl.display().to_string(), "--task".into(), "FetchReach".into()]),
+        (
+            "random.pkl",
+            ["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "200", "--seed", "0"]
+                .map(String::from)
+                .to_vec(),
+        ),
+        (
+            "random.parquet",
+            ["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "200", "--seed", "0"]
+                .map(String::from)
+                .to_vec(),
+        ),
+    ];
+    for (name, args) in cases {
+        let out_dir = dir.path().join(name.replace('.', "_"));
+        std::fs::create_dir(&out_dir).unwrap();
+        let out = out_dir.join(name);
+        let run = |limit_kib: Option<u64>| {
+            // 1 KiB blocks as bash's ulimit counts them.
+            let limit = limit_kib.map_or("unlimited".to_string(), |k| k.to_string());
+            std::process::Command::new("bash")
+                .arg("-c")
+                .arg(format!("ulimit -f {limit}; exec \"$0\" \"$@\""))
+                .arg(exe)
+                .args(&args)
+                .arg("-o")
+                .arg(&out)
+                .output()
+                .unwrap()
+        };
+        // The previous complete output: a first run without a limit.
+        let o = run(None);
+        assert!(o.status.success(), "{name}: {}", text(&o.stderr));
+        let old = std::fs::read(&out).unwrap();
+        assert!(old.len() > 64 * 1024, "{name}: {} bytes is too small to cross the limit", old.len());
+        std::fs::write(&out, b"previous complete output").unwrap();
+
+        let o = run(Some(64));
+        let err = text(&o.stderr);
+        let line = err.trim_end();
+        assert_eq!(o.status.code(), Some(1), "{name}: killed or wrong exit ({:?}): {line}", o.status);
+        assert_eq!(line.lines().count(), 1, "{name}: {err}");
+        assert!(line.starts_with("pgser-etl: error: ") && line.contains(name), "{name}: {line}");
+        assert!(line.contains("File too large") || line.contains("too large"), "{name}: {line}");
+        let left: Vec<String> = std::fs::read_dir(&out_dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(left, [name.to_string()], "{name}: temporary files left behind");
+        assert_eq!(std::fs::read(&out).unwrap(), b"previous complete output", "{name}: the old output was touched");
+
+        // Space back: the same bytes as the first, unlimited run.
+        let o = run(None);
+        assert!(o.status.success(), "{name}: {}", text(&o.stderr));
+        assert!(std::fs::read(&out).unwrap() == old, "{name}: a rerun wrote other bytes");
+    }
+}
