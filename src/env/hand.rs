@@ -54,11 +54,41 @@ fn config(task: &str) -> Option<(&'static str, Rotation)> {
     }
 }
 
-/// √(x·x) as numpy's `linalg.norm` computes it for a small vector here: OpenBLAS's `ddot`
-/// accumulates with fused multiply-adds, one element after another (checked against numpy in
-/// tests/env_parity.rs; a plain sum of squares differs in the last bit for ~10 % of vectors).
+/// √(x·x) as numpy's `linalg.norm` computes it for a small vector here: OpenBLAS's `ddot`, whose
+/// tail loop (all of a 3- or 4-vector) accumulates one element after another. Whether each step
+/// is one fused multiply-add depends on the kernel OpenBLAS picks for the CPU at run time: the
+/// SkylakeX one (AVX-512; its C is compiled for that CPU, so the compiler fuses) does, the
+/// Haswell one (AVX2 CPUs, Intel or AMD Zen without AVX-512) does not. The two differ in the last
+/// bit for ~10 % of vectors, and an episode's contacts amplify that, so the environment follows
+/// the kernel numpy would use on the same CPU ([`blas_dot_fuses`]); tests/env_parity.rs checks
+/// it against numpy on the machine it runs on.
 fn norm(x: &[f64]) -> f64 {
-    x.iter().fold(0.0f64, |acc, &v| v.mul_add(v, acc)).sqrt()
+    if blas_dot_fuses() {
+        x.iter().fold(0.0f64, |acc, &v| v.mul_add(v, acc)).sqrt()
+    } else {
+        x.iter().fold(0.0f64, |acc, &v| acc + v * v).sqrt()
+    }
+}
+
+/// Whether numpy's OpenBLAS (DYNAMIC_ARCH, as in numpy's wheels) runs its SkylakeX `ddot` on this
+/// CPU: it does where AVX-512 F, BW, DQ and VL are all there (measured on an AMD EPYC without
+/// them: OpenBLAS reports `Core: Haswell` and numpy's norm is the unfused sum for 20,000 of 20,000
+/// random 3- and 4-vectors, the fused one for 17,738). Elsewhere than x86_64 the fused sum is kept.
+fn blas_dot_fuses() -> bool {
+    static FUSES: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FUSES.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            true
+        }
+    })
 }
 
 /// `rotations.quat_mul` (w, x, y, z), term order kept.
