@@ -142,6 +142,17 @@ fn report_cli_writes_fig5_and_table1() {
         std::fs::read(rep2.join("fig5_q_hist.png")).unwrap()
     );
 
+    // Fig. 5's histograms are in table1.json as drawn: densities over [−1/(1−γ), 0] that
+    // integrate to 1, one per class.
+    let h = &j["fig5_hist"];
+    let width = (h["hi"].as_f64().unwrap() - h["lo"].as_f64().unwrap()) / 50.0;
+    for class in ["positives", "negatives"] {
+        let d: Vec<f64> = h[class].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        assert_eq!(d.len(), 50);
+        assert!((d.iter().sum::<f64>() * width - 1.0).abs() < 1e-9, "{class}");
+    }
+    fig5_across_tasks(d, &rep, &j);
+
     // A checkpoint changed since scoring is refused in one line that names it.
     let mut bytes = std::fs::read(&ckpt).unwrap();
     bytes.push(0);
@@ -464,4 +475,247 @@ fn result_row(path: &Path, line: &str) -> report::ResultRow {
         p_one_sided_vs_baseline: p(f[9]),
         p_one_sided_vs_swap: p(f[10]),
     }
+}
+
+/// A results.csv as a pipeline writes it, for the given (algo, variant, seeds, mean, std) rows.
+fn results_csv(path: &Path, task: &str, rows: &[(&str, &str, usize, f64, f64)]) -> std::path::PathBuf {
+    let mut s = String::from(
+        "task,algo,variant,seeds,paper_score_mean,paper_score_std,success_mean,p_vs_baseline,p_vs_swap,\
+         p_one_sided_vs_baseline,p_one_sided_vs_swap\n",
+    );
+    for (algo, variant, n, m, sd) in rows {
+        s += &format!("{task},{algo},{variant},{n},{m},{sd},0.5,,,,\n");
+    }
+    std::fs::write(path, s).unwrap();
+    path.to_path_buf()
+}
+
+/// The six agents of one task: mem > swap > baseline for TD3+BC (clearly), swap > mem for TD3.
+fn six(shift: f64) -> Vec<(&'static str, &'static str, usize, f64, f64)> {
+    vec![
+        ("td3bc", "baseline", 5, 10.0 + shift, 1.0),
+        ("td3bc", "swap", 5, 20.0 + shift, 1.0),
+        ("td3bc", "mem", 5, 30.0 + shift, 1.0),
+        ("td3", "baseline", 5, 10.0 + shift, 2.0),
+        ("td3", "swap", 5, 25.0 + shift, 2.0),
+        ("td3", "mem", 5, 24.0 + shift, 2.0),
+    ]
+}
+
+fn table2(inputs: &[&Path], out: &Path, extra: &[&str]) -> std::process::Output {
+    etl().arg("table2").args(inputs).arg("-o").arg(out).args(extra).output().unwrap()
+}
+
+#[test]
+fn table2_assembles_the_papers_layout_with_its_values_and_tests() {
+    let dir = tempfile::tempdir().unwrap();
+    let push = results_csv(&dir.path().join("push.csv"), "FetchPush", &six(0.0));
+    let reach = results_csv(&dir.path().join("reach.csv"), "FetchReach-v4", &six(10.0));
+    let reference = dir.path().join("paper.csv");
+    let mut r = String::from("# a hand-made reference\ntask,agent,mean,std\n");
+    for (t, short) in [("FetchPush", 1.0), ("FetchPick", 2.0)] {
+        for (i, a) in ["TD3BC-mem", "TD3BC-swap", "TD3BC", "TD3-mem", "TD3-swap", "TD3"].iter().enumerate() {
+            r += &format!("{t},{a},{},{}\n", short * 10.0 + i as f64, 0.5);
+        }
+    }
+    std::fs::write(&reference, r).unwrap();
+    let out = dir.path().join("t2");
+    let o = table2(&[&push, &reach], &out, &["--reference", reference.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = std::fs::read_to_string(out.join("table2.md")).unwrap();
+    assert_eq!(md, text(&o.stdout));
+
+    // Layout: the paper's six columns, twelve rows (ours, then the paper's), in the paper's order.
+    let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| TD3")).collect();
+    let names: Vec<&str> = rows.iter().map(|l| l.split(" | ").next().unwrap().trim_start_matches("| ")).collect();
+    assert_eq!(
+        names,
+        [
+            "TD3BC-mem (pgser)",
+            "TD3BC-mem (paper)",
+            "TD3BC-swap (pgser)",
+            "TD3BC-swap (paper)",
+            "TD3BC (pgser)",
+            "TD3BC (paper)",
+            "TD3-mem (pgser)",
+            "TD3-mem (paper)",
+            "TD3-swap (pgser)",
+            "TD3-swap (paper)",
+            "TD3 (pgser)",
+            "TD3 (paper)"
+        ]
+    );
+    assert!(md.contains("| agent | FetchReach | FetchPush | FetchPick | FetchSlide | HandBlock-Z | HandEgg-Rotate |"));
+    let cells = |row: &str| -> Vec<String> {
+        let l = rows.iter().find(|l| l.starts_with(&format!("| {row} |"))).unwrap();
+        l.trim_matches('|').split('|').skip(1).map(|c| c.trim().to_string()).collect()
+    };
+    // TD3BC-mem: 40 and 30 ± 1 over 5 seeds, far above baseline and swap: both marks up.
+    assert_eq!(
+        cells("TD3BC-mem (pgser)"),
+        ["40.00 ± 1.00 ▲b ▲s", "30.00 ± 1.00 ▲b ▲s", "not run", "not run", "not run", "not run"]
+    );
+    // TD3-mem is 1 below swap with std 2 over 5 seeds: not significant against swap.
+    assert_eq!(cells("TD3-mem (pgser)")[1], "24.00 ± 2.00 ▲b");
+    assert_eq!(cells("TD3 (pgser)")[1], "10.00 ± 2.00");
+    // The paper's values where the reference has them, a dash where it does not.
+    assert_eq!(cells("TD3BC-mem (paper)"), ["—", "10.00 ± 0.50", "20.00 ± 0.50", "—", "—", "—"]);
+    assert_eq!(cells("TD3 (paper)")[1], "15.00 ± 0.50");
+
+    // One line per measured task on the ordering, with the p of each comparison.
+    let p = |a: (f64, f64), b: (f64, f64)| report::welch_from_summary((a.0, a.1, 5), (b.0, b.1, 5)).unwrap().2;
+    let push_line = md.lines().find(|l| l.starts_with("- **FetchPush**")).unwrap();
+    assert!(push_line.contains("TD3BC: mem ≥ swap ≥ baseline holds (30.00 / 20.00 / 10.00)"), "{push_line}");
+    assert!(push_line.contains("TD3: mem ≥ swap ≥ baseline does not hold (24.00 / 25.00 / 10.00)"), "{push_line}");
+    assert!(push_line.contains(&format!("mem vs swap not significant (p = {:.3})", p((24.0, 2.0), (25.0, 2.0)))));
+    assert!(md.lines().any(|l| l.starts_with("- **FetchReach**")));
+    assert!(!md.contains("- **FetchSlide**"), "no ordering line for a task not run");
+
+    // The CSV: all 36 cells, measured or not, with the p values recomputed from the summaries.
+    let csv = std::fs::read_to_string(out.join("table2.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 37);
+    let mem = lines.iter().find(|l| l.starts_with("FetchPush,TD3BC-mem,")).unwrap();
+    let f: Vec<&str> = mem.split(',').collect();
+    assert_eq!(&f[..8], ["FetchPush", "TD3BC-mem", "5", "30", "1", "▲b ▲s", "10", "0.5"]);
+    assert_eq!(f[8].parse::<f64>().unwrap(), p((30.0, 1.0), (10.0, 1.0)));
+    assert!(f[10].ends_with("push.csv:4"), "{}", f[10]);
+    assert!(lines.iter().any(|l| *l == "FetchSlide,TD3,0,,,,,,,,not run"));
+}
+
+#[test]
+fn table2_refuses_duplicates_unknown_tasks_and_missing_learners_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t2");
+    let refused = |inputs: &[&Path], want: &[&str]| {
+        let o = table2(inputs, &out, &[]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        for w in want {
+            assert!(err.contains(w), "{err} should contain {w}");
+        }
+        assert!(!out.exists(), "nothing may be written: {err}");
+    };
+    let a = results_csv(&dir.path().join("a.csv"), "FetchPush", &six(0.0));
+    let b = results_csv(&dir.path().join("b.csv"), "FetchPush", &six(0.0)[2..3]);
+    // The same cell in two files: both named, with their lines.
+    refused(&[&a, &b], &["b.csv:2", "FetchPush TD3BC-mem", "a.csv:4"]);
+    // The same cell twice in one file.
+    let mut rows = six(0.0);
+    rows.push(("td3", "swap", 3, 1.0, 1.0));
+    let twice = results_csv(&dir.path().join("twice.csv"), "FetchSlide", &rows);
+    refused(&[&twice], &["twice.csv:8", "FetchSlide TD3-swap", "twice.csv:6"]);
+    // A task the paper does not have.
+    let other = results_csv(&dir.path().join("other.csv"), "PointReach", &six(0.0));
+    refused(&[&other], &["other.csv:2", "PointReach", "not in the paper's Table 2"]);
+    // A learner missing: TD3+BC only (as the exploratory hand run).
+    let half = results_csv(&dir.path().join("half.csv"), "HandManipulateBlockRotateZ", &six(0.0)[..3]);
+    refused(&[&half], &["half.csv", "HandManipulateBlockRotateZ has no TD3-mem, TD3-swap, TD3"]);
+    // Not a results.csv.
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "a,b\n1,2\n").unwrap();
+    refused(&[&bad], &["bad.csv", "no column task"]);
+}
+
+#[test]
+fn table2_reads_the_committed_results_and_the_papers_values() {
+    // The committed FetchPush grid with the compiled-in reference: each FetchPush cell carries the
+    // reference file's value where it has one, and its p values are the ones results.csv carries.
+    let dir = tempfile::tempdir().unwrap();
+    let grid = repo().join("results/fetch_push_grid_cpu/results.csv");
+    let o = table2(&[&grid], dir.path(), &["--json"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let j = last_json(&text(&o.stdout));
+    let cells = j["cells"].as_array().unwrap();
+    assert_eq!(cells.len(), 6);
+    assert_eq!(strings(&j["not_run"]).len(), 5);
+    let reference = std::fs::read_to_string(repo().join("assets/paper_table2.csv")).unwrap();
+    let paper: Vec<Vec<&str>> = reference
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    for c in cells {
+        let want = paper.iter().find(|r| r[0] == "FetchPush" && r[1] == c["agent"].as_str().unwrap());
+        match want {
+            Some(r) => assert_eq!(c["paper_mean"].as_f64().unwrap(), r[2].parse::<f64>().unwrap(), "{c}"),
+            None => assert!(c["paper_mean"].is_null(), "{c}"),
+        }
+    }
+    if paper.is_empty() {
+        let md = std::fs::read_to_string(dir.path().join("table2.md")).unwrap();
+        assert!(md.contains("holds none of the paper's values yet"), "an empty reference must say so");
+    }
+    let committed = std::fs::read_to_string(&grid).unwrap();
+    for line in committed.lines().filter(|l| l.contains(",mem,")) {
+        let f: Vec<&str> = line.split(',').collect();
+        let agent = if f[1] == "td3" { "TD3-mem" } else { "TD3BC-mem" };
+        let c = cells.iter().find(|c| c["agent"] == agent).unwrap();
+        for (key, col) in [("p_vs_baseline", 7), ("p_vs_swap", 8)] {
+            let (ours, theirs) = (c[key].as_f64().unwrap(), f[col].parse::<f64>().unwrap());
+            assert!((ours - theirs).abs() <= 1e-9 * theirs, "{agent} {key}: {ours} vs {theirs}");
+        }
+    }
+}
+
+/// `pgser-etl fig5` on the report `rep` (FetchReach) and copies of it relabelled as the other
+/// tasks: a panel per task in the paper's order, Table 1 across tasks with both negatives, and
+/// one-line refusals of a duplicate task, a task the paper does not have and an old report.
+fn fig5_across_tasks(d: &Path, rep: &Path, j: &serde_json::Value) {
+    let one = d.join("fig5_one");
+    let o = etl().arg("fig5").arg(rep).arg("-o").arg(&one).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(png_size(&one.join("fig5_all.png")), (600, 450));
+    assert!(text(&o.stderr).contains("no report for FetchPush, FetchPickAndPlace"), "{}", text(&o.stderr));
+
+    let mut inputs = Vec::new();
+    for task in
+        ["HandManipulateEggRotate", "FetchSlide", "FetchPush", "HandManipulateBlockRotateZ", "FetchPickAndPlace"]
+    {
+        let mut k = j.clone();
+        k["task"] = serde_json::json!(task);
+        let f = d.join(format!("{task}.json"));
+        std::fs::write(&f, k.to_string()).unwrap();
+        inputs.push(f);
+    }
+    inputs.push(rep.join("table1.json"));
+    let all = d.join("fig5_all");
+    let o = etl().arg("fig5").args(&inputs).arg("-o").arg(&all).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(png_size(&all.join("fig5_all.png")), (1800, 900));
+    let md = std::fs::read_to_string(all.join("table1_all.md")).unwrap();
+    assert_eq!(md, text(&o.stdout));
+    assert!(
+        md.contains("| classifier | FetchReach | FetchPush | FetchPick | FetchSlide | HandBlock-Z | HandEgg-Rotate |"),
+        "{md}"
+    );
+    // Each cell: the paper's negatives' accuracy / the controlled negatives'.
+    let c0 = &j["classifiers"][0];
+    let k0 = &j["controlled"]["classifiers"][0];
+    let cell = format!("{:.3} / {:.3}", c0["accuracy"].as_f64().unwrap(), k0["accuracy"].as_f64().unwrap());
+    let row = md.lines().find(|l| l.starts_with(&format!("| {} |", c0["name"].as_str().unwrap()))).unwrap();
+    assert_eq!(row.matches(&cell).count(), 6, "{row}");
+
+    let refused = |inputs: &[&Path], want: &str| {
+        let out = d.join("fig5_refused");
+        let o = etl().arg("fig5").args(inputs).arg("-o").arg(&out).output().unwrap();
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(want), "{err} should say {want}");
+        assert!(!out.exists());
+    };
+    refused(&[rep, inputs[5].as_path()], "a second report for FetchReach");
+    let mut k = j.clone();
+    k["task"] = serde_json::json!("PointReach");
+    let f = d.join("point.json");
+    std::fs::write(&f, k.to_string()).unwrap();
+    refused(&[f.as_path()], "task PointReach is not one of the paper's");
+    let mut k = j.clone();
+    k.as_object_mut().unwrap().remove("fig5_hist");
+    let f = d.join("old.json");
+    std::fs::write(&f, k.to_string()).unwrap();
+    refused(&[f.as_path()], "has no fig5_hist");
 }

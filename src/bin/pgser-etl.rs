@@ -170,6 +170,47 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Fig. 5 and Table 1 across tasks: a panel per task from several reports' table1.json.
+    #[command(
+        after_help = "Example:\n  pgser-etl fig5 out/fetch_*_grid_cpu/report out/hand_*_grid_cpu/report -o fig5/\n\n\
+        Each input is a table1.json of `pgser-etl report` (a pipeline's report step), or the folder holding it. \
+        Panels follow the paper's task order, three to a row. Writes DIR/fig5_all.png and DIR/table1_all.md \
+        (each classifier's accuracy with the paper's negatives and with the controlled ones, per task)."
+    )]
+    Fig5 {
+        /// Reports: table1.json files or their folders.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Output folder (created if missing).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// The paper's Table 2 across tasks: several pipelines' results.csv in one table, the paper's values beside.
+    #[command(
+        after_help = "Examples:\n  pgser-etl table2 results/fetch_*_grid_cpu/results.csv results/hand_*_grid_cpu/results.csv -o table2/\n  \
+        pgser-etl table2 out/fetch_push/results/results.csv -o table2/ --reference my_table2.csv\n\n\
+        Rows TD3BC-mem, TD3BC-swap, TD3BC, TD3-mem, TD3-swap, TD3, each with the paper's value beneath; a column per \
+        task of the paper (FetchReach, FetchPush, FetchPick, FetchSlide, HandBlock-Z, HandEgg-Rotate). A task with \
+        no results is marked 'not run'; a cell given twice, a task or row the paper does not have, or a task with \
+        only some of its six agents is an error. Welch's t-test on the per-seed scores marks mem against baseline \
+        and swap, and a line per task says whether mem >= swap >= baseline holds. Writes DIR/table2.md and \
+        DIR/table2.csv."
+    )]
+    Table2 {
+        /// results.csv files (a pipeline's out folder has one under results/).
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Output folder (created if missing).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// The paper's values (CSV: task,agent,mean,std; '#' lines name the source). Default: the copy
+        /// compiled in, from the paper's Table 2.
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// Print a JSON summary instead of the markdown table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Run SQL over pgser tables and CSV files (polars' SQL on lazy scans); print or write the result.
     #[command(
         after_help = "Each FILE is a table named by its file stem (scored.parquet is `scored`), or by NAME=FILE. \
@@ -561,6 +602,32 @@ fn main() -> ExitCode {
             } else {
                 print!("{}", report::table1_markdown(&r));
                 println!("\nFig. 5: {}", r.fig5.display());
+            }
+            Ok(())
+        }
+        Command::Fig5 { inputs, output } => {
+            let f = report::fig5_all(&report::Fig5Options { inputs, out_dir: output })?;
+            print!(
+                "{}",
+                std::fs::read_to_string(&f.table1).with_context(|| format!("{}: cannot read", f.table1.display()))?
+            );
+            eprintln!("wrote {} ({} panels) and {}", f.figure.display(), f.tasks.len(), f.table1.display());
+            if !f.missing.is_empty() {
+                eprintln!("no report for {}", f.missing.join(", "));
+            }
+            Ok(())
+        }
+        Command::Table2 { inputs, output, reference, json } => {
+            let t = report::table2(&report::Table2Options { inputs, reference, out_dir: output })?;
+            if json {
+                println!("{}", serde_json::to_string(&t)?);
+            } else {
+                print!(
+                    "{}",
+                    std::fs::read_to_string(&t.markdown)
+                        .with_context(|| format!("{}: cannot read", t.markdown.display()))?
+                );
+                eprintln!("wrote {} and {}", t.markdown.display(), t.csv.display());
             }
             Ok(())
         }

@@ -24,7 +24,7 @@ pub const KNN_MAX_TRAIN: usize = 5_000;
 const STREAM_SPLIT: u64 = 3;
 
 /// One classifier's held-out accuracy at telling positives (1) from negatives (0) by Q alone.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct ClassifierScore {
     pub name: String,
     pub train: usize,

@@ -17,10 +17,12 @@
 //! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
 
 mod classify;
+mod fig5;
 mod negatives;
 mod plot;
 mod qreport;
 mod results;
+mod table2;
 
 use std::io::Write;
 use std::path::Path;
@@ -28,9 +30,14 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 pub use classify::{ClassifierScore, classify};
+pub use fig5::{Fig5All, Fig5Options, fig5_all};
 pub use negatives::{Negatives, negatives};
-pub use qreport::{ControlledTable1, QReport, QReportOptions, Table1, q_report, table1, table1_markdown};
-pub use results::{BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_greater, welch_t_test};
+pub use qreport::{ControlledTable1, Fig5Hist, QReport, QReportOptions, Table1, q_report, table1, table1_markdown};
+pub use results::{
+    ALPHA, BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_from_summary, welch_greater,
+    welch_t_test,
+};
+pub use table2::{Table2, Table2Cell, Table2Options, table2};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.
 pub const FIG_SIZE: (u32, u32) = (900, 600);

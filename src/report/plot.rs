@@ -147,6 +147,14 @@ pub fn densities(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<f64> {
     counts.into_iter().map(|c| c as f64 / (n * width)).collect()
 }
 
+/// One panel of overlaid density histograms, already binned over `range` (equal bins).
+pub struct DensityPanel {
+    pub title: String,
+    pub range: (f64, f64),
+    /// (label, density per bin, colour) of each histogram.
+    pub series: Vec<(String, Vec<f64>, RGBColor)>,
+}
+
 /// Overlaid semi-transparent density histograms over `[lo, hi]` (Fig. 5).
 #[allow(clippy::too_many_arguments)]
 pub fn density_histograms(
@@ -159,26 +167,57 @@ pub fn density_histograms(
     bins: usize,
     series: &[HistSeries<'_>],
 ) -> Result<()> {
-    let dens: Vec<Vec<f64>> = series.iter().map(|s| densities(s.values, lo, hi, bins)).collect();
-    let top = dens.iter().flatten().copied().fold(0.0f64, f64::max);
+    let panel = DensityPanel {
+        title: title.to_string(),
+        range: (lo, hi),
+        series: series.iter().map(|s| (s.label.clone(), densities(s.values, lo, hi, bins), s.color)).collect(),
+    };
+    save_png(path, size, |root| draw_densities(root, (x_label, y_label), &panel))
+}
+
+/// Several density panels in one figure, `cols` to a row in the given order (Fig. 5 across
+/// tasks, one panel per task as in the paper).
+pub fn density_panels(
+    path: &Path,
+    size: (u32, u32),
+    cols: usize,
+    labels: (&str, &str),
+    panels: &[DensityPanel],
+) -> Result<()> {
+    let rows = panels.len().div_ceil(cols.max(1)).max(1);
+    save_png(path, size, |root| {
+        for (area, panel) in root.split_evenly((rows, cols.max(1))).iter().zip(panels) {
+            draw_densities(area, labels, panel)?;
+        }
+        Ok(())
+    })
+}
+
+/// One panel's histograms as bars, with its title, axes and legend.
+fn draw_densities(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    labels: (&str, &str),
+    panel: &DensityPanel,
+) -> Result<()> {
+    let (lo, hi) = panel.range;
+    let bins = panel.series.iter().map(|s| s.1.len()).max().unwrap_or(1).max(1);
+    let top = panel.series.iter().flat_map(|s| s.1.iter()).copied().fold(0.0f64, f64::max);
     let top = if top > 0.0 { top * 1.1 } else { 1.0 };
     let width = (hi - lo) / bins as f64;
-    save_png(path, size, |root| {
-        let mut chart = frame(root, title, (x_label, y_label), lo..hi, 0.0..top, 25)?;
-        for (s, d) in series.iter().zip(&dens) {
-            let style = s.color.mix(0.45).filled();
-            let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
-                let x0 = lo + i as f64 * width;
-                Rectangle::new([(x0, 0.0), (x0 + width, *h)], style)
-            });
-            chart
-                .draw_series(bars)
-                .map_err(|e| anyhow!("{e}"))?
-                .label(s.label.clone())
-                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 16, y + 6)], style));
-        }
-        legend(&mut chart, SeriesLabelPosition::UpperLeft)
-    })
+    let mut chart = frame(area, &panel.title, labels, lo..hi, 0.0..top, 25)?;
+    for (label, d, color) in &panel.series {
+        let style = color.mix(0.45).filled();
+        let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
+            let x0 = lo + i as f64 * width;
+            Rectangle::new([(x0, 0.0), (x0 + width, *h)], style)
+        });
+        chart
+            .draw_series(bars)
+            .map_err(|e| anyhow!("{e}"))?
+            .label(label.clone())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 16, y + 6)], style));
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperLeft)
 }
 
 /// One curve: mean over seeds at each x, with a ±std band.

@@ -88,9 +88,22 @@ pub struct QReport {
     pub classifiers: Vec<ClassifierScore>,
     /// Table 1 with controlled negatives: the positive transitions with swapped goals.
     pub controlled: ControlledTable1,
+    /// Fig. 5's two histograms as drawn, so a figure across tasks (`pgser-etl fig5`) is drawn
+    /// from the reports' table1.json alone, without their scored tables and checkpoints.
+    pub fig5_hist: Fig5Hist,
     pub fig5: PathBuf,
     pub table1_md: PathBuf,
     pub json: PathBuf,
+}
+
+/// Fig. 5's histograms: [`HIST_BINS`] densities of Q over [lo, hi] = [−1/(1−γ), 0] for the
+/// positives (own goals) and the paper's negatives (random goal swaps).
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct Fig5Hist {
+    pub lo: f64,
+    pub hi: f64,
+    pub positives: Vec<f64>,
+    pub negatives: Vec<f64>,
 }
 
 /// Table 1 with controlled negatives (the `controlled` key of table1.json): one swapped row of
@@ -214,6 +227,12 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
             negatives_available: t.negatives.controlled_available,
             negative_q_mean: mean(&t.negatives.controlled),
             classifiers: t.controlled,
+        },
+        fig5_hist: Fig5Hist {
+            lo,
+            hi: 0.0,
+            positives: plot::densities(&positives, lo, 0.0, HIST_BINS),
+            negatives: plot::densities(negatives, lo, 0.0, HIST_BINS),
         },
         fig5,
         table1_md,

@@ -314,16 +314,25 @@ pub fn welch_t_test(a: &[f64], b: &[f64]) -> Option<(f64, f64, f64)> {
     if a.len() < 2 || b.len() < 2 {
         return None;
     }
-    let (ma, sa) = mean_std(a);
-    let (mb, sb) = mean_std(b);
-    let (va, vb) = (sa * sa / a.len() as f64, sb * sb / b.len() as f64);
+    let ((ma, sa), (mb, sb)) = (mean_std(a), mean_std(b));
+    welch_from_summary((ma, sa, a.len()), (mb, sb, b.len()))
+}
+
+/// [`welch_t_test`] from each side's (mean, sample std, n) alone, which is all Welch's test
+/// needs: Table 2 across tasks tests the cells of pipelines' results.csv files this way.
+pub fn welch_from_summary(a: (f64, f64, usize), b: (f64, f64, usize)) -> Option<(f64, f64, f64)> {
+    let ((ma, sa, na), (mb, sb, nb)) = (a, b);
+    if na < 2 || nb < 2 {
+        return None;
+    }
+    let (va, vb) = (sa * sa / na as f64, sb * sb / nb as f64);
     let se2 = va + vb;
     if se2 <= 0.0 || !se2.is_finite() {
         return None;
     }
     let t = (ma - mb) / se2.sqrt();
     // Welch–Satterthwaite.
-    let df = se2 * se2 / (va * va / (a.len() - 1) as f64 + vb * vb / (b.len() - 1) as f64);
+    let df = se2 * se2 / (va * va / (na - 1) as f64 + vb * vb / (nb - 1) as f64);
     let dist = StudentsT::new(0.0, 1.0, df).ok()?;
     // 2·sf(|t|) rather than 2·(1 − cdf): keeps precision for tiny p.
     let p = (2.0 * dist.sf(t.abs())).min(1.0);
