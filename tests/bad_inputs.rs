@@ -2,6 +2,8 @@
 
 mod common;
 
+use std::path::Path;
+
 use common::*;
 
 #[test]
@@ -110,23 +112,48 @@ fn a_closed_stdout_ends_the_command_quietly() {
 #[test]
 fn a_file_size_limit_mid_write_fails_in_one_line_and_keeps_the_old_output() {
     let dir = tempfile::tempdir().unwrap();
+    let s = |x: &Path| x.display().to_string();
+    // Inputs for the writers that read pgser's own files: a table and a small critic.
+    let inputs = dir.path().join("inputs");
+    std::fs::create_dir(&inputs).unwrap();
     let pkl = repo().join("data/fetch_reach_random_200.pkl");
-    let exe = env!("CARGO_BIN_EXE_pgser-etl");
-    let cases: [(&str, Vec<String>); 3] = [
-        ("traj.parquet", vec!["convert".into(), pkl.display().to_string(), "--task".into(), "FetchReach".into()]),
-        (
-            "random.pkl",
-            ["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "200", "--seed", "0"]
-                .map(String::from)
-                .to_vec(),
-        ),
-        (
-            "random.parquet",
-            ["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "200", "--seed", "0"]
-                .map(String::from)
-                .to_vec(),
-        ),
+    let traj = inputs.join("traj.parquet");
+    convert_ok(&[&pkl], &traj, &["--task".into(), "FetchReach".into()]);
+    let q = inputs.join("q.ckpt");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", &s(&traj), "-o", &s(&q), "--updates", "20", "--hidden", "32", "--batch-size", "32"])
+        .args(["--eval-episodes", "0"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+
+    // Training's saves (checkpoint, resume state, metrics) under the limit: one line naming the
+    // file, nothing left beside them.
+    let train_dir = dir.path().join("train");
+    std::fs::create_dir(&train_dir).unwrap();
+    let o = std::process::Command::new("bash")
+        .arg("-c")
+        .arg("ulimit -f 64; exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_pgser-train"))
+        .args(["--data", &s(&traj), "-o", &s(&train_dir.join("run.ckpt")), "--updates", "20", "--eval-episodes", "0"])
+        .output()
+        .unwrap();
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "pgser-train: {:?}: {err}", o.status);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("run.ckpt") && err.contains("File too large"), "{err}");
+    assert_eq!(std::fs::read_dir(&train_dir).unwrap().count(), 0, "pgser-train left files: {err}");
+
+    let collect = ["collect", "--task", "FetchReach", "--policy", "random", "--episodes", "200", "--seed", "0"];
+    // (output, arguments); `export` never overwrites, so its "previous output" is no file at all.
+    let cases: Vec<(&str, Vec<String>)> = vec![
+        ("traj.parquet", vec!["convert".into(), s(&pkl), "--task".into(), "FetchReach".into()]),
+        ("random.pkl", collect.map(String::from).to_vec()),
+        ("random.parquet", collect.map(String::from).to_vec()),
+        ("scored.parquet", ["score", "--q", &s(&q), "--data", &s(&traj), "--swaps", "2"].map(String::from).to_vec()),
+        ("export.pkl", ["export", &s(&traj), "--format", "wgcsl"].map(String::from).to_vec()),
     ];
+    let exe = env!("CARGO_BIN_EXE_pgser-etl");
     for (name, args) in cases {
         let out_dir = dir.path().join(name.replace('.', "_"));
         std::fs::create_dir(&out_dir).unwrap();
@@ -149,7 +176,12 @@ fn a_file_size_limit_mid_write_fails_in_one_line_and_keeps_the_old_output() {
         assert!(o.status.success(), "{name}: {}", text(&o.stderr));
         let old = std::fs::read(&out).unwrap();
         assert!(old.len() > 64 * 1024, "{name}: {} bytes is too small to cross the limit", old.len());
-        std::fs::write(&out, b"previous complete output").unwrap();
+        let overwrites = args[0] != "export";
+        if overwrites {
+            std::fs::write(&out, b"previous complete output").unwrap();
+        } else {
+            std::fs::remove_file(&out).unwrap();
+        }
 
         let o = run(Some(64));
         let err = text(&o.stderr);
@@ -157,13 +189,18 @@ fn a_file_size_limit_mid_write_fails_in_one_line_and_keeps_the_old_output() {
         assert_eq!(o.status.code(), Some(1), "{name}: killed or wrong exit ({:?}): {line}", o.status);
         assert_eq!(line.lines().count(), 1, "{name}: {err}");
         assert!(line.starts_with("pgser-etl: error: ") && line.contains(name), "{name}: {line}");
-        assert!(line.contains("File too large") || line.contains("too large"), "{name}: {line}");
+        assert!(line.contains("File too large"), "{name}: {line}");
         let left: Vec<String> = std::fs::read_dir(&out_dir)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
-        assert_eq!(left, [name.to_string()], "{name}: temporary files left behind");
-        assert_eq!(std::fs::read(&out).unwrap(), b"previous complete output", "{name}: the old output was touched");
+        if overwrites {
+            assert_eq!(left, [name.to_string()], "{name}: temporary files left behind");
+            assert_eq!(std::fs::read(&out).unwrap(), b"previous complete output", "{name}: the old output was touched");
+            std::fs::remove_file(&out).unwrap();
+        } else {
+            assert!(left.is_empty(), "{name}: files left behind: {left:?}");
+        }
 
         // Space back: the same bytes as the first, unlimited run.
         let o = run(None);
