@@ -411,3 +411,33 @@ fn a_missing_expert_is_trained_online_and_the_data_collected_from_it() {
     assert!(err.contains("expert_checkpoint") && err.contains("trained on FetchReach, not FetchPush"), "{err}");
     assert!(!dir.path().join("push").exists(), "nothing written");
 }
+
+/// A run's records name outputs as that run planned them, relative to the folder it was started
+/// in; a run or `pipeline status` started from another folder (the file given by another path)
+/// finds every step up to date and runs nothing.
+#[test]
+fn status_and_rerun_agree_from_any_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let sub = dir.path().join("pipelines");
+    std::fs::create_dir(&sub).unwrap();
+    pipeline(&sub, 20, 2);
+    let here = |cwd: &Path, file: &str, cmd: &[&str]| {
+        let o = etl().current_dir(cwd).args(["pipeline"]).args(cmd).arg(file).output().unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        o
+    };
+    let first = common::step_statuses(&here(&sub, "tiny.toml", &["run", "--json", "--threads", "2"]));
+    assert!(first.values().all(|s| s == "ran"), "{first:?}");
+    let before = snapshot(&sub.join("out"));
+
+    // From the parent folder, the same file as pipelines/tiny.toml.
+    let states: serde_json::Value =
+        serde_json::from_slice(&here(dir.path(), "pipelines/tiny.toml", &["status", "--json"]).stdout).unwrap();
+    assert_eq!(states.as_array().unwrap().len(), first.len());
+    for s in states.as_array().unwrap() {
+        assert_eq!(s["state"], "up to date", "{s}");
+    }
+    let again = common::step_statuses(&here(dir.path(), "pipelines/tiny.toml", &["run", "--json"]));
+    assert!(again.values().all(|s| s == "up to date"), "{again:?}");
+    assert!(snapshot(&sub.join("out")) == before, "a rerun from another folder changed outputs");
+}

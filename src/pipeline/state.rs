@@ -52,6 +52,26 @@ pub struct Record {
     pub job: Option<String>,
 }
 
+impl Record {
+    /// The sha256 recorded for `output`, a path as planned now under the out folder `out`.
+    /// A record keeps each output's path as the run that wrote it planned it, relative to the
+    /// folder that run was started in (`../out/x/q.ckpt` from `pipelines/`, `out/x/q.ckpt` from
+    /// the repository root), so where the strings differ the output is found by its path inside
+    /// the out folder: `pipeline status` and `pipeline run` give the same answer from any folder
+    /// (they used to call every step of a run started elsewhere "not started" and redo it).
+    pub fn output_sha(&self, out: &Path, output: &Path) -> Option<&String> {
+        if let Some(sha) = self.outputs.get(&output.display().to_string()) {
+            return Some(sha);
+        }
+        let inside = output.strip_prefix(out).ok()?;
+        let mut found = self.outputs.iter().filter(|(p, _)| Path::new(p.as_str()).ends_with(inside));
+        match (found.next(), found.next()) {
+            (Some((_, sha)), None) => Some(sha),
+            _ => None,
+        }
+    }
+}
+
 /// sha256 of files, computed once per run per (path, size, mtime).
 #[derive(Default, Clone)]
 pub struct Hashes {
@@ -137,7 +157,7 @@ pub fn up_to_date(out: &Path, step: &Step, key: &str, hashes: &mut Hashes) -> bo
         return false;
     }
     step.outputs.iter().all(|p| {
-        let want = r.outputs.get(&p.display().to_string());
+        let want = r.output_sha(out, p);
         want.is_some() && hashes.sha256(p).ok().flatten().as_ref() == want
     })
 }
@@ -180,7 +200,7 @@ pub fn forecast(out: &Path, steps: &[Step], hashes: &mut Hashes) -> Result<Vec<F
         for o in &step.outputs {
             let sha = match (runs, &record) {
                 (false, _) => hashes.sha256(o)?,
-                (true, Some(r)) => r.outputs.get(&o.display().to_string()).cloned(),
+                (true, Some(r)) => r.output_sha(out, o).cloned(),
                 (true, None) => None,
             };
             will_be.insert(o.clone(), sha);
