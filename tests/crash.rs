@@ -1,0 +1,190 @@
+//! Killed at any moment: a small pipeline (convert, Q pre-training, scoring, report, a stack of
+//! baseline / swap / mem agents, results) is SIGKILLed at moments drawn from a seed, spread over
+//! a whole run, each run continuing from what the one before left. After every kill:
+//! - every file under `out/` that a reader opens is whole: tables read back, checkpoints load,
+//!   records and metrics parse, PNGs end with their last chunk (temporary files of a killed
+//!   writer are allowed until the next run);
+//! - no step record claims a step whose outputs are not exactly the bytes it recorded.
+//!
+//! Then the pipeline runs to its end, and every output must equal an uninterrupted run's, byte
+//! for byte, with no temporary file left. `make test` runs a few kills
+//! (`PGSER_CRASH_KILLS`, default 6); the long run sets it to hundreds.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use common::{etl, snapshot, text};
+use pgser::nprandom::NpRandom;
+
+/// The pipeline under test: the committed FetchReach sample, every step kind of a pickle-fed
+/// run, checkpoints saved often so that kills land between and inside saves.
+fn pipeline(dir: &Path) -> PathBuf {
+    let data = common::repo().join("data");
+    let toml = format!(
+        r#"
+name = "crash"
+task = "FetchReach"
+out = "out"
+[data]
+pickles = ["{e}", "{r}"]
+episodes = [12, 24]
+[train]
+batch_size = 64
+eval_every = 100
+eval_episodes = 2
+save_every = 50
+[pretrain]
+updates = 300
+[score]
+swaps = 2
+[report]
+seed = 1
+[agents]
+variants = ["baseline", "swap", "mem"]
+seeds = [0, 1]
+updates = 300
+"#,
+        e = data.join("fetch_reach_expert_50.pkl").display(),
+        r = data.join("fetch_reach_random_200.pkl").display(),
+    );
+    let path = dir.join("crash.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+fn run_to_end(dir: &Path) -> Duration {
+    let t = Instant::now();
+    let o = etl().current_dir(dir).args(["pipeline", "run", "crash.toml", "--threads", "2"]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    t.elapsed()
+}
+
+fn files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() { files(&p, out) } else { out.push(p) }
+    }
+}
+
+fn is_temporary(p: &Path) -> bool {
+    let name = p.file_name().unwrap().to_string_lossy();
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
+/// What is wrong with `out` after a kill, one line per fault.
+fn faults(out: &Path) -> Vec<String> {
+    let mut all = Vec::new();
+    files(out, &mut all);
+    let mut bad = Vec::new();
+    let device = pgser::agent::Backend::Cpu.device().unwrap();
+    for p in all.iter().filter(|p| !is_temporary(p)) {
+        let at = p.strip_prefix(out).unwrap().display().to_string();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        let fault = if name.ends_with(".parquet") {
+            let o = etl().args(["inspect", "--json"]).arg(p).output().unwrap();
+            (!o.status.success()).then(|| text(&o.stderr))
+        } else if name.ends_with(".ckpt") {
+            pgser::agent::checkpoint::load(p, device.clone()).err().map(|e| format!("{e:#}"))
+        } else if name.ends_with(".json") {
+            serde_json::from_slice::<serde_json::Value>(&std::fs::read(p).unwrap()).err().map(|e| e.to_string())
+        } else if name.ends_with(".jsonl") {
+            let t = String::from_utf8_lossy(&std::fs::read(p).unwrap()).into_owned();
+            t.lines().find(|l| serde_json::from_str::<serde_json::Value>(l).is_err()).map(|l| format!("bad line {l:?}"))
+        } else if name.ends_with(".png") {
+            let b = std::fs::read(p).unwrap();
+            (!(b.starts_with(b"\x89PNG") && b.len() > 12 && &b[b.len() - 8..b.len() - 4] == b"IEND"))
+                .then(|| "not a whole PNG".to_string())
+        } else {
+            None
+        };
+        if let Some(f) = fault {
+            bad.push(format!("{at}: {}", f.trim()));
+        }
+    }
+    // A record may only name outputs that are exactly the bytes it recorded.
+    for p in all.iter().filter(|p| p.parent().unwrap().ends_with(".pipeline") && !is_temporary(p)) {
+        let Ok(r) = serde_json::from_slice::<serde_json::Value>(&std::fs::read(p).unwrap()) else { continue };
+        for (file, sha) in r["outputs"].as_object().into_iter().flatten() {
+            let got = std::fs::read(out.parent().unwrap().join(file)).ok().map(|b| sha256_hex(&b));
+            if got.as_deref() != sha.as_str() {
+                bad.push(format!("record {} claims {file}, which is not the recorded bytes", p.display()));
+            }
+        }
+    }
+    bad
+}
+
+fn sha256_hex(b: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(b).iter().map(|x| format!("{x:02x}")).collect()
+}
+
+#[test]
+fn killed_at_any_moment_nothing_is_partial_and_the_rerun_is_byte_identical() {
+    let kills: usize = std::env::var("PGSER_CRASH_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
+    let seed: u64 = std::env::var("PGSER_CRASH_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+
+    // The reference: one uninterrupted run, and how long it takes.
+    let reference = tempfile::tempdir().unwrap();
+    pipeline(reference.path());
+    let whole = run_to_end(reference.path());
+    let want = snapshot(&reference.path().join("out"));
+
+    let dir = tempfile::tempdir().unwrap();
+    pipeline(dir.path());
+    let out = dir.path().join("out");
+    let mut rng = NpRandom::new(seed);
+    let mut report = Vec::new();
+    for k in 0..kills {
+        // A moment anywhere in a whole run's time (later runs skip finished steps, so late
+        // moments often find the run already done: that is a kill after the end).
+        let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
+        let mut child = etl()
+            .current_dir(dir.path())
+            .args(["pipeline", "run", "crash.toml", "--threads", "2"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(at);
+        // SAFETY: a plain kill(2) of our own child.
+        unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+        child.wait().unwrap();
+        if out.exists() {
+            let f = faults(&out);
+            assert!(f.is_empty(), "kill {k} at {at:?}:\n{}", f.join("\n"));
+        }
+        report.push(format!("{:.2}", at.as_secs_f64()));
+    }
+    run_to_end(dir.path());
+    let got = snapshot(&out);
+    let extra: Vec<_> = got.keys().filter(|p| !want.contains_key(*p)).collect();
+    assert!(extra.is_empty(), "left behind after {kills} kills (at {report:?} s): {extra:?}");
+    for (p, bytes) in &want {
+        assert!(
+            got.get(p) == Some(bytes),
+            "{}: differs from an uninterrupted run after kills at {report:?} s",
+            p.display()
+        );
+    }
+    eprintln!("{kills} kills at {report:?} s of a {whole:?} run: nothing partial, the rerun byte-identical");
+}
+
+/// The harness would see a partial file: a table cut short is caught by the check above.
+#[test]
+fn the_checks_catch_a_cut_table_and_a_false_record() {
+    let dir = tempfile::tempdir().unwrap();
+    pipeline(dir.path());
+    run_to_end(dir.path());
+    let out = dir.path().join("out");
+    assert!(faults(&out).is_empty());
+    let traj = out.join("traj.parquet");
+    let bytes = std::fs::read(&traj).unwrap();
+    std::fs::write(&traj, &bytes[..bytes.len() / 2]).unwrap();
+    let f = faults(&out);
+    assert!(f.iter().any(|l| l.starts_with("traj.parquet:")), "{f:?}");
+    assert!(f.iter().any(|l| l.contains("claims") && l.contains("traj.parquet")), "{f:?}");
+}
