@@ -22,16 +22,7 @@ use pgser::nprandom::NpRandom;
 /// The pipeline under test: the committed FetchReach sample, every step kind of a pickle-fed
 /// run, checkpoints saved often so that kills land between and inside saves.
 fn pipeline(dir: &Path) -> PathBuf {
-    let data = common::repo().join("data");
-    let toml = format!(
-        r#"
-name = "crash"
-task = "FetchReach"
-out = "out"
-[data]
-pickles = ["{e}", "{r}"]
-episodes = [12, 24]
-[train]
+    let rest = r#"[train]
 batch_size = 64
 eval_every = 100
 eval_episodes = 2
@@ -46,13 +37,8 @@ seed = 1
 variants = ["baseline", "swap", "mem"]
 seeds = [0, 1]
 updates = 300
-"#,
-        e = data.join("fetch_reach_expert_50.pkl").display(),
-        r = data.join("fetch_reach_random_200.pkl").display(),
-    );
-    let path = dir.join("crash.toml");
-    std::fs::write(&path, toml).unwrap();
-    path
+"#;
+    common::sample_pipeline(dir, "crash.toml", "crash", rest)
 }
 
 fn run_to_end(dir: &Path) -> Duration {

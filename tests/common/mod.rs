@@ -108,19 +108,24 @@ pub fn checkpoint_weights(path: &Path) -> Vec<Vec<f32>> {
     [&agent.actor, &agent.critics].iter().flat_map(|n| n.tensors()).map(|(_, v)| v).collect()
 }
 
-/// `DIR/tiny.toml`: FetchReach from the committed sample pickles, with counts small enough for
-/// seconds; its outputs go to `DIR/out`.
-pub fn tiny_pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
+/// `DIR/FILE`: a FetchReach pipeline named `name` on the committed sample pickles (12 expert + 24
+/// random episodes), its outputs in `DIR/out`, with `rest` (its [train], [pretrain], … tables).
+pub fn sample_pipeline(dir: &Path, file: &str, name: &str, rest: &str) -> PathBuf {
     let data = repo().join("data");
     let toml = format!(
-        r#"
-name = "tiny"
-task = "FetchReach"
-out = "out"
-[data]
-pickles = ["{e}", "{r}"]
-episodes = [12, 24]
-[train]
+        "name = \"{name}\"\ntask = \"FetchReach\"\nout = \"out\"\n[data]\npickles = [\"{e}\", \"{r}\"]\nepisodes = [12, 24]\n{rest}",
+        e = data.join("fetch_reach_expert_50.pkl").display(),
+        r = data.join("fetch_reach_random_200.pkl").display(),
+    );
+    let path = dir.join(file);
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+/// `DIR/tiny.toml`: [`sample_pipeline`] with counts small enough for seconds.
+pub fn tiny_pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
+    let rest = format!(
+        r#"[train]
 batch_size = 64
 eval_every = 0
 eval_episodes = 4
@@ -135,13 +140,9 @@ seed = 1
 [agents]
 seeds = [0, 1]
 updates = {agent_updates}
-"#,
-        e = data.join("fetch_reach_expert_50.pkl").display(),
-        r = data.join("fetch_reach_random_200.pkl").display(),
+"#
     );
-    let path = dir.join("tiny.toml");
-    std::fs::write(&path, toml).unwrap();
-    path
+    sample_pipeline(dir, "tiny.toml", "tiny", &rest)
 }
 
 /// Every file under `out` except the step records, by path relative to `out`.

@@ -1,13 +1,11 @@
-//! `pgser-etl`: data jobs. Parses flags and calls the library; nothing else lives here.
+//! `pgser-etl`'s flags: every command and its options as clap reads them (`main.rs` calls the
+//! library with them).
 
 use std::path::PathBuf;
-use std::process::ExitCode;
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
-use pgser::collect::policy::{PolicyKind, PolicySpec};
-use pgser::{cli, collect, convert, inspect, minari, pipeline, progress, query, report, score};
+use pgser::{minari, pipeline, score};
 
 #[derive(Parser)]
 #[command(
@@ -16,13 +14,13 @@ use pgser::{cli, collect, convert, inspect, minari, pipeline, progress, query, r
     long_version = pgser::cli::LONG_VERSION.as_str(),
     about = "pgser data jobs: convert, collect, export, inspect, query, score, report"
 )]
-struct Args {
+pub struct Args {
     #[command(subcommand)]
-    command: Command,
+    pub command: Command,
 }
 
 #[derive(Subcommand)]
-enum Command {
+pub enum Command {
     /// Convert WGCSL-style pickles (without executing them) or a Minari dataset into a Parquet trajectory table.
     #[command(after_help = "Examples:\n  pgser-etl convert expert.pkl -o traj.parquet --task FetchPush\n  \
         pgser-etl convert expert.pkl random.pkl --episodes 500,2000 -o mix.parquet --task FetchPush\n  \
@@ -282,7 +280,7 @@ enum Command {
 }
 
 #[derive(Subcommand)]
-enum PipelineCommand {
+pub enum PipelineCommand {
     /// Run the steps of a pipeline file in order, skipping those already up to date.
     #[command(after_help = "Examples:\n  pgser-etl pipeline run pipelines/demo.toml\n  \
         pgser-etl pipeline run pipelines/fetch_push.toml --until score     # data and scored swaps only\n  \
@@ -380,280 +378,4 @@ enum PipelineCommand {
         #[arg(long)]
         json: bool,
     },
-}
-
-/// Prints a run's report: its tables and summary, or one JSON line.
-fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
-    if json {
-        println!("{}", serde_json::to_string(r)?);
-    } else {
-        for t in [&r.table1, &r.results].into_iter().flatten() {
-            println!("{}", std::fs::read_to_string(t).with_context(|| format!("{}: cannot read", t.display()))?);
-        }
-        print!("{}", pipeline::render(r));
-    }
-    Ok(())
-}
-
-fn main() -> ExitCode {
-    let args = Args::parse();
-    cli::main_with("pgser-etl", || match args.command {
-        Command::Convert { inputs, output, task, threshold, episodes, float32, allow_nonfinite, row_group_rows } => {
-            let opts = convert::ConvertOptions {
-                inputs,
-                output,
-                task,
-                threshold,
-                episodes,
-                float32,
-                allow_nonfinite,
-                row_group_rows,
-                command: cli::command_line(),
-            };
-            let bar = progress::bar("convert", "rows");
-            let s = convert::convert(&opts, &bar)?;
-            bar.finish_and_clear();
-            for k in &s.skipped_keys {
-                eprintln!("pgser-etl: note: skipped {k} (not part of the WGCSL format)");
-            }
-            for note in &s.notes {
-                eprintln!("pgser-etl: note: {note}");
-            }
-            eprintln!(
-                "wrote {}: {} episodes, {} rows, task {}, {} ({:.1} MB)",
-                opts.output.display(),
-                s.episodes,
-                s.rows,
-                s.task.name,
-                s.float_type.name(),
-                s.bytes as f64 / 1e6
-            );
-            Ok(())
-        }
-        Command::Collect { task, policy, episodes, seed, output, noise, epsilon, float32, row_group_rows } => {
-            let opts = collect::CollectOptions {
-                task,
-                policy: PolicySpec { kind: PolicyKind::parse(&policy)?, noise, epsilon },
-                episodes,
-                seed,
-                output,
-                float32,
-                row_group_rows,
-                command: cli::command_line(),
-            };
-            let bar = progress::bar("collect", "episodes");
-            let s = collect::collect(&opts, &bar)?;
-            bar.finish_and_clear();
-            eprintln!(
-                "wrote {}: {} episodes of {} ({} policy), final-step success {:.3} ({}/{}), mean return {:.2}, \
-                 {:.1} MB; {:.0} episodes/s, {:.0} steps/s",
-                opts.output.display(),
-                s.episodes,
-                s.task.name,
-                policy,
-                s.successes as f64 / s.episodes as f64,
-                s.successes,
-                s.episodes,
-                s.mean_return,
-                s.bytes as f64 / 1e6,
-                s.episodes as f64 / s.seconds,
-                s.steps as f64 / s.seconds
-            );
-            Ok(())
-        }
-        Command::Score {
-            checkpoint,
-            data,
-            output,
-            swaps,
-            seed,
-            include_original,
-            device,
-            chunk_episodes,
-            threads,
-            json,
-        } => {
-            let opts = score::ScoreOptions {
-                checkpoint,
-                data,
-                output,
-                swaps,
-                seed,
-                include_original,
-                device,
-                chunk_episodes,
-                threads,
-                command: cli::command_line(),
-            };
-            let bar = progress::bar("score", "transitions");
-            let s = score::score(&opts, &bar)?;
-            bar.finish_and_clear();
-            eprintln!(
-                "wrote {}: {} rows ({} transitions × {}{}), q min/mean/max {:.3}/{:.3}/{:.3}, {:.1} MB; {:.2} s, \
-                 {:.0} rows/s on {} threads",
-                opts.output.display(),
-                s.rows,
-                s.transitions,
-                s.swaps,
-                if s.include_original { " swaps + original" } else { " swaps" },
-                s.q_min,
-                s.q_mean,
-                s.q_max,
-                s.bytes as f64 / 1e6,
-                s.seconds,
-                s.rows_per_sec,
-                s.threads
-            );
-            if json {
-                println!("{}", serde_json::to_string(&s)?);
-            }
-            Ok(())
-        }
-        Command::Pipeline(PipelineCommand::Run {
-            file,
-            until,
-            dry_run,
-            no_measure,
-            device,
-            threads,
-            json,
-            executor,
-            jobs,
-            partition,
-            sbatch_args,
-            array_parallelism,
-            gpus_per_task,
-            wait,
-        }) => {
-            let slurm_only = [
-                ("--partition", partition.is_some()),
-                ("--sbatch-arg", !sbatch_args.is_empty()),
-                ("--array-parallelism", array_parallelism.is_some()),
-                ("--gpus-per-task", gpus_per_task.is_some()),
-                ("--wait", wait),
-            ];
-            let p = pipeline::Pipeline::load(&file)?;
-            let log = |line: &str| eprintln!("pipeline {}: {line}", p.name);
-            if executor == pipeline::Executor::Slurm && !dry_run {
-                anyhow::ensure!(jobs == 1, "--jobs is for --executor local; Slurm runs independent steps at once");
-                let o = pipeline::slurm::SlurmOptions {
-                    until,
-                    device,
-                    threads,
-                    partition,
-                    sbatch_args,
-                    array_parallelism,
-                    gpus_per_task,
-                };
-                let sub = pipeline::slurm::submit(&p, &file, &o, &log)?;
-                if !wait {
-                    for j in &sub.jobs {
-                        println!("{}", if json { serde_json::to_string(j)? } else { j.id.clone() });
-                    }
-                    return Ok(());
-                }
-                let r = pipeline::slurm::wait(&p, &sub, &log)?;
-                print_report(&r, json)?;
-                return pipeline::finished(&r);
-            }
-            // `--executor slurm --dry-run` says which steps would be submitted; its flags are fine.
-            let local = executor == pipeline::Executor::Local;
-            if let Some((flag, _)) = slurm_only.iter().find(|(_, given)| *given && local) {
-                anyhow::bail!("{flag} is for --executor slurm");
-            }
-            if let Some(n) = threads {
-                rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
-            }
-            let o = pipeline::RunOptions { until, dry_run, device, measure: !no_measure, jobs: jobs as usize, threads };
-            let r = pipeline::run(&p, &o, &log)?;
-            print_report(&r, json)
-        }
-        Command::Pipeline(PipelineCommand::Step { file, steps, device, threads }) => {
-            if let Some(n) = threads {
-                rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
-            }
-            let p = pipeline::Pipeline::load(&file)?;
-            pipeline::step(&p, &steps, device, &|line| eprintln!("pipeline {}: {line}", p.name))?;
-            Ok(())
-        }
-        Command::Pipeline(PipelineCommand::Status { file, json }) => {
-            let p = pipeline::Pipeline::load(&file)?;
-            let states = pipeline::status(&p)?;
-            if json {
-                println!("{}", serde_json::to_string(&states)?);
-            } else {
-                print!("{}", pipeline::render_status(&p, &states));
-            }
-            Ok(())
-        }
-        Command::Report { scored, output, positive_episodes, seed, max_samples, svm_max_train, json } => {
-            let opts = report::QReportOptions {
-                scored,
-                out_dir: output,
-                positive_episodes,
-                max_samples,
-                svm_max_train,
-                seed,
-                ..Default::default()
-            };
-            let r = report::q_report(&opts)?;
-            if json {
-                println!("{}", serde_json::to_string(&r)?);
-            } else {
-                print!("{}", report::table1_markdown(&r));
-                println!("\nFig. 5: {}", r.fig5.display());
-            }
-            Ok(())
-        }
-        Command::Fig5 { inputs, output } => {
-            let f = report::fig5_all(&report::Fig5Options { inputs, out_dir: output })?;
-            print!(
-                "{}",
-                std::fs::read_to_string(&f.table1).with_context(|| format!("{}: cannot read", f.table1.display()))?
-            );
-            eprintln!("wrote {} ({} panels) and {}", f.figure.display(), f.tasks.len(), f.table1.display());
-            if !f.missing.is_empty() {
-                eprintln!("no report for {}", f.missing.join(", "));
-            }
-            Ok(())
-        }
-        Command::Table2 { inputs, output, reference, json } => {
-            let t = report::table2(&report::Table2Options { inputs, reference, out_dir: output })?;
-            if json {
-                println!("{}", serde_json::to_string(&t)?);
-            } else {
-                print!(
-                    "{}",
-                    std::fs::read_to_string(&t.markdown)
-                        .with_context(|| format!("{}: cannot read", t.markdown.display()))?
-                );
-                eprintln!("wrote {} and {}", t.markdown.display(), t.csv.display());
-            }
-            Ok(())
-        }
-        Command::Query { sql, inputs, output, csv, json, parquet } => {
-            let format = [(csv, query::Format::Csv), (json, query::Format::Json), (parquet, query::Format::Parquet)]
-                .into_iter()
-                .find_map(|(on, f)| on.then_some(f));
-            let rows = query::query(&query::QueryOptions { sql, inputs, format, output: output.clone() })?;
-            if let Some(out) = output {
-                eprintln!("wrote {}: {rows} rows", out.display());
-            }
-            Ok(())
-        }
-        Command::Export { table, format, output } => {
-            let s = minari::export(&minari::ExportOptions { table, format, output: output.clone() })?;
-            eprintln!("wrote {}: {} episodes of {} (T = {})", output.display(), s.episodes, s.task, s.t);
-            Ok(())
-        }
-        Command::Inspect { file, per_dim, json } => {
-            let s = inspect::inspect(&file)?;
-            if json {
-                println!("{}", serde_json::to_string(&s)?);
-            } else {
-                print!("{}", inspect::render(&s, per_dim));
-            }
-            Ok(())
-        }
-    })
 }
