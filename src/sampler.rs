@@ -7,9 +7,11 @@
 //! original goal otherwise. Rewards are recomputed for the goal each row ends up with, with the
 //! task's reward function, so relabelled and swapped rows are labelled exactly like original ones.
 
+pub mod dump;
 pub mod priority;
 pub mod replay;
 pub mod scored;
+pub mod stream;
 
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};

@@ -56,6 +56,14 @@ fn writer_properties(schema: &Schema) -> WriterProperties {
     b.build()
 }
 
+/// A column of `dim`-vectors (Arrow FixedSizeList of non-null float32) over `values`, moved in
+/// without a copy: how every pgser writer stores observations, goals and actions.
+pub fn f32_vectors(values: Vec<f32>, dim: usize) -> Result<arrow_array::ArrayRef> {
+    let item = std::sync::Arc::new(arrow_schema::Field::new("item", DataType::Float32, false));
+    let values = std::sync::Arc::new(arrow_array::Float32Array::from(values));
+    Ok(std::sync::Arc::new(arrow_array::FixedSizeListArray::try_new(item, dim as i32, values, None)?))
+}
+
 type FileWriter = SerializedFileWriter<BufWriter<File>>;
 
 pub struct TableWriter {

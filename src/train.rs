@@ -8,7 +8,6 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -22,10 +21,9 @@ use crate::eval::{self, EvalReport};
 use crate::nprandom::NpRandom;
 use crate::output::{AtomicFile, sha256_file};
 use crate::progress;
+use crate::sampler::SamplerConfig;
 use crate::sampler::priority::PriorityConfig;
-use crate::sampler::scored::{ScoredSampler, ScoredTable};
-use crate::sampler::{self, SamplerConfig};
-use crate::trajectory::Episodes;
+use crate::sampler::stream::{BatchSource, BatchStream, StreamConfig};
 use rayon::prelude::*;
 
 mod bench;
@@ -77,6 +75,20 @@ pub struct TrainConfig {
     pub log_every: u64,
 }
 
+impl TrainConfig {
+    /// The settings the batch stream depends on.
+    pub fn stream(&self) -> StreamConfig {
+        StreamConfig {
+            sampler: self.sampler.clone(),
+            batch_size: self.batch_size,
+            aug_ratio: self.aug_ratio,
+            priority: self.priority.clone(),
+            aug_in_memory: self.aug_in_memory,
+            seed: self.seed,
+        }
+    }
+}
+
 /// One line of the metrics file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MetricsLine {
@@ -107,9 +119,6 @@ pub fn metrics_path(out: &Path) -> PathBuf {
     p.push(".metrics.jsonl");
     PathBuf::from(p)
 }
-
-/// Spawn key of the batch stream (the agent's streams use 1 and 2).
-const STREAM_BATCHES: u64 = 3;
 
 /// Trains on `data_path` (a trajectory table, or a scored table for the `-mem` variant) into
 /// the checkpoint `out`; `command` is recorded in the checkpoint (the CLI passes its command line,
@@ -149,13 +158,10 @@ pub fn schedule(cfg: &TrainConfig) -> serde_json::Value {
     })
 }
 
-/// A cell's data, batch stream and records while it trains.
+/// A cell's batch stream and records while it trains.
 struct Run {
     cell: Cell,
-    data: Arc<Episodes>,
-    aug: Option<ScoredSampler>,
-    k_aug: usize,
-    batches: NpRandom,
+    batches: BatchStream,
     metrics: Vec<MetricsLine>,
     extra: BTreeMap<String, String>,
     last_eval: Option<EvalReport>,
@@ -163,18 +169,7 @@ struct Run {
 
 impl Run {
     fn next_batch(&mut self) -> Result<Batch> {
-        let cfg = &self.cell.cfg;
-        let mut batch = Batch::default();
-        sampler::sample(&self.data, &cfg.sampler, &mut self.batches, cfg.batch_size - self.k_aug, &mut batch);
-        if let Some(aug) = self.aug.as_mut() {
-            let a = aug.next_batch()?;
-            if cfg.priority.is_beta.is_some() {
-                batch.weight = vec![1.0; batch.n];
-                batch.weight.extend_from_slice(&a.weights);
-            }
-            batch.append(&a.batch);
-        }
-        Ok(batch)
+        Ok(self.batches.next_batch()?.0)
     }
 
     /// Writes agent i of the stack as this cell's checkpoint, resume state and metrics.
@@ -182,7 +177,7 @@ impl Run {
         let (agent, i) = agents.locate(i);
         let out = &self.cell.out;
         let mut resume_extra = BTreeMap::new();
-        resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.words())?);
+        resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.rng().words())?);
         // All three are written first, then put in place one right after the other, checkpoint
         // last: a checkpoint in place always has its metrics (later lines are dropped on resume)
         // and its resume state. Both record their update count and `--resume` refuses a pair
@@ -401,22 +396,8 @@ fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> 
 fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let (data_path, out, cfg) = (&cell.data, &cell.out, &cell.cfg);
     crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
-    if cfg.batch_size == 0 {
-        bail!("--batch-size must be at least 1");
-    }
-    cfg.priority.validate()?;
-    let scored = match crate::table::read_footer(data_path) {
-        Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(data_path)?),
-        _ => None,
-    };
-    // Shared with the prioritized sampler's thread, which rebuilds scored rows from β.
-    let data = Arc::new(match &scored {
-        Some(table) => original_data(table, cfg)?,
-        None => Episodes::load(data_path)?,
-    });
-    if data.t < 2 {
-        bail!("{}: episodes of {} step(s) hold no transition", data_path.display(), data.t);
-    }
+    let stream = cfg.stream();
+    let source = BatchSource::open(data_path, &stream)?;
     let data_sha = sha256_file(data_path)?;
     let mut extra = BTreeMap::new();
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
@@ -424,10 +405,13 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     extra.insert("data_sha256".to_string(), data_sha.clone());
     extra.insert("command".to_string(), command.to_string());
 
-    let (agent, batches, metrics): (Agent, NpRandom, Vec<MetricsLine>) = if cell.resume {
-        restore(out, cfg, &data_sha, device)?
+    let (agent, batches, metrics) = if cell.resume {
+        let (agent, rng, metrics) = restore(out, cfg, &data_sha, device)?;
+        let first = agent.updates;
+        (agent, source.resume(&stream, rng, first)?, metrics)
     } else {
         // The goal normalizer sees achieved goals too: HER and swapping train on them.
+        let data = &source.data;
         let norm = Normalizer::fit(
             &[&data.obs],
             data.task.obs_dim,
@@ -436,58 +420,10 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
             cfg.agent.norm_clip,
         );
         let agent = Agent::new(cfg.agent.clone(), data.task.clone(), norm, cfg.seed, device);
-        (agent, NpRandom::spawned(cfg.seed, &[STREAM_BATCHES]), Vec::new())
-    };
-    let k_aug = if scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
-    let aug = match scored {
-        Some(t) => Some(ScoredSampler::start(
-            t,
-            data.clone(),
-            &cfg.priority,
-            k_aug,
-            cfg.seed,
-            agent.updates,
-            cfg.aug_in_memory,
-        )?),
-        None => None,
+        (agent, source.start(&stream)?, Vec::new())
     };
     let (metrics, last_eval) = continued_metrics(metrics, agent.updates, cfg.eval_every);
-    Ok((Run { cell: cell.clone(), data, aug, k_aug, batches, metrics, extra, last_eval }, agent))
-}
-
-/// The original data β of a scored table: the trajectory table its footer names, checked
-/// against the recorded sha256 so the two halves of a batch come from the same data.
-fn original_data(table: &ScoredTable, cfg: &TrainConfig) -> Result<Episodes> {
-    let at = table.path.display();
-    if cfg.sampler.swap != crate::sampler::Swap::None {
-        bail!(
-            "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
-        );
-    }
-    if !(0.0..=1.0).contains(&cfg.aug_ratio) {
-        bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
-    }
-    beta_of(table)
-}
-
-/// The trajectory table a scored table names, checked: present, unchanged, same task.
-pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
-    let at = table.path.display();
-    let (path, sha) = table.trajectory();
-    if !path.exists() {
-        bail!(
-            "{at}: its original data {} is missing (the footer's path is relative to the scored file)",
-            path.display()
-        );
-    }
-    if sha256_file(&path)? != sha {
-        bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
-    }
-    let data = Episodes::load(&path)?;
-    if data.task != table.task {
-        bail!("{at}: its task differs from that of its original data {}", path.display());
-    }
-    Ok(data)
+    Ok((Run { cell: cell.clone(), batches, metrics, extra, last_eval }, agent))
 }
 
 /// `--resume` refused because the checkpoint belongs to another run: other settings, other data,

@@ -132,3 +132,20 @@ fn score_writes_the_transition_schema() {
         check_table_against_schema(&out, &repo().join("schemas/transition.json"));
     }
 }
+
+#[test]
+fn batches_writes_the_batches_schema() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (table, scored) = reach_tables(tmp.path());
+    let out = tmp.path().join("b.parquet");
+    for (data, extra) in [(&table, &["--swap", "random"][..]), (&scored, &["--is-beta", "0.4"][..])] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+            .args(["batches", "--data", data.to_str().unwrap(), "--count", "3", "--batch-size", "16", "-o"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        check_table_against_schema(&out, &repo().join("schemas/batches.json"));
+    }
+}

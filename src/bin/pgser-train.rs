@@ -105,6 +105,27 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write the first batches a run would train on as a table (one row per sampled transition):
+    /// the same flags and seed as the run give the same batches.
+    #[command(
+        after_help = "Examples:\n  pgser-train batches --data traj.parquet --swap random --count 10 -o batches.parquet\n  \
+        pgser-train batches --data scored.parquet --is-beta 0.4 --seed 3 --count 100 -o mem.parquet"
+    )]
+    Batches {
+        /// Trajectory or scored table, as `--data` of a run.
+        #[arg(long)]
+        data: PathBuf,
+        /// Batches to write.
+        #[arg(long, default_value_t = 10)]
+        count: u64,
+        /// Table to write.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        config: TrainConfig,
+        #[arg(long)]
+        json: bool,
+    },
     /// Time the prioritized sampler alone on a scored table (from disk, or --in-memory).
     #[command(
         after_help = "Example:\n  pgser-train bench-sampler --data scored.parquet --batch-size 256 --batches 2000 --json"
@@ -203,6 +224,15 @@ fn main() -> ExitCode {
                 );
                 if json {
                     println!("{}", serde_json::to_string(&s)?);
+                }
+            }
+            Some(Command::Batches { data, count, output, config, json }) => {
+                let cmd = cli::command_line();
+                let r = pgser::sampler::dump::write_batches(&data, &config.stream(), count, &output, &cmd)?;
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!("{}: {} batches, {} rows, {} bytes", r.output.display(), r.batches, r.rows, r.bytes);
                 }
             }
             Some(Command::BenchSampler { data, batch_size, batches, in_memory, priority, json }) => {

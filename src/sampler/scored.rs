@@ -213,6 +213,8 @@ pub fn gather(beta: &Episodes, keys: impl Iterator<Item = RowKey>) -> Batch {
 /// A batch of prioritized rows with their importance weights (all 1 without `--is-beta`).
 pub struct AugBatch {
     pub rows: Vec<usize>,
+    /// Each row's transition and goal in β.
+    pub keys: Vec<RowKey>,
     pub batch: Batch,
     pub weights: Vec<f32>,
 }
@@ -293,7 +295,8 @@ impl ScoredSampler {
             Ok(d) => d?,
             Err(_) => bail!("the prioritized sampler stopped"),
         };
-        Ok(AugBatch { batch: gather(&self.beta, d.keys.into_iter()), rows: d.rows, weights: d.weights })
+        let batch = gather(&self.beta, d.keys.iter().copied());
+        Ok(AugBatch { batch, keys: d.keys, rows: d.rows, weights: d.weights })
     }
 }
 

@@ -21,7 +21,7 @@ use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use arrow_array::{ArrayRef, FixedSizeListArray, Float32Array, Int32Array, Int64Array, RecordBatch};
+use arrow_array::{ArrayRef, Float32Array, Int32Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
@@ -31,7 +31,7 @@ use crate::agent::{Agent, Backend, checkpoint};
 use crate::nprandom::NpRandom;
 use crate::output::{check_not_an_input, relative_to_folder_of, sha256_file};
 use crate::swap::{self, GoalPool, SwappedRows};
-use crate::table::{SCHEMA_VERSION, TableWriter};
+use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
 use crate::task::{GoalMetric, Task};
 use crate::trajectory::{self, Episodes, FloatType, vector_field};
 
@@ -380,20 +380,16 @@ fn critic_scores(agent: &Agent, task: &Task, r: &SwappedRows) -> Vec<f32> {
 
 /// The rows as Arrow columns, moving the vectors without copying them.
 fn record_batch(schema: &SchemaRef, task: &Task, r: SwappedRows, q: Vec<f32>) -> Result<RecordBatch> {
-    let vector = |values: Vec<f32>, dim: usize| -> Result<ArrayRef> {
-        let item = Arc::new(Field::new("item", DataType::Float32, false));
-        Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, Arc::new(Float32Array::from(values)), None)?))
-    };
     let columns: Vec<ArrayRef> = vec![
         Arc::new(Int64Array::from(r.episode)),
         Arc::new(Int32Array::from(r.step)),
         Arc::new(Int64Array::from(r.goal_episode)),
         Arc::new(Int32Array::from(r.goal_step)),
-        vector(r.obs, task.obs_dim)?,
-        vector(r.action, task.act_dim)?,
-        vector(r.next_obs, task.obs_dim)?,
-        vector(r.next_achieved_goal, task.goal_dim)?,
-        vector(r.goal, task.goal_dim)?,
+        f32_vectors(r.obs, task.obs_dim)?,
+        f32_vectors(r.action, task.act_dim)?,
+        f32_vectors(r.next_obs, task.obs_dim)?,
+        f32_vectors(r.next_achieved_goal, task.goal_dim)?,
+        f32_vectors(r.goal, task.goal_dim)?,
         Arc::new(Float32Array::from(r.reward)),
         Arc::new(Float32Array::from(q)),
     ];

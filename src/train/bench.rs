@@ -9,11 +9,11 @@ use anyhow::Result;
 use burn::tensor::Device;
 use serde::Serialize;
 
-use super::beta_of;
 use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, shard_count};
 use crate::nprandom::NpRandom;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
+use crate::sampler::stream::beta_of;
 
 /// `pgser-train bench`: updates/s of the agent alone on random batches of a task's dimensions,
 /// the figure `make bench` compares with the same update in PyTorch; with `agents` > 1, a stack

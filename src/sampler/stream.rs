@@ -1,0 +1,188 @@
+//! The batches a training run draws, as one stream: `pgser-train` trains on it, `pgser-train
+//! batches` writes its first batches to a table, and the Python module's `pgser.Sampler` iterates
+//! it. One type for all three is what makes "the same settings and seed give the batches
+//! pgser-train trains on" true by construction instead of by a second implementation kept in step.
+//!
+//! A batch of `batch_size` rows is, in order: `batch_size − k_aug` rows from the original data β
+//! (uniform transitions, HER, and `--swap random`: [`super::sample`]), then, when the data is a
+//! scored table (the `-mem` variant), `k_aug = round(batch_size · aug_ratio)` rows drawn by
+//! priority from its swapped rows ([`ScoredSampler`]), with their importance weights.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Result, bail};
+
+use super::priority::PriorityConfig;
+use super::scored::{ScoredSampler, ScoredTable};
+use super::{SamplerConfig, Swap};
+use crate::agent::Batch;
+use crate::nprandom::NpRandom;
+use crate::output::sha256_file;
+use crate::trajectory::Episodes;
+
+/// Spawn key of the batch stream (the agent's streams use 1 and 2, the prioritized draws 4).
+const STREAM_BATCHES: u64 = 3;
+
+/// What a stream depends on besides its data: the sampling half of `pgser-train`'s settings.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StreamConfig {
+    pub sampler: SamplerConfig,
+    pub batch_size: usize,
+    /// With a scored table: the fraction of each batch drawn by priority from its swapped rows.
+    pub aug_ratio: f64,
+    pub priority: PriorityConfig,
+    /// With a scored table: hold its row keys in memory (same batches either way).
+    pub aug_in_memory: bool,
+    pub seed: u64,
+}
+
+/// Where each row of a batch came from.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RowIds {
+    /// The transition's (episode, step) in β.
+    pub episode: Vec<u32>,
+    pub step: Vec<u32>,
+    /// The row of the scored table for prioritized rows; −1 for rows of the original data.
+    pub scored_row: Vec<i64>,
+}
+
+/// The data a stream draws from, opened and checked, before the stream starts: the trainer fits
+/// its normalizer on `data` and restores a checkpoint before it knows where the stream resumes.
+pub struct BatchSource {
+    pub data: Arc<Episodes>,
+    scored: Option<ScoredTable>,
+}
+
+impl BatchSource {
+    /// Opens a trajectory table, or a scored table and the trajectory table its footer names.
+    /// Settings that cannot make batches from this data are refused here, naming the file.
+    pub fn open(path: &Path, cfg: &StreamConfig) -> Result<BatchSource> {
+        if cfg.batch_size == 0 {
+            bail!("--batch-size must be at least 1");
+        }
+        cfg.priority.validate()?;
+        let scored = match crate::table::read_footer(path) {
+            Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(path)?),
+            _ => None,
+        };
+        let data = match &scored {
+            Some(table) => {
+                let at = path.display();
+                if cfg.sampler.swap != Swap::None {
+                    bail!(
+                        "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
+                    );
+                }
+                if !(0.0..=1.0).contains(&cfg.aug_ratio) {
+                    bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
+                }
+                beta_of(table)?
+            }
+            None => Episodes::load(path)?,
+        };
+        if data.t < 2 {
+            bail!("{}: episodes of {} step(s) hold no transition", path.display(), data.t);
+        }
+        Ok(BatchSource { data: Arc::new(data), scored })
+    }
+
+    /// Whether the data is a scored table (batches then mix in prioritized swapped rows).
+    pub fn is_scored(&self) -> bool {
+        self.scored.is_some()
+    }
+
+    /// The stream a fresh run of `cfg` draws: batch 0 on.
+    pub fn start(self, cfg: &StreamConfig) -> Result<BatchStream> {
+        self.resume(cfg, NpRandom::spawned(cfg.seed, &[STREAM_BATCHES]), 0)
+    }
+
+    /// The stream from batch `first` on, with the original data's generator as it was after
+    /// batch `first − 1` (a resumed run's saved state): the batches an uninterrupted run draws.
+    pub fn resume(self, cfg: &StreamConfig, rng: NpRandom, first: u64) -> Result<BatchStream> {
+        let k_aug = if self.scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
+        let aug = match self.scored {
+            Some(t) => Some(ScoredSampler::start(
+                t,
+                self.data.clone(),
+                &cfg.priority,
+                k_aug,
+                cfg.seed,
+                first,
+                cfg.aug_in_memory,
+            )?),
+            None => None,
+        };
+        Ok(BatchStream { data: self.data, aug, k_aug, rng, cfg: cfg.clone() })
+    }
+}
+
+/// Batch after batch of one run's training data.
+pub struct BatchStream {
+    data: Arc<Episodes>,
+    aug: Option<ScoredSampler>,
+    k_aug: usize,
+    rng: NpRandom,
+    cfg: StreamConfig,
+}
+
+impl BatchStream {
+    pub fn data(&self) -> &Arc<Episodes> {
+        &self.data
+    }
+
+    /// The original data's generator, as a resumed run must restore it.
+    pub fn rng(&self) -> &NpRandom {
+        &self.rng
+    }
+
+    /// Whether batches carry importance weights (`--is-beta` with a scored table); without,
+    /// [`Batch::weight`] is empty, which the agent reads as all 1.
+    pub fn weighted(&self) -> bool {
+        self.aug.is_some() && self.cfg.priority.is_beta.is_some()
+    }
+
+    /// The next batch, with where each of its rows came from.
+    pub fn next_batch(&mut self) -> Result<(Batch, RowIds)> {
+        let mut batch = Batch::default();
+        let n = self.cfg.batch_size - self.k_aug;
+        let rows = super::sample(&self.data, &self.cfg.sampler, &mut self.rng, n, &mut batch);
+        let mut ids = RowIds {
+            episode: rows.iter().map(|r| r.0 as u32).collect(),
+            step: rows.iter().map(|r| r.1 as u32).collect(),
+            scored_row: vec![-1; n],
+        };
+        if let Some(aug) = self.aug.as_mut() {
+            let a = aug.next_batch()?;
+            if self.cfg.priority.is_beta.is_some() {
+                batch.weight = vec![1.0; batch.n];
+                batch.weight.extend_from_slice(&a.weights);
+            }
+            batch.append(&a.batch);
+            ids.episode.extend(a.keys.iter().map(|k| k.episode));
+            ids.step.extend(a.keys.iter().map(|k| k.step));
+            ids.scored_row.extend(a.rows.iter().map(|&r| r as i64));
+        }
+        Ok((batch, ids))
+    }
+}
+
+/// The trajectory table a scored table names, checked: present, unchanged, same task.
+pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
+    let at = table.path.display();
+    let (path, sha) = table.trajectory();
+    if !path.exists() {
+        bail!(
+            "{at}: its original data {} is missing (the footer's path is relative to the scored file)",
+            path.display()
+        );
+    }
+    if sha256_file(&path)? != sha {
+        bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
+    }
+    let data = Episodes::load(&path)?;
+    if data.task != table.task {
+        bail!("{at}: its task differs from that of its original data {}", path.display());
+    }
+    Ok(data)
+}
