@@ -268,6 +268,40 @@ fn episodes_of_unequal_length_are_refused_by_episode() {
     assert_eq!(inspect_json(&out)["footer"]["episodes"], 2);
 }
 
+/// A dataset recorded as Python users record one, `minari.DataCollector(gym.make("FetchReach-v4"))`:
+/// gymnasium-robotics' 50-step limit gives 51 observations, one more than pgser's FetchReach T.
+/// convert drops each episode's last step and says so; --exact-length refuses instead.
+#[test]
+fn a_dataset_one_step_longer_than_its_task_loses_its_last_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().join("out");
+    std::fs::create_dir_all(&d).unwrap();
+    let long = fixture("fetchreach-default-arrow-v0");
+    let table = d.join("t.parquet");
+    let err = ok(&["convert", s(&long), "-o", s(&table)]);
+    let notes: Vec<&str> = err.lines().filter(|l| l.contains("dropped each episode's last step")).collect();
+    assert_eq!(notes.len(), 1, "{err}");
+    assert!(notes[0].contains("episodes have 50 steps") && notes[0].contains("--exact-length"), "{err}");
+    let f = inspect_json(&table)["footer"].clone();
+    assert_eq!((f["task"].as_str(), f["T"].as_u64(), f["episodes"].as_u64()), (Some("FetchReach"), Some(50), Some(3)));
+    assert_eq!(f["sources"][0]["steps_dropped"], 1);
+    // Episode 0 was recorded with the same seed and actions as episode 0 of the 49-step fixture:
+    // its first 50 observations and 49 actions are that episode, bit for bit.
+    let short = d.join("short.parquet");
+    ok(&["convert", s(&fixture("fetchreach-arrow-v0")), "-o", s(&short)]);
+    assert!(inspect_json(&short)["footer"]["sources"][0].get("steps_dropped").is_none());
+    let ((a, _), (b, _)) = (read_table(&table), read_table(&short));
+    assert_same_batches(&a.slice(0, 50), &b.slice(0, 50));
+    std::fs::remove_file(&table).unwrap();
+    std::fs::remove_file(&short).unwrap();
+    fails(
+        &["convert", s(&long), "-o", s(&table), "--exact-length"],
+        &["episodes have 51 observations", "FetchReach has T = 50"],
+        &d,
+        0,
+    );
+}
+
 #[test]
 fn bad_datasets_fail_in_one_line_and_leave_nothing() {
     let dir = tempfile::tempdir().unwrap();

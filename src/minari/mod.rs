@@ -177,6 +177,8 @@ struct Source {
     /// Episodes to take.
     episodes: usize,
     t: usize,
+    /// Steps left out at the end of each episode (0 or 1) so that episodes fit the task's T.
+    dropped: usize,
     /// Episodes whose last observation's desired goal differs from the step before's.
     goal_changed_last: usize,
 }
@@ -213,14 +215,19 @@ impl Source {
             bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
         }
         let t = first.steps + 1;
-        Ok(Source { meta, reader, first: Some(first), sizes, episodes, t, goal_changed_last: 0 })
+        Ok(Source { meta, reader, first: Some(first), sizes, episodes, t, dropped: 0, goal_changed_last: 0 })
     }
 
-    /// Reads episodes `range` into `w` (replacing what it held), checking each has T − 1 steps.
+    /// Reads episodes `range` into `w` (replacing what it held), checking each has T − 1 steps
+    /// (plus the dropped one).
     fn read(&mut self, range: std::ops::Range<usize>, w: &mut Window) -> Result<()> {
         let at = self.meta.data.display().to_string();
-        let steps = self.t - 1;
-        let goal_row = self.meta.spaces.obs[2].dim * self.meta.spaces.obs[2].size;
+        let steps = self.t - 1 + self.dropped;
+        let sp = &self.meta.spaces;
+        let row = |b: &BoxSpace| b.dim * b.size;
+        let (obs_row, ag_row, goal_row, act_row) = (row(&sp.obs[0]), row(&sp.obs[1]), row(&sp.obs[2]), row(&sp.action));
+        // The rows kept: the first T observations and T − 1 actions of each episode.
+        let t = self.t;
         w.arrays.iter_mut().for_each(Vec::clear);
         w.episodes = range.len();
         for i in range {
@@ -237,11 +244,11 @@ impl Source {
                 );
             }
             let [obs, ag, dg, act] = ep.arrays;
-            let (goals, last) = dg.split_at(steps * goal_row);
+            let (goals, last) = dg[..t * goal_row].split_at((t - 1) * goal_row);
             self.goal_changed_last += usize::from(last != &goals[goals.len() - goal_row..]);
-            w.arrays[0].extend_from_slice(&obs);
-            w.arrays[1].extend_from_slice(&ag);
-            w.arrays[2].extend_from_slice(&act);
+            w.arrays[0].extend_from_slice(&obs[..t * obs_row]);
+            w.arrays[1].extend_from_slice(&ag[..t * ag_row]);
+            w.arrays[2].extend_from_slice(&act[..(t - 1) * act_row]);
             w.arrays[3].extend_from_slice(goals);
         }
         Ok(())
@@ -266,7 +273,21 @@ impl Source {
     }
 
     /// `--task`, else the env spec's id, else what pgser's export recorded, else the dimensions.
-    fn task(&self, name: Option<&str>, threshold: Option<f64>) -> Result<Task> {
+    ///
+    /// An episode one step longer than the task's (T + 1 observations) is what gymnasium's time
+    /// limit records for a Fetch task (`minari.DataCollector(gym.make("FetchReach-v4"))`: 50
+    /// steps, 51 observations; WGCSL's episodes, which pgser's tasks follow, have 50
+    /// observations). Unless `exact_length`, its last step is dropped to fit (`dropped`, said in
+    /// the summary's notes and the footer's source entry).
+    fn task(&mut self, name: Option<&str>, threshold: Option<f64>, exact_length: bool) -> Result<Task> {
+        let name = name.or(self.meta.env_id.as_deref()).or(self.meta.pgser_task.as_ref().map(|r| r.0.as_str()));
+        if let Some(known) = name.and_then(Task::known)
+            && known.t + 1 == self.t
+            && !exact_length
+            && self.dropped == 0
+        {
+            (self.t, self.dropped) = (known.t, 1);
+        }
         let s = &self.meta.spaces;
         let dims = (self.t, s.obs[0].dim, s.obs[1].dim, s.action.dim);
         let keys = ["observation", "achieved_goal", "actions"];
@@ -291,8 +312,8 @@ impl Source {
 /// there leaves no output either).
 pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
     let take = take_option(opts)?;
-    let source = Source::open(dir, take)?;
-    let task = source.task(opts.task.as_deref(), opts.threshold)?;
+    let mut source = Source::open(dir, take)?;
+    let task = source.task(opts.task.as_deref(), opts.threshold, opts.exact_length)?;
     Ok(ConvertPlan {
         task,
         float_type: source.float_type(opts.float32),
@@ -315,7 +336,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
     let take = take_option(opts)?;
     let mut source = Source::open(dir, take)?;
-    let task = source.task(opts.task.as_deref(), opts.threshold)?;
+    let task = source.task(opts.task.as_deref(), opts.threshold, opts.exact_length)?;
     let float_type = source.float_type(opts.float32);
     // Hashed before the table's temporary file exists, which may be in the dataset's folder.
     let sha256 = sha256_folder(&source.meta.data)?;
@@ -337,10 +358,22 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         format: source.meta.storage.format_name().into(),
         episodes_in_file: source.meta.total_episodes,
         episodes_taken: source.episodes,
+        steps_dropped: source.dropped,
     }];
     let bytes = writer.finish(&footer)?;
     let skipped_keys = source.meta.skipped_keys.iter().map(|k| format!("{}: {k}", dir.display())).collect();
     let mut notes = Vec::new();
+    if source.dropped > 0 {
+        notes.push(format!(
+            "{}: episodes have {} steps and {} has T = {} observations ({} steps): dropped each episode's last \
+             step to fit (gymnasium's time limit records one step more than WGCSL's episodes; --exact-length refuses instead)",
+            dir.display(),
+            task.t,
+            task.name,
+            task.t,
+            task.t - 1
+        ));
+    }
     if source.goal_changed_last > 0 {
         notes.push(format!(
             "{}: the last observation's desired goal (no row in a pgser table) differs from the step before's \

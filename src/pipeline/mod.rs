@@ -231,6 +231,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             episodes,
             float32: false,
             allow_nonfinite: false,
+            exact_length: false,
             row_group_rows: 65_536,
             command: cmd("convert"),
         }),

@@ -31,6 +31,9 @@ pub struct ConvertOptions {
     pub episodes: Option<Vec<usize>>,
     pub float32: bool,
     pub allow_nonfinite: bool,
+    /// Minari datasets: refuse episodes one step longer than the task's T instead of dropping
+    /// their last step.
+    pub exact_length: bool,
     /// Target rows per row group; row groups always hold whole episodes.
     pub row_group_rows: usize,
     /// The command line, recorded in the footer.
@@ -178,6 +181,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
                 format: "wgcsl-pickle".into(),
                 episodes_in_file: s.episodes,
                 episodes_taken: s.take,
+                steps_dropped: 0,
             })
             .collect();
         let bytes = writer.finish(&footer)?;

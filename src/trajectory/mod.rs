@@ -68,6 +68,14 @@ pub struct SourceFile {
     pub format: String,
     pub episodes_in_file: usize,
     pub episodes_taken: usize,
+    /// Steps left out at the end of each episode to fit the task's T (a Minari dataset recorded
+    /// under gymnasium's time limit has one more than WGCSL's episodes); absent when none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub steps_dropped: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// The `pgser` footer of a trajectory table.

@@ -7,7 +7,9 @@ the test venv leaves out (the tests only open datasets), so make them in a scrat
 
   python3 -m venv /tmp/minari-venv
   /tmp/minari-venv/bin/pip install 'minari[create,hdf5,arrow]==0.5.4' mujoco==3.17.0 gymnasium-robotics==1.4.2
-  /tmp/minari-venv/bin/python tests/py/make_minari_fixtures.py tests/fixtures/minari
+  /tmp/minari-venv/bin/python tests/py/make_minari_fixtures.py tests/fixtures/minari [ID ...]
+
+With IDs, only those datasets are made.
 
 Datasets (each one folder `ID/data/` as `minari.load_dataset(ID)` finds it under
 MINARI_DATASETS_PATH):
@@ -20,6 +22,9 @@ MINARI_DATASETS_PATH):
 - fetchreach-short-arrow-v0: as the Arrow one, but the collector is reset in the middle of
   episode 2 (after 20 steps), which Minari stores as a truncated 20-step episode: episodes of
   unequal length, which one pgser table cannot hold.
+- fetchreach-default-arrow-v0: FetchReach-v4 with gymnasium-robotics' default time limit, as
+  Python users record it (`minari.DataCollector(gym.make("FetchReach-v4"))`): 3 episodes of 50
+  steps, 51 observations, one more than pgser's FetchReach T; `convert` drops the last step.
 - pendulum-hdf5-v0: Pendulum-v1 (a plain Box observation, no goals), 2 episodes of 10 steps:
   a dataset that is not goal-conditioned.
 
@@ -59,14 +64,13 @@ def reacher(obs, rng):
     return a
 
 
-def fetch(minari, data_format, dataset_id, reset_at=None):
-    env = minari.DataCollector(
-        gym.make("FetchReach-v4", max_episode_steps=49), record_infos=False, data_format=data_format
-    )
+def fetch(minari, data_format, dataset_id, reset_at=None, steps=49, episodes=4):
+    limit = {} if steps == 50 else {"max_episode_steps": steps}  # 50: gymnasium-robotics' default
+    env = minari.DataCollector(gym.make("FetchReach-v4", **limit), record_infos=False, data_format=data_format)
     rng = np.random.default_rng(7)
-    for ep in range(4):
+    for ep in range(episodes):
         obs, _ = env.reset(seed=ep)
-        for step in range(49):
+        for step in range(steps):
             if reset_at == (ep, step):
                 break  # the next reset stores this episode as truncated after `step` steps
             obs, _, terminated, truncated, _ = env.step(reacher(obs, rng))
@@ -94,17 +98,22 @@ def pendulum(minari, dataset_id):
     return env.create_dataset(dataset_id=dataset_id, algorithm_name="random", author="pgser tests")
 
 
-def main(out_dir):
+DATASETS = {
+    "fetchreach-hdf5-v0": lambda m, i: fetch(m, "hdf5", i),
+    "fetchreach-arrow-v0": lambda m, i: fetch(m, "arrow", i),
+    "fetchreach-short-arrow-v0": lambda m, i: fetch(m, "arrow", i, reset_at=(2, 20)),
+    "fetchreach-default-arrow-v0": lambda m, i: fetch(m, "arrow", i, steps=50, episodes=3),
+    "pendulum-hdf5-v0": lambda m, i: pendulum(m, i),
+}
+
+
+def main(out_dir, only=None):
+    """Make every dataset, or only those named (the others' committed files stay as they are)."""
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["MINARI_DATASETS_PATH"] = tmp
         import minari
 
-        made = [
-            fetch(minari, "hdf5", "fetchreach-hdf5-v0"),
-            fetch(minari, "arrow", "fetchreach-arrow-v0"),
-            fetch(minari, "arrow", "fetchreach-short-arrow-v0", reset_at=(2, 20)),
-            pendulum(minari, "pendulum-hdf5-v0"),
-        ]
+        made = [make(minari, name) for name, make in DATASETS.items() if not only or name in only]
         os.makedirs(out_dir, exist_ok=True)
         for ds in made:
             name = ds.spec.dataset_id
@@ -116,6 +125,6 @@ def main(out_dir):
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 2:
+    if len(sys.argv) < 2:
         sys.exit(__doc__)
-    main(sys.argv[1])
+    main(sys.argv[1], sys.argv[2:])

@@ -27,7 +27,8 @@ pub enum Command {
         pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05\n  \
         pgser-etl convert ~/.minari/datasets/fetchreach-expert-v0 -o traj.parquet\n\n\
         A Minari dataset (HDF5 or Arrow storage) must be goal-conditioned (a Dict observation with observation, \
-        achieved_goal, desired_goal) with episodes of one length: n steps become T = n+1 rows. The task is \
+        achieved_goal, desired_goal) with episodes of one length: n steps become T = n+1 rows (where n+1 is the task's T+1, as \
+        gymnasium's time limit records Fetch episodes, the last step is dropped; --exact-length refuses). The task is \
         --task, else the id of the dataset's env_spec (FetchReach-v4 is FetchReach). See docs/minari.md.")]
     Convert {
         /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
@@ -52,6 +53,11 @@ pub enum Command {
         /// Keep NaN and ±Inf values instead of refusing the file.
         #[arg(long)]
         allow_nonfinite: bool,
+        /// A Minari dataset whose episodes are one step longer than the task's T (gymnasium's
+        /// time limit: 50 steps, 51 observations for Fetch): refuse it instead of dropping each
+        /// episode's last step.
+        #[arg(long)]
+        exact_length: bool,
         /// Target rows per row group (row groups always hold whole episodes).
         #[arg(long, default_value_t = 65_536)]
         row_group_rows: usize,

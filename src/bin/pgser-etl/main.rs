@@ -27,7 +27,17 @@ fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-etl", || match args.command {
-        Command::Convert { inputs, output, task, threshold, episodes, float32, allow_nonfinite, row_group_rows } => {
+        Command::Convert {
+            inputs,
+            output,
+            task,
+            threshold,
+            episodes,
+            float32,
+            allow_nonfinite,
+            exact_length,
+            row_group_rows,
+        } => {
             let opts = convert::ConvertOptions {
                 inputs,
                 output,
@@ -36,6 +46,7 @@ fn main() -> ExitCode {
                 episodes,
                 float32,
                 allow_nonfinite,
+                exact_length,
                 row_group_rows,
                 command: cli::command_line(),
             };
