@@ -73,10 +73,16 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
             );
         }
     }
+    let optional = f.get("optional_source_fields").and_then(|s| s.as_object());
     if let Some(fields) = f.get("source_fields").and_then(|s| s.as_object()) {
         for source in footer["sources"].as_array().into_iter().flatten() {
             for (key, ty) in fields {
                 assert!(json_type_ok(&source[key], ty.as_str().unwrap()), "source {key} missing or not {ty}");
+            }
+            for key in source.as_object().unwrap().keys() {
+                let ty = fields.get(key).or_else(|| optional.and_then(|o| o.get(key)));
+                let ty = ty.unwrap_or_else(|| panic!("source key {key} is not in {}", schema_file.display()));
+                assert!(json_type_ok(&source[key], ty.as_str().unwrap()), "source {key} is not {ty}");
             }
         }
     }
@@ -148,4 +154,20 @@ fn batches_writes_the_batches_schema() {
         assert!(o.status.success(), "{}", text(&o.stderr));
         check_table_against_schema(&out, &repo().join("schemas/batches.json"));
     }
+}
+
+#[test]
+fn a_minari_conversion_with_a_dropped_step_writes_the_trajectory_schema() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("m.parquet");
+    let o = etl()
+        .arg("convert")
+        .arg(repo().join("tests/fixtures/minari/fetchreach-default-arrow-v0"))
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(pgser::table::read_footer(&out).unwrap()["sources"][0]["steps_dropped"], 1);
+    check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
 }
