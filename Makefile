@@ -19,7 +19,7 @@ ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
-.PHONY: all build test test-wgpu check-wgpu vulkan-deps slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
+.PHONY: all build python test test-example test-wgpu check-wgpu vulkan-deps slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
@@ -75,12 +75,28 @@ hdf5-deps:
 build: deps
 	$(CARGO) build --release $(FEATURES)
 
+# The Python module (python/: `import pgser`), built by maturin into target/wheels/ and installed
+# into the test venv. It is a member of the cargo workspace, so after `cargo build --release` it
+# compiles only pyo3, numpy and itself (the build cost is in BENCHMARKS.md).
+python: deps venv
+	$(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels $(FEATURES)
+	$(PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/pgser-*.whl | head -1)
+
+# examples/td3bc_torch.py through tests/python/test_example.py, in the benchmark venv (PyTorch is
+# a multi-GB download the test venv leaves out; `make test` skips that test and says so).
+test-example: python bench-venv
+	$(BENCH_PY) -m pip install --quiet pytest mujoco==3.17.0 gymnasium-robotics==1.4.2
+	$(BENCH_PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/pgser-*.whl | head -1)
+	$(BENCH_PY) -m pytest -q tests/python/test_example.py
+
 # Real WGCSL pickles written by other people's code (not redistributed here): when a folder of
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
 test: deps venv check-wgpu slurm-deps
 	$(CARGO) test --release $(FEATURES)
+	$(MAKE) python
+	$(PY) -m pytest -q -rs tests/python
 	@pkg-config --exists hdf5 2>/dev/null || \
 	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
@@ -148,6 +164,8 @@ bench: build venv
 	$(PY) bench/bench_score.py --python $(BENCH_PY) --threads 2 --swaps 4 --repeat 3 --json bench-out/score.json
 	$(BENCH_PY) bench/sgemm_peak.py
 	$(PY) bench/bench_grid.py --python $(BENCH_PY) --jax-python $(JAX_PY) --threads 2 --rounds 3 --json bench-out/grid.json
+	$(MAKE) python
+	$(PY) bench/bench_python.py --peer-python $(BENCH_PY) --json bench-out/python.json
 
 # The benchmark peers' interpreter: PyTorch (a large download), cpprb, pyarrow. Kept apart from
 # the test venv so `make test` never downloads torch.

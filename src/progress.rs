@@ -16,6 +16,23 @@ pub fn bar(message: &'static str, unit: &str) -> ProgressBar {
     bar
 }
 
+/// A job stopped because its caller finished the bar (`advance`).
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted")]
+pub struct Cancelled;
+
+/// Counts `n` more units done, and says whether to go on. A caller that finishes the bar while
+/// the job runs (the Python module does on Ctrl-C, from the thread that waits for the job)
+/// cancels it here: the job returns [`Cancelled`] at its next step, and its atomic output leaves
+/// no file, as on any other error. The CLI's bars are finished only after the job returns.
+pub fn advance(bar: &ProgressBar, n: u64) -> anyhow::Result<()> {
+    bar.inc(n);
+    if bar.is_finished() {
+        return Err(Cancelled.into());
+    }
+    Ok(())
+}
+
 /// For logs: when the bar draws nothing (stderr is not a terminal), one line, prefixed with the
 /// bar's message, at a milestone of a long job (a training run's scheduled checkpoint). On a
 /// terminal the bar already shows it.

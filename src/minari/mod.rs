@@ -349,7 +349,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         let end = (start + window).min(source.episodes);
         source.read(start..end, &mut w)?;
         writer.append(&source.view(&w), 0, w.episodes)?;
-        bar.inc(w.episodes as u64);
+        crate::progress::advance(bar, w.episodes as u64)?;
     }
     let mut footer = Footer::new(&task, float_type, source.episodes, opts.command.clone());
     footer.sources = vec![SourceFile {

@@ -263,7 +263,7 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
             let n: usize = batches.iter().map(|b| b.num_rows()).sum();
             writer.write_row_groups(&batches)?;
             rows += n;
-            bar.inc((n / per) as u64);
+            crate::progress::advance(bar, (n / per) as u64)?;
         }
     })?;
     assert_eq!(rows, transitions * per, "every transition was scored");

@@ -162,7 +162,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
             for start in (0..src.take).step_by(window) {
                 let end = (start + window).min(src.take);
                 writer.append(&view, start, end)?;
-                bar.inc(((end - start) * task.t) as u64);
+                crate::progress::advance(bar, ((end - start) * task.t) as u64)?;
                 for a in &src.arrays {
                     let per_episode = a.data.len() / src.episodes;
                     map.release(&a.data[start * per_episode..end * per_episode]);

@@ -1,0 +1,59 @@
+"""pgser for Python: pgser's tables, its prioritized goal-swapping sampler, and its Fetch and
+Shadow Hand environments, from the same Rust library as the `pgser-etl` / `pgser-train` CLIs.
+
+- ``read_table(path)`` / ``read_footer(path)``: any pgser table as a ``pyarrow.Table``; its footer.
+- ``convert(...)`` / ``score(...)``: ``pgser-etl convert`` and ``pgser-etl score``.
+- ``Sampler(path, ...)``: the batches ``pgser-train`` trains on, as dicts of numpy arrays.
+- ``make(task)`` / ``VectorEnv(task, n)``: gymnasium environments (ids ``pgser/FetchPush-v4`` ...).
+- ``Policy(task, "expert")``: the scripted experts, random actions, or a checkpoint's actor.
+
+docs/python.md in the repository describes each, with the settings they share with the CLI.
+"""
+
+from . import _pgser
+from ._pgser import Sampler, Policy, convert, read_footer, read_table, score, task_info
+
+__version__ = _pgser.__version__
+long_version = _pgser.long_version
+
+TASKS = (
+    "FetchReach-v4",
+    "FetchPush-v4",
+    "FetchPickAndPlace-v4",
+    "FetchSlide-v4",
+    "HandManipulateBlockRotateZ-v1",
+    "HandManipulateEggRotate-v1",
+)
+
+
+def make(task, **kwargs):
+    """``gymnasium.make("pgser/" + task)``: a pgser environment with gymnasium's wrappers
+    (time limit, order enforcing, checker), as ``gym.make(task)`` gives gymnasium-robotics' own."""
+    import gymnasium
+
+    from . import envs  # registers the pgser/ ids
+
+    return gymnasium.make(envs.env_id(task), **kwargs)
+
+
+def VectorEnv(task, num_envs, seed=None):  # noqa: N802 (a class to its users)
+    """``num_envs`` pgser environments stepped together in native threads (gymnasium's
+    ``VectorEnv`` API, next-step autoreset). ``seed`` seeds the first ``reset()``."""
+    from .envs import PgserVectorEnv
+
+    return PgserVectorEnv(task, num_envs, seed=seed)
+
+
+__all__ = [
+    "Policy",
+    "Sampler",
+    "TASKS",
+    "VectorEnv",
+    "convert",
+    "long_version",
+    "make",
+    "read_footer",
+    "read_table",
+    "score",
+    "task_info",
+]
