@@ -62,23 +62,29 @@ def time_vector(env, actions):
     return time.perf_counter() - t0
 
 
-def bench_envs(n, steps, seed=0):
+def bench_envs(n, steps, rounds, seed=0):
+    """Each side `rounds` times, in rotating order; medians (as the other benchmarks do)."""
     import pgser
 
     gym = patched_gym()
     rng = np.random.default_rng(seed)
     actions = rng.uniform(-1, 1, (steps, n, 4)).astype(np.float32)
-    out = {"task": "FetchPush-v4", "envs": n, "vector_steps": steps, "env_steps": steps * n}
+    out = {"task": "FetchPush-v4", "envs": n, "vector_steps": steps, "env_steps": steps * n, "rounds": rounds}
     sides = {
         "pgser": lambda: pgser.VectorEnv("FetchPush-v4", n),
         "sync": lambda: gym.vector.SyncVectorEnv([make_fetch_push] * n),
         "async": lambda: gym.vector.AsyncVectorEnv([make_fetch_push] * n),
     }
-    for name, make in sides.items():
-        env = make()
-        seconds = time_vector(env, actions)
-        env.close()
-        out[name] = {"seconds": seconds, "steps_per_sec": steps * n / seconds}
+    names = list(sides)
+    times = {name: [] for name in names}
+    for r in range(rounds):
+        for name in names[r % len(names):] + names[: r % len(names)]:
+            env = sides[name]()
+            times[name].append(time_vector(env, actions))
+            env.close()
+    for name in names:
+        seconds = float(np.median(times[name]))
+        out[name] = {"seconds": seconds, "steps_per_sec": steps * n / seconds, "all_seconds": times[name]}
     best = max(out["sync"]["steps_per_sec"], out["async"]["steps_per_sec"])
     out["ratio_vs_faster_peer"] = out["pgser"]["steps_per_sec"] / best
     return out
@@ -96,7 +102,7 @@ def scored_table(d, etl, train):
     cli(etl, "collect", "--task", "FetchPush", "--policy", "expert", "--episodes", "400", "--seed", "0", "-o", pickles[0])
     cli(etl, "collect", "--task", "FetchPush", "--policy", "random", "--episodes", "400", "--seed", "1000", "-o", pickles[1])
     data = d / "push.parquet"
-    cli(etl, "convert", *pickles, "-o", data)
+    cli(etl, "convert", *pickles, "-o", data, "--task", "FetchPush")
     ckpt = d / "q.ckpt"
     cli(train, "--data", data, "-o", ckpt, "--updates", "200", "--batch-size", "256", "--eval-episodes", "0")
     scored = d / "scored.parquet"
@@ -142,12 +148,13 @@ def main():
     ap.add_argument("--pgser-train", default=str(REPO / "target/release/pgser-train"))
     ap.add_argument("--peer-python", help="a Python with cpprb, numpy, pyarrow (the sampler's peer)")
     ap.add_argument("--envs", type=int, default=16)
-    ap.add_argument("--steps", type=int, default=500, help="vector steps per side")
+    ap.add_argument("--steps", type=int, default=500, help="vector steps per side and round")
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--batch-size", type=int, default=256)
     ap.add_argument("--batches", type=int, default=3000)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    report = {"cores": os.cpu_count(), "envs": bench_envs(args.envs, args.steps)}
+    report = {"cores": os.cpu_count(), "envs": bench_envs(args.envs, args.steps, args.rounds)}
     e = report["envs"]
     print(f"VectorEnv FetchPush-v4 x{args.envs}: pgser {e['pgser']['steps_per_sec']:.0f} env-steps/s, "
           f"SyncVectorEnv {e['sync']['steps_per_sec']:.0f}, AsyncVectorEnv {e['async']['steps_per_sec']:.0f}: "
