@@ -33,6 +33,13 @@ def _canonical(task):
     return info["name"] + version, info
 
 
+def _compute_reward(task, achieved_goal, desired_goal):
+    """Batched sparse reward of `task` (gymnasium-robotics' compute_reward): float32, 0 or -1."""
+    ag = np.asarray(achieved_goal, dtype=np.float64)
+    g = np.asarray(desired_goal, dtype=np.float64)
+    return _pgser.compute_reward(task.split("-v", 1)[0], ag, g)
+
+
 def env_id(task):
     """The registered gymnasium id of a task: ``pgser/FetchPush-v4``."""
     return f"{NAMESPACE}/{_canonical(task)[0]}"
@@ -75,9 +82,7 @@ class PgserEnv(gymnasium.Env):
         return obs, float(reward), False, False, {"is_success": np.float32(success)}
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
-        return self._env.compute_reward(
-            np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64)
-        )
+        return _compute_reward(self.task_id, achieved_goal, desired_goal)
 
 
 class PgserVectorEnv(VectorEnv):
@@ -115,9 +120,7 @@ class PgserVectorEnv(VectorEnv):
         return obs, reward, terminated, truncated, info if stepped.any() else {}
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
-        return self._engine.compute_reward(
-            np.asarray(achieved_goal, dtype=np.float64), np.asarray(desired_goal, dtype=np.float64)
-        )
+        return _compute_reward(self.task_id, achieved_goal, desired_goal)
 
 
 def _register():

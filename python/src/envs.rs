@@ -93,29 +93,23 @@ impl Env {
         Ok((obs_dict(py, s.obs)?, s.reward, s.success))
     }
 
-    /// gymnasium-robotics' `compute_reward` over any leading shape: 0 where the goal is reached,
-    /// −1 elsewhere, as float32 (the same function as the tables' reward column).
-    fn compute_reward<'py>(
-        &self,
-        py: Python<'py>,
-        achieved_goal: PyReadonlyArrayDyn<'py, f64>,
-        desired_goal: PyReadonlyArrayDyn<'py, f64>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        compute_reward(py, &self.task, achieved_goal, desired_goal)
-    }
-
     #[getter]
     fn task<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         crate::json_to_py(py, &serde_json::to_value(&self.task).map_err(|e| py_err(e.into()))?)
     }
 }
 
-fn compute_reward<'py>(
+/// gymnasium-robotics' `compute_reward` for `task` over any leading shape: 0 where the goal is
+/// reached, −1 elsewhere, as float32 (the same function as the tables' reward column).
+#[pyfunction]
+pub fn compute_reward<'py>(
     py: Python<'py>,
-    task: &Task,
-    ag: PyReadonlyArrayDyn<'py, f64>,
-    g: PyReadonlyArrayDyn<'py, f64>,
+    task: &str,
+    achieved_goal: PyReadonlyArrayDyn<'py, f64>,
+    desired_goal: PyReadonlyArrayDyn<'py, f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let task = Task::known(task).ok_or_else(|| PyValueError::new_err(format!("{task}: unknown task")))?;
+    let (ag, g) = (achieved_goal, desired_goal);
     let (sa, sg) = (ag.shape().to_vec(), g.shape().to_vec());
     if sa != sg || sa.last() != Some(&task.goal_dim) {
         return Err(PyValueError::new_err(format!(
@@ -250,15 +244,6 @@ impl VecEnv {
             success.into_pyarray(py).into_any(),
             was_reset.into_pyarray(py).into_any(),
         ))
-    }
-
-    fn compute_reward<'py>(
-        &self,
-        py: Python<'py>,
-        achieved_goal: PyReadonlyArrayDyn<'py, f64>,
-        desired_goal: PyReadonlyArrayDyn<'py, f64>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        compute_reward(py, &self.task, achieved_goal, desired_goal)
     }
 }
 

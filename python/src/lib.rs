@@ -242,6 +242,7 @@ fn _pgser(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(convert, m)?)?;
     m.add_function(wrap_pyfunction!(score, m)?)?;
     m.add_function(wrap_pyfunction!(task_info, m)?)?;
+    m.add_function(wrap_pyfunction!(envs::compute_reward, m)?)?;
     m.add_class::<sampler::Sampler>()?;
     m.add_class::<envs::Env>()?;
     m.add_class::<envs::VecEnv>()?;
