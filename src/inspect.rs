@@ -86,7 +86,10 @@ pub struct Summary {
     pub bytes: u64,
     pub rows: u64,
     pub row_groups: usize,
+    /// The `pgser` footer, less its checksums (summarised in `checksums`).
     pub footer: Option<serde_json::Value>,
+    /// "N column chunks (B bytes) verified", or why nothing could be.
+    pub checksums: String,
     pub columns: Vec<ColumnSummary>,
     /// Trajectory tables: episodes and the share whose final achieved goal meets the goal.
     pub episodes: Option<u64>,
@@ -101,6 +104,9 @@ pub fn inspect(path: &Path) -> Result<Summary> {
     let builder =
         ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
     let meta = builder.metadata().clone();
+    // Every chunk's bytes against the footer's checksums, before statistics are computed from them.
+    let verifier = crate::table::Verifier::new(path, &meta)?;
+    verifier.check_all()?;
     let footer = meta
         .file_metadata()
         .key_value_metadata()
@@ -149,7 +155,16 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         bytes,
         rows,
         row_groups: meta.num_row_groups(),
-        footer,
+        footer: footer.map(|mut f: serde_json::Value| {
+            f.as_object_mut().map(|m| m.remove(crate::table::CHECKSUMS_KEY));
+            f
+        }),
+        checksums: if verifier.verifiable() {
+            let (chunks, bytes) = verifier.extent();
+            format!("{chunks} column chunks ({bytes} bytes) verified")
+        } else {
+            "none: written without checksums (an older pgser or another tool), so it cannot be verified".into()
+        },
         columns,
         episodes,
         final_success,
@@ -267,6 +282,7 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
         s.rows,
         s.row_groups
     );
+    let _ = writeln!(o, "checksums: {}", s.checksums);
     let _ = writeln!(o, "schema:");
     for c in &s.columns {
         let _ = writeln!(o, "  {:<20} {}", c.name, c.data_type);

@@ -17,7 +17,7 @@
 //! | 6 | [`train`] |
 //! | 5 | [`sampler`], [`inspect`] |
 //! | 4 | [`score`], [`convert`] |
-//! | 3 | [`collect`], [`eval`], [`swap`], [`minari`] |
+//! | 3 | [`collect`], [`eval`], [`swap`], [`minari`], [`verify`] |
 //! | 2 | [`agent`], [`trajectory`] |
 //! | 1 | [`env`](mod@env), [`query`], [`table`] |
 //! | 0 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
@@ -44,3 +44,4 @@ pub mod table;
 pub mod task;
 pub mod train;
 pub mod trajectory;
+pub mod verify;

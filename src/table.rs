@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result, anyhow, bail};
 use arrow_array::RecordBatch;
 use arrow_schema::{DataType, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
@@ -66,6 +66,51 @@ pub fn f32_vectors(values: Vec<f32>, dim: usize) -> Result<arrow_array::ArrayRef
 
 type FileWriter = SerializedFileWriter<BufWriter<File>>;
 
+/// The `checksums` key of a `pgser` footer: a CRC-32 of every column chunk's bytes.
+///
+/// Parquet's own page CRC is optional and arrow-rs 60 does not write it; and float data is stored
+/// mostly as raw literals even under zstd, so a flipped bit in a table's pages usually decodes to
+/// another valid number, read without complaint. Checksums of each column chunk, kept in the
+/// footer's JSON, let every pgser reader check exactly the chunks it reads (a sampler reading
+/// four key columns does not pay for the floats), and other readers ignore them safely.
+/// Computed by reading each row group back as soon as it is written (from the page cache), so
+/// they are of the bytes on disk, not of a buffer that could differ from them.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Checksums {
+    /// `"crc32"` (IEEE, as zlib and gzip compute it).
+    pub algorithm: String,
+    /// `column_chunks[row_group][leaf_column]`: the CRC-32 of that chunk's byte range.
+    pub column_chunks: Vec<Vec<u32>>,
+    /// The CRC-32 of the rest of the footer: its JSON without this key, keys sorted.
+    pub footer: u32,
+}
+
+/// The CRC-32 of a footer without its checksums, as [`Checksums::footer`] holds it.
+fn footer_crc(footer: &serde_json::Value) -> u32 {
+    let mut f = footer.clone();
+    f.as_object_mut().map(|m| m.remove(CHECKSUMS_KEY));
+    crc32fast::hash(f.to_string().as_bytes())
+}
+
+/// The footer's key for [`Checksums`].
+pub const CHECKSUMS_KEY: &str = "checksums";
+
+/// CRC-32 of `len` bytes of `file` from `start`, read in blocks with positioned reads (the file's
+/// offset is left alone: the writer shares it).
+fn crc_range(file: &File, start: u64, len: u64) -> std::io::Result<u32> {
+    use std::os::unix::fs::FileExt;
+    let mut h = crc32fast::Hasher::new();
+    let mut buf = vec![0u8; (len as usize).min(1 << 20)];
+    let mut done = 0u64;
+    while done < len {
+        let n = ((len - done) as usize).min(buf.len());
+        file.read_exact_at(&mut buf[..n], start + done)?;
+        h.update(&buf[..n]);
+        done += n as u64;
+    }
+    Ok(h.finalize())
+}
+
 pub struct TableWriter {
     out: AtomicFile,
     factory: ArrowRowGroupWriterFactory,
@@ -73,7 +118,7 @@ pub struct TableWriter {
     row_groups: usize,
     /// Encoded row groups, in order, to the writer thread.
     tx: Option<SyncSender<Vec<ArrowColumnChunk>>>,
-    thread: Option<JoinHandle<Result<FileWriter>>>,
+    thread: Option<JoinHandle<Result<(FileWriter, Vec<Vec<u32>>)>>>,
 }
 
 impl TableWriter {
@@ -88,7 +133,8 @@ impl TableWriter {
             .with_context(|| format!("{}: cannot start the Parquet writer", dest.display()))?;
         let (tx, rx) = sync_channel::<Vec<ArrowColumnChunk>>(1);
         let at = dest.to_path_buf();
-        let thread = std::thread::spawn(move || append_all(writer, rx, &at));
+        let readback = out.handle()?;
+        let thread = std::thread::spawn(move || append_all(writer, rx, &at, &readback));
         Ok(Self { out, factory, schema, row_groups: 0, tx: Some(tx), thread: Some(thread) })
     }
 
@@ -125,7 +171,7 @@ impl TableWriter {
             .collect()
     }
 
-    fn join(&mut self) -> Result<FileWriter> {
+    fn join(&mut self) -> Result<(FileWriter, Vec<Vec<u32>>)> {
         self.tx.take();
         let thread = self.thread.take().expect("joined once");
         thread.join().map_err(|_| anyhow!("{}: writer thread panicked", self.out.dest().display()))?
@@ -144,7 +190,13 @@ impl TableWriter {
     /// trainer's replay buffer and its checkpoint).
     pub fn finish_staged(mut self, footer: &serde_json::Value) -> Result<AtomicFile> {
         let dest: PathBuf = self.out.dest().to_path_buf();
-        let mut writer = self.join()?;
+        let (mut writer, sums) = self.join()?;
+        let mut footer = footer.clone();
+        let footer_sum = footer_crc(&footer);
+        if let Some(map) = footer.as_object_mut() {
+            let sums = Checksums { algorithm: "crc32".into(), column_chunks: sums, footer: footer_sum };
+            map.insert(CHECKSUMS_KEY.into(), serde_json::to_value(sums)?);
+        }
         writer.append_key_value_metadata(KeyValue::new(FOOTER_KEY.to_string(), footer.to_string()));
         let buf = writer.into_inner().with_context(|| format!("{}: cannot finish the file", dest.display()))?;
         buf.into_inner().map_err(|e| e.into_error()).with_context(|| format!("{}: write failed", dest.display()))?;
@@ -152,21 +204,143 @@ impl TableWriter {
     }
 }
 
-/// The writer thread: append row groups in the order they arrive.
+/// The writer thread: append row groups in the order they arrive, and checksum each one's
+/// column chunks as written (`readback`: a handle on the same file).
 fn append_all(
     mut writer: FileWriter,
     rx: std::sync::mpsc::Receiver<Vec<ArrowColumnChunk>>,
     at: &Path,
-) -> Result<FileWriter> {
+    readback: &File,
+) -> Result<(FileWriter, Vec<Vec<u32>>)> {
     let fail = || format!("{}: write failed", at.display());
+    let mut sums = Vec::new();
     for chunks in rx {
         let mut rg = writer.next_row_group().with_context(fail)?;
         for chunk in chunks {
             chunk.append_to_row_group(&mut rg).with_context(fail)?;
         }
         rg.close().with_context(fail)?;
+        writer.flush().with_context(fail)?;
+        let written = writer.flushed_row_groups().last().expect("a row group was just closed");
+        let crcs = written.columns().iter().map(|c| {
+            let (start, len) = c.byte_range();
+            crc_range(readback, start, len)
+        });
+        sums.push(
+            crcs.collect::<std::io::Result<Vec<u32>>>()
+                .with_context(|| format!("{}: cannot read back", at.display()))?,
+        );
     }
-    Ok(writer)
+    Ok((writer, sums))
+}
+
+/// Checks a table's column chunks against the checksums in its footer.
+pub struct Verifier {
+    path: PathBuf,
+    file: File,
+    /// Byte range of each (row group, leaf column).
+    ranges: Vec<Vec<(u64, u64)>>,
+    /// Leaf column paths, for messages and [`Verifier::columns_of`].
+    leaves: Vec<String>,
+    sums: Option<Vec<Vec<u32>>>,
+}
+
+impl Verifier {
+    /// The checksums of `path` (whose Parquet metadata is `meta`), checked against its layout.
+    /// A table without checksums (older pgser, another writer) gets a verifier that checks
+    /// nothing ([`Verifier::verifiable`] says so).
+    pub fn new(path: &Path, meta: &parquet::file::metadata::ParquetMetaData) -> Result<Verifier> {
+        let at = path.display();
+        let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+        let ranges: Vec<Vec<(u64, u64)>> =
+            meta.row_groups().iter().map(|rg| rg.columns().iter().map(|c| c.byte_range()).collect()).collect();
+        let leaves = meta.file_metadata().schema_descr().columns().iter().map(|c| c.path().string()).collect();
+        let footer = meta.file_metadata().key_value_metadata().and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY));
+        // Checksums describe the file pgser wrote. A file another tool rewrote (pyarrow, polars)
+        // can carry the footer over with them, but not the bytes they are of: it is unverifiable,
+        // not corrupt.
+        let by_pgser = meta.file_metadata().created_by().is_some_and(|c| c.starts_with("pgser "));
+        let footer = footer.filter(|_| by_pgser);
+        let sums = match footer.and_then(|e| e.value.as_deref()).map(serde_json::from_str::<serde_json::Value>) {
+            Some(Ok(v)) => match v.get(CHECKSUMS_KEY) {
+                None => None,
+                Some(c) => {
+                    let c: Checksums = serde_json::from_value(c.clone()).with_context(|| {
+                        format!("{at}: the footer's checksums are not readable: the file is corrupt")
+                    })?;
+                    if c.algorithm != "crc32" {
+                        bail!("{at}: checksums of an unknown algorithm {:?}", c.algorithm);
+                    }
+                    if footer_crc(&v) != c.footer {
+                        bail!("{at}: the `{FOOTER_KEY}` footer does not match its checksum: the file is corrupt");
+                    }
+                    let shape: Vec<usize> = c.column_chunks.iter().map(Vec::len).collect();
+                    if shape != ranges.iter().map(Vec::len).collect::<Vec<_>>() {
+                        bail!(
+                            "{at}: the footer has checksums for {} row groups but the file has {}: the file is corrupt",
+                            shape.len(),
+                            ranges.len()
+                        );
+                    }
+                    Some(c.column_chunks)
+                }
+            },
+            Some(Err(_)) => bail!("{at}: the `{FOOTER_KEY}` footer is not valid JSON: the file is corrupt"),
+            None => None,
+        };
+        Ok(Verifier { path: path.to_path_buf(), file, ranges, leaves, sums })
+    }
+
+    /// Whether the file has checksums to check.
+    pub fn verifiable(&self) -> bool {
+        self.sums.is_some()
+    }
+
+    /// The leaf columns under the top-level columns `names` (a vector column has one leaf).
+    pub fn columns_of(&self, names: &[&str]) -> Vec<usize> {
+        let top = |leaf: &str| leaf.split('.').next().unwrap_or(leaf).to_string();
+        (0..self.leaves.len()).filter(|&i| names.contains(&top(&self.leaves[i]).as_str())).collect()
+    }
+
+    /// Checks `columns` (leaf indices) of every row group, in parallel; the first mismatch names
+    /// its row group, column and bytes.
+    pub fn check(&self, columns: &[usize]) -> Result<()> {
+        let Some(sums) = &self.sums else { return Ok(()) };
+        let chunks: Vec<(usize, usize)> =
+            (0..self.ranges.len()).flat_map(|rg| columns.iter().map(move |&c| (rg, c))).collect();
+        let bad = chunks
+            .par_iter()
+            .map(|&(rg, c)| {
+                let (start, len) = self.ranges[rg][c];
+                let got = crc_range(&self.file, start, len).with_context(|| {
+                    format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
+                })?;
+                Ok((got != sums[rg][c]).then_some((rg, c, got)))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        if let Some((rg, c, got)) = bad.into_iter().flatten().min() {
+            let (start, len) = self.ranges[rg][c];
+            bail!(
+                "{}: row group {rg}, column {}, bytes {start}..{}: checksum mismatch (crc32 {got:08x}, written {:08x}): the file is corrupt",
+                self.path.display(),
+                self.leaves[c],
+                start + len,
+                sums[rg][c]
+            );
+        }
+        Ok(())
+    }
+
+    /// Checks every column chunk.
+    pub fn check_all(&self) -> Result<()> {
+        self.check(&(0..self.leaves.len()).collect::<Vec<_>>())
+    }
+
+    /// Column chunks and bytes that `check_all` covers.
+    pub fn extent(&self) -> (usize, u64) {
+        let chunks = self.ranges.iter().map(Vec::len).sum();
+        (chunks, self.ranges.iter().flatten().map(|r| r.1).sum())
+    }
 }
 
 /// The `pgser` footer of a Parquet file, parsed.

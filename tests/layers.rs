@@ -12,7 +12,7 @@ const LAYERS: &[&[&str]] = &[
     &["cli", "nprandom", "output", "pickle", "progress", "task"],
     &["env", "query", "table"],
     &["agent", "trajectory"],
-    &["collect", "eval", "minari", "swap"],
+    &["collect", "eval", "minari", "swap", "verify"],
     &["convert", "score"],
     &["inspect", "sampler"],
     &["train"],

@@ -72,6 +72,9 @@ impl Tensors {
     /// sorted, the header padded with spaces to 8 bytes as the format asks.
     fn encode(mut self, metadata: &BTreeMap<String, String>) -> Result<Vec<u8>> {
         self.entries.sort_by(|a, b| a.0.cmp(&b.0));
+        let mut metadata = metadata.clone();
+        let sums = Crc32s::of(&metadata, self.entries.iter().map(|(n, _, b)| (n.as_str(), b.as_slice())));
+        metadata.insert(CRC_KEY.to_string(), serde_json::to_string(&sums)?);
         let mut header = String::from("{");
         if !metadata.is_empty() {
             header.push_str("\"__metadata__\":{");
@@ -113,6 +116,68 @@ impl Tensors {
     }
 }
 
+/// The metadata key of [`Crc32s`].
+pub const CRC_KEY: &str = "pgser_crc32";
+
+/// CRC-32s of a checkpoint's contents, kept in its own metadata: one of the other metadata
+/// entries (canonical JSON of the sorted map) and one per tensor's bytes. A flipped bit in a
+/// tensor is otherwise a valid float, loaded and used without complaint; checked on every load,
+/// it is an error that names the tensor. (The header's shapes and offsets are checked by the
+/// safetensors parser.)
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Crc32s {
+    pub metadata: u32,
+    pub tensors: BTreeMap<String, u32>,
+}
+
+impl Crc32s {
+    fn of<'a>(metadata: &BTreeMap<String, String>, tensors: impl Iterator<Item = (&'a str, &'a [u8])>) -> Crc32s {
+        let mut meta = metadata.clone();
+        meta.remove(CRC_KEY);
+        let canonical = serde_json::to_string(&meta).expect("a map of strings serializes");
+        Crc32s {
+            metadata: crc32fast::hash(canonical.as_bytes()),
+            tensors: tensors.map(|(n, b)| (n.to_string(), crc32fast::hash(b))).collect(),
+        }
+    }
+}
+
+/// Checks a safetensors file's contents against its [`Crc32s`]: `Ok(true)` when they match,
+/// `Ok(false)` when it has none (written by an older pgser or another tool), an error naming
+/// the first corrupt part otherwise.
+pub fn verify(path: &Path, bytes: &[u8]) -> Result<bool> {
+    let at = path.display();
+    let st = SafeTensors::deserialize(bytes).with_context(|| format!("{at}: not a safetensors file"))?;
+    let (_, header) = SafeTensors::read_metadata(bytes).with_context(|| format!("{at}: not a safetensors file"))?;
+    let meta: BTreeMap<String, String> = header.metadata().clone().unwrap_or_default().into_iter().collect();
+    let Some(text) = meta.get(CRC_KEY) else { return Ok(false) };
+    let want: Crc32s = serde_json::from_str(text)
+        .with_context(|| format!("{at}: metadata {CRC_KEY} is not readable: the file is corrupt"))?;
+    let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
+    names.sort();
+    let got = Crc32s::of(&meta, names.iter().map(|n| (n.as_str(), st.tensor(n).expect("listed").data())));
+    if got.metadata != want.metadata {
+        bail!(
+            "{at}: metadata checksum mismatch (crc32 {:08x}, written {:08x}): the file is corrupt",
+            got.metadata,
+            want.metadata
+        );
+    }
+    for (name, crc) in &got.tensors {
+        match want.tensors.get(name) {
+            Some(w) if w == crc => {}
+            Some(w) => {
+                bail!("{at}: tensor {name}: checksum mismatch (crc32 {crc:08x}, written {w:08x}): the file is corrupt")
+            }
+            None => bail!("{at}: tensor {name} has no checksum: the file is corrupt"),
+        }
+    }
+    if let Some(name) = want.tensors.keys().find(|n| !got.tensors.contains_key(*n)) {
+        bail!("{at}: tensor {name} is missing: the file is corrupt");
+    }
+    Ok(true)
+}
+
 /// A safetensors file read back: its tensors by name and its metadata.
 struct Loaded {
     path: PathBuf,
@@ -122,7 +187,7 @@ struct Loaded {
 impl Loaded {
     fn open(path: &Path) -> Result<Loaded> {
         let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read checkpoint", path.display()))?;
-        SafeTensors::deserialize(&bytes).with_context(|| format!("{}: not a safetensors file", path.display()))?;
+        verify(path, &bytes)?;
         Ok(Loaded { path: path.to_path_buf(), bytes })
     }
 

@@ -52,6 +52,8 @@ pub fn negatives(scored: &Path, keys: &[(i64, i32)], k: usize, seed: u64) -> Res
     }
     let file = File::open(scored).with_context(|| format!("{at}: cannot open"))?;
     let b = ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+    let verifier = crate::table::Verifier::new(scored, b.metadata())?;
+    verifier.check(&verifier.columns_of(&["episode", "step", "goal_step", "q"]))?;
     let mask = ProjectionMask::columns(b.parquet_schema(), ["episode", "step", "goal_step", "q"]);
     let reader =
         b.with_projection(mask).with_batch_size(65_536).build().with_context(|| format!("{at}: cannot read"))?;

@@ -88,6 +88,9 @@ impl ScoredTable {
         if rows == 0 {
             bail!("{at}: the table has no rows");
         }
+        // The sampler reads these columns only: their chunks are checked once, here.
+        let verifier = crate::table::Verifier::new(path, metadata.metadata())?;
+        verifier.check(&verifier.columns_of(&["q", "episode", "step", "goal_episode", "goal_step"]))?;
         Ok(ScoredTable {
             path: path.to_path_buf(),
             task: footer.task(),

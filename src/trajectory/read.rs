@@ -152,6 +152,10 @@ pub(crate) fn open_checked(
     let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
     let indices = check_schema(&at, builder.schema(), &footer, dims)?;
     let names = ["episode", "step"].into_iter().chain(VECTORS);
+    // The bytes of every column chunk read, against the footer's checksums, before decoding.
+    let read: Vec<&str> = names.clone().filter(|n| matches!(*n, "episode" | "step") || columns.contains(n)).collect();
+    let verifier = crate::table::Verifier::new(path, builder.metadata())?;
+    verifier.check(&verifier.columns_of(&read))?;
     let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
     let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i));
     let reader = builder

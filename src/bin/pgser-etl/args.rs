@@ -272,6 +272,21 @@ pub enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Check pgser files for corruption: a table's column chunks and a checkpoint's (or resume
+    /// state's) tensors against the checksums written with them. One line per file; exit 1 if
+    /// any is corrupt, naming its first corrupt row group and column, or tensor.
+    #[command(after_help = "Examples:\n  pgser-etl verify out/fetch_push/*.parquet out/fetch_push/agents/*.ckpt\n  \
+        pgser-etl verify traj.parquet q.ckpt q.ckpt.resume --json\n\n\
+        Files written without checksums (an older pgser, another tool) are decoded in full and reported as \
+        unverified: their values cannot be checked.")]
+    Verify {
+        /// Tables (.parquet) and checkpoints or resume states (safetensors).
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// One JSON object per file instead of a line.
+        #[arg(long)]
+        json: bool,
+    },
     /// Show a table's schema, footer, counts, success rate and column statistics.
     #[command(after_help = "Example:\n  pgser-etl inspect traj.parquet --per-dim")]
     Inspect {

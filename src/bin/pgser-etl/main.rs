@@ -286,6 +286,28 @@ fn main() -> ExitCode {
             eprintln!("wrote {}: {} episodes of {} (T = {})", output.display(), s.episodes, s.task, s.t);
             Ok(())
         }
+        Command::Verify { files, json } => {
+            let mut corrupt = 0;
+            for file in &files {
+                match pgser::verify::verify(file) {
+                    Ok(r) if json => println!("{}", serde_json::to_string(&r)?),
+                    Ok(r) => println!("{}", r.line()),
+                    Err(e) => {
+                        corrupt += 1;
+                        let line = format!("{e:#}").replace('\n', " ");
+                        if json {
+                            println!("{}", serde_json::json!({"path": file, "error": line}));
+                        } else {
+                            println!("CORRUPT {line}");
+                        }
+                    }
+                }
+            }
+            if corrupt > 0 {
+                anyhow::bail!("{corrupt} of {} files failed verification", files.len());
+            }
+            Ok(())
+        }
         Command::Inspect { file, per_dim, json } => {
             let s = inspect::inspect(&file)?;
             if json {
