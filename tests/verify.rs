@@ -201,3 +201,58 @@ fn files_without_checksums_load_and_are_reported_unverifiable() {
     let o = etl().arg("verify").arg(&copy).output().unwrap();
     assert!(o.status.success() && text(&o.stdout).starts_with("unverified "), "{}", text(&o.stdout));
 }
+
+/// A file cut short (a half-finished copy): every command that reads one refuses it in one line
+/// naming it, and writes nothing.
+#[test]
+fn truncated_files_are_refused_by_every_reader() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (table, scored) = reach_tables(tmp.path());
+    let ckpt = tmp.path().join("reach.ckpt");
+    let cut = |src: &Path, name: &str, keep: f64| {
+        let b = std::fs::read(src).unwrap();
+        let dst = tmp.path().join(name);
+        std::fs::write(&dst, &b[..(b.len() as f64 * keep) as usize]).unwrap();
+        dst
+    };
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let o = |p: &str| out.join(p).to_str().unwrap().to_string();
+    let (etl_bin, train_bin) = (env!("CARGO_BIN_EXE_pgser-etl"), env!("CARGO_BIN_EXE_pgser-train"));
+    for keep in [0.5, 0.999] {
+        let (t, sc, ck) = (cut(&table, "t.parquet", keep), cut(&scored, "s.parquet", keep), cut(&ckpt, "c.ckpt", keep));
+        let runs: Vec<(&str, Vec<String>, &Path)> = vec![
+            (train_bin, vec!["--data".into(), s(&t), "-o".into(), o("a.ckpt")], &t),
+            (train_bin, vec!["--data".into(), s(&sc), "-o".into(), o("b.ckpt")], &sc),
+            (
+                etl_bin,
+                vec!["score".into(), "--q".into(), s(&ckpt), "--data".into(), s(&t), "-o".into(), o("s.parquet")],
+                &t,
+            ),
+            (
+                etl_bin,
+                vec!["score".into(), "--q".into(), s(&ck), "--data".into(), s(&table), "-o".into(), o("s.parquet")],
+                &ck,
+            ),
+            (train_bin, vec!["eval".into(), "--ckpt".into(), s(&ck), "--episodes".into(), "1".into()], &ck),
+            (etl_bin, vec!["inspect".into(), s(&t)], &t),
+            (etl_bin, vec!["verify".into(), s(&sc)], &sc),
+            (etl_bin, vec!["export".into(), s(&t), "--format".into(), "minari".into(), "-o".into(), o("x-v0")], &t),
+        ];
+        for (bin, args, bad) in runs {
+            let r = Command::new(bin).args(&args).output().unwrap();
+            let err = text(&r.stderr);
+            assert!(!r.status.success(), "{args:?} accepted a file cut to {keep}");
+            // verify reports each file on stdout (CORRUPT …), its error line counts them.
+            let said = format!("{}{err}", text(&r.stdout));
+            assert!(
+                said.contains(bad.to_str().unwrap()),
+                "{args:?}: the error does not name {}: {said}",
+                bad.display()
+            );
+            assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        }
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "a reader of a truncated file wrote something");
+    }
+}
