@@ -125,6 +125,16 @@ fn a_flipped_bit_in_a_checkpoint_is_detected_or_harmless() {
     assert!(detected > harmless);
 }
 
+/// The byte in the middle of row group 0's chunk of leaf column `leaf` (`obs.list.item`, `q`).
+fn middle_of(table: &Path, leaf: &str) -> usize {
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+    let reader = SerializedFileReader::new(std::fs::File::open(table).unwrap()).unwrap();
+    let rg = reader.metadata().row_group(0);
+    let c = rg.columns().iter().find(|c| c.column_path().string() == leaf).unwrap();
+    let (start, len) = c.byte_range();
+    (start + len / 2) as usize
+}
+
 /// Readers check what they read: training, scoring, inspect and the sampler refuse a table whose
 /// chunk bytes changed, in one line naming it and the chunk, and write nothing.
 #[test]
@@ -134,12 +144,7 @@ fn every_reader_refuses_a_corrupt_table() {
     let ckpt = tmp.path().join("reach.ckpt");
     let bad_table = tmp.path().join("bad_table.parquet");
     // A bit in the middle of the first row group's obs column.
-    let meta = parquet::file::reader::FileReader::metadata(
-        &parquet::file::reader::SerializedFileReader::new(std::fs::File::open(&table).unwrap()).unwrap(),
-    )
-    .clone();
-    let (start, len) = meta.row_group(0).column(2).byte_range();
-    flipped(&table, &bad_table, (start + len / 2) as usize, 3);
+    flipped(&table, &bad_table, middle_of(&table, "obs.list.item"), 3);
     let out = tmp.path().join("out");
     std::fs::create_dir(&out).unwrap();
     let s = |p: &Path| p.to_str().unwrap().to_string();
@@ -171,14 +176,8 @@ fn every_reader_refuses_a_corrupt_table() {
     }
     assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "a reader of a corrupt table wrote something");
     // The scored table's sampler checks the columns it reads (q and the keys).
-    let meta = parquet::file::reader::FileReader::metadata(
-        &parquet::file::reader::SerializedFileReader::new(std::fs::File::open(&scored).unwrap()).unwrap(),
-    )
-    .clone();
-    let q = meta.row_group(0).columns().iter().position(|c| c.column_path().string() == "q").unwrap();
-    let (start, len) = meta.row_group(0).column(q).byte_range();
     let bad_scored = tmp.path().join("bad_scored.parquet");
-    flipped(&scored, &bad_scored, (start + len / 2) as usize, 0);
+    flipped(&scored, &bad_scored, middle_of(&scored, "q"), 0);
     let e = pgser::sampler::scored::ScoredTable::open(&bad_scored).err().expect("a corrupt q column is refused");
     assert!(format!("{e:#}").contains("column q") && names_the_file(&e, &bad_scored), "{e:#}");
 }
