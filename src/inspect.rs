@@ -7,7 +7,6 @@
 //! where a running sum of squares would cancel), min and max; a column's overall moments are
 //! its components' merged the same way ([`Moments::merge`]).
 
-use std::fs::File;
 use std::path::Path;
 
 use anyhow::{Context, Result, anyhow};
@@ -99,7 +98,7 @@ pub struct Summary {
 
 pub fn inspect(path: &Path) -> Result<Summary> {
     let at = path.display();
-    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+    let file = crate::output::open_input(path)?;
     let bytes = file.metadata()?.len();
     let builder =
         ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;

@@ -66,15 +66,60 @@ impl AtomicFile {
     }
 }
 
-/// Refuse to overwrite an input with the output (we read inputs through mmap while writing).
+/// Refuse to overwrite an input with the output (we read inputs through mmap while writing),
+/// or to write into an input folder (a Minari dataset: the output would become part of what it
+/// was made from, and change the folder's recorded sha256).
 pub fn check_not_an_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
     let out = canonical_maybe_missing(output);
     for input in inputs {
-        if std::fs::canonicalize(input).ok().as_deref() == Some(out.as_path()) {
+        let Ok(input_path) = std::fs::canonicalize(input) else { continue };
+        if input_path == out {
             bail!("{}: output would overwrite input {}", output.display(), input.display());
+        }
+        if input_path.is_dir() && out.starts_with(&input_path) {
+            bail!("{}: output inside input folder {}: write it elsewhere", output.display(), input.display());
         }
     }
     Ok(())
+}
+
+/// Opens an input file for reading, after refusing what is not a regular file: opening a FIFO
+/// blocks until something writes to it (pgser hung there, silently), a device reads forever,
+/// and a folder fails later with a message that names neither. Symlinks are followed; a loop
+/// is the system's one-line error.
+pub fn open_input(path: &Path) -> Result<File> {
+    let at = path.display();
+    let meta = std::fs::metadata(path).with_context(|| format!("{at}: cannot open"))?;
+    if !meta.is_file() {
+        bail!("{at}: not a regular file ({}); pgser reads files", file_kind(&meta));
+    }
+    File::open(path).with_context(|| format!("{at}: cannot open"))
+}
+
+/// An input file's whole contents, through [`open_input`].
+pub fn read_input(path: &Path) -> Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut open_input(path)?, &mut bytes)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    Ok(bytes)
+}
+
+/// An input text file's contents, through [`open_input`].
+pub fn read_input_text(path: &Path) -> Result<String> {
+    String::from_utf8(read_input(path)?).with_context(|| format!("{}: not UTF-8 text", path.display()))
+}
+
+/// What kind of file system object `meta` describes, for messages.
+pub fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    let t = meta.file_type();
+    match () {
+        _ if t.is_dir() => "a folder",
+        _ if t.is_fifo() => "a FIFO",
+        _ if t.is_socket() => "a socket",
+        _ if t.is_block_device() || t.is_char_device() => "a device",
+        _ => "not a regular file",
+    }
 }
 
 /// The folder a file lives in; `.` for a bare file name.
@@ -117,7 +162,7 @@ pub fn relative_to_folder_of(target: &Path, file: &Path) -> Result<PathBuf> {
 pub fn sha256_file(path: &Path) -> Result<String> {
     use sha2::Digest;
     let mut hasher = sha2::Sha256::new();
-    feed_file(&mut hasher, File::open(path).with_context(|| format!("{}: cannot open", path.display()))?, path)?;
+    feed_file(&mut hasher, open_input(path)?, path)?;
     Ok(hex(&hasher.finalize()))
 }
 

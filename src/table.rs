@@ -251,7 +251,7 @@ impl Verifier {
     /// nothing ([`Verifier::verifiable`] says so).
     pub fn new(path: &Path, meta: &parquet::file::metadata::ParquetMetaData) -> Result<Verifier> {
         let at = path.display();
-        let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+        let file = crate::output::open_input(path)?;
         let ranges: Vec<Vec<(u64, u64)>> =
             meta.row_groups().iter().map(|rg| rg.columns().iter().map(|c| c.byte_range()).collect()).collect();
         let leaves = meta.file_metadata().schema_descr().columns().iter().map(|c| c.path().string()).collect();
@@ -345,7 +345,7 @@ impl Verifier {
 
 /// The `pgser` footer of a Parquet file, parsed.
 pub fn read_footer(path: &Path) -> Result<serde_json::Value> {
-    let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let file = crate::output::open_input(path)?;
     let reader = SerializedFileReader::new(file).with_context(|| format!("{}: not a Parquet file", path.display()))?;
     let kv = reader.metadata().file_metadata().key_value_metadata();
     let text = kv

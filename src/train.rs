@@ -520,7 +520,7 @@ fn read_metrics<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
     if !path.exists() {
         return Ok(Vec::new());
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = crate::output::read_input_text(path)?;
     text.lines()
         .enumerate()
         .map(|(i, l)| {

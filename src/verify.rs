@@ -10,7 +10,6 @@
 //! Files without checksums (an older pgser, another writer) are decoded in full, which catches
 //! what breaks their structure, and reported as not verifiable: their values cannot be checked.
 
-use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
@@ -57,8 +56,7 @@ impl Report {
 pub fn verify(path: &Path) -> Result<Report> {
     let at = path.display();
     let mut magic = [0u8; 4];
-    File::open(path)
-        .with_context(|| format!("{at}: cannot open"))?
+    crate::output::open_input(path)?
         .read_exact(&mut magic)
         .with_context(|| format!("{at}: too short to be a pgser table or checkpoint"))?;
     if &magic == b"PAR1" { table(path) } else { safetensors(path) }
@@ -66,7 +64,7 @@ pub fn verify(path: &Path) -> Result<Report> {
 
 fn table(path: &Path) -> Result<Report> {
     let at = path.display();
-    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+    let file = crate::output::open_input(path)?;
     let builder = ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{at}: not a readable Parquet file (its footer is corrupt or it was cut short)"))?;
     let verifier = Verifier::new(path, builder.metadata())?;
@@ -88,7 +86,7 @@ fn table(path: &Path) -> Result<Report> {
 
 fn safetensors(path: &Path) -> Result<Report> {
     let at = path.display();
-    let bytes = std::fs::read(path).with_context(|| format!("{at}: cannot read"))?;
+    let bytes = crate::output::read_input(path)?;
     let verified = checkpoint::verify(path, &bytes)?;
     let st = safetensors::SafeTensors::deserialize(&bytes).with_context(|| format!("{at}: not a safetensors file"))?;
     let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)?;

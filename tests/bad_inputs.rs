@@ -208,3 +208,71 @@ fn a_file_size_limit_mid_write_fails_in_one_line_and_keeps_the_old_output() {
         assert!(std::fs::read(&out).unwrap() == old, "{name}: a rerun wrote other bytes");
     }
 }
+
+/// A FIFO or a symlink loop given where a file is read: every command refuses it at once in one
+/// line naming it (a FIFO used to block the open forever), and writes nothing. An output inside
+/// an input folder (a Minari dataset) is refused too: it would become part of the dataset.
+#[test]
+fn fifos_symlink_loops_and_outputs_inside_inputs_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let fifo = d.join("fifo.parquet");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    std::os::unix::fs::symlink(d.join("loop_b"), d.join("loop_a")).unwrap();
+    std::os::unix::fs::symlink(d.join("loop_a"), d.join("loop_b")).unwrap();
+    let out = d.join("out");
+    std::fs::create_dir(&out).unwrap();
+    let o = |n: &str| out.join(n).to_str().unwrap().to_string();
+    let train = env!("CARGO_BIN_EXE_pgser-train");
+    let etl_bin = env!("CARGO_BIN_EXE_pgser-etl");
+    for (bad, why) in [(fifo.clone(), "not a regular file"), (d.join("loop_a"), "symbolic links")] {
+        let b = bad.to_str().unwrap().to_string();
+        let runs: Vec<(&str, Vec<String>)> = vec![
+            (etl_bin, vec!["convert".into(), b.clone(), "-o".into(), o("t.parquet")]),
+            (train, vec!["--data".into(), b.clone(), "-o".into(), o("a.ckpt")]),
+            (train, vec!["eval".into(), "--ckpt".into(), b.clone()]),
+            (
+                etl_bin,
+                vec!["score".into(), "--q".into(), b.clone(), "--data".into(), b.clone(), "-o".into(), o("s.parquet")],
+            ),
+            (etl_bin, vec!["inspect".into(), b.clone()]),
+            (etl_bin, vec!["export".into(), b.clone(), "--format".into(), "wgcsl".into(), "-o".into(), o("x.pkl")]),
+            (etl_bin, vec!["pipeline".into(), "run".into(), b.clone()]),
+        ];
+        for (bin, args) in runs {
+            let mut child = std::process::Command::new(bin)
+                .args(&args)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap();
+            // A hang is the fault this guards against: give it 20 s, then fail the test.
+            let started = std::time::Instant::now();
+            while child.try_wait().unwrap().is_none() {
+                if started.elapsed() > std::time::Duration::from_secs(20) {
+                    child.kill().unwrap();
+                    panic!("{args:?} hung on {why}");
+                }
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            let r = child.wait_with_output().unwrap();
+            let err = text(&r.stderr);
+            assert!(!r.status.success(), "{args:?} succeeded");
+            assert!(err.contains(&b) && err.contains(why), "{args:?}: {err}");
+            assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        }
+    }
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "a refused command wrote something");
+    // An output inside the Minari dataset folder being converted.
+    let ds = d.join("ds");
+    let src = repo().join("tests/fixtures/minari/fetchreach-arrow-v0");
+    let copied = std::process::Command::new("cp").arg("-r").arg(&src).arg(&ds).status().unwrap();
+    assert!(copied.success());
+    let before = pgser::minari::sha256_folder(&ds).unwrap();
+    let inside = ds.join("data/t.parquet");
+    let r = etl().arg("convert").arg(&ds).arg("-o").arg(&inside).output().unwrap();
+    let err = text(&r.stderr);
+    assert!(!r.status.success() && err.contains("output inside input folder"), "{err}");
+    assert_eq!(pgser::minari::sha256_folder(&ds).unwrap(), before, "the dataset changed");
+}

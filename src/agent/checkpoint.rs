@@ -186,7 +186,7 @@ struct Loaded {
 
 impl Loaded {
     fn open(path: &Path) -> Result<Loaded> {
-        let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read checkpoint", path.display()))?;
+        let bytes = crate::output::read_input(path)?;
         verify(path, &bytes)?;
         Ok(Loaded { path: path.to_path_buf(), bytes })
     }

@@ -50,7 +50,7 @@ impl Reader {
         let mut rows = 0;
         for path in &files {
             let at = format!("{} (episode {i})", path.display());
-            let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+            let file = crate::output::open_input(path)?;
             let reader = arrow_ipc::reader::FileReader::try_new(file, None)
                 .map_err(|e| anyhow::anyhow!("{at}: not an Arrow IPC file ({e})"))?;
             for batch in reader {

@@ -103,7 +103,7 @@ pub fn read_metadata(dir: &Path) -> Result<Metadata> {
     let data = data_folder(dir)?;
     let path = data.join("metadata.json");
     let at = path.display().to_string();
-    let text = std::fs::read_to_string(&path).with_context(|| format!("{at}: cannot read"))?;
+    let text = crate::output::read_input_text(&path)?;
     let json: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{at}: not valid JSON ({e})"))?;
     let string = |key: &str| json.get(key).and_then(|v| v.as_str());

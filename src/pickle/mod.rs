@@ -126,6 +126,10 @@ pub struct MappedFile {
 
 impl MappedFile {
     pub fn open(path: &Path) -> std::io::Result<Self> {
+        // Not a regular file (a FIFO would block the open forever): refused before opening.
+        if !std::fs::metadata(path)?.is_file() {
+            return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file; pgser reads files"));
+        }
         let file = std::fs::File::open(path)?;
         let len = file.metadata()?.len();
         // mmap of an empty file fails on Linux; an empty slice is the honest answer.

@@ -152,7 +152,7 @@ struct DataFile {
 impl Pipeline {
     pub fn load(path: &Path) -> Result<Pipeline> {
         let at = path.display();
-        let text = std::fs::read_to_string(path).with_context(|| format!("{at}: cannot read"))?;
+        let text = crate::output::read_input_text(path)?;
         Pipeline::parse(&text, path).with_context(|| format!("{at}"))
     }
 

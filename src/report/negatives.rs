@@ -13,7 +13,6 @@
 //! stream of rows, each with its own seeded random stream, so the paper's sample is the one the
 //! report drew before the controlled one existed.
 
-use std::fs::File;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
@@ -50,7 +49,7 @@ pub fn negatives(scored: &Path, keys: &[(i64, i32)], k: usize, seed: u64) -> Res
     if let Some(w) = keys.windows(2).find(|w| w[0] >= w[1]) {
         bail!("{at}: positive transitions out of order at (episode {}, step {}); they must increase", w[1].0, w[1].1);
     }
-    let file = File::open(scored).with_context(|| format!("{at}: cannot open"))?;
+    let file = crate::output::open_input(scored)?;
     let b = ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
     let verifier = crate::table::Verifier::new(scored, b.metadata())?;
     verifier.check(&verifier.columns_of(&["episode", "step", "goal_step", "q"]))?;

@@ -361,7 +361,7 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
 /// The evaluation lines of a metrics file; an unreadable or eval-less file is an error.
 fn read_evals(path: &Path) -> Result<Vec<Eval>> {
     let at = path.display();
-    let text = std::fs::read_to_string(path).with_context(|| format!("{at}: cannot read the metrics file"))?;
+    let text = crate::output::read_input_text(path).with_context(|| format!("{at}: cannot read the metrics file"))?;
     let mut evals = Vec::new();
     let mut lines = 0;
     for (i, line) in text.lines().enumerate() {

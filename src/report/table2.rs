@@ -18,7 +18,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Result, anyhow, bail};
 use polars::prelude::{DataFrame, DataType};
 use serde::Serialize;
 
@@ -140,7 +140,7 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
     }
     let paper = match &opts.reference {
         Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
+            let text = crate::output::read_input_text(p)?;
             read_reference(&text, &p.display().to_string())?
         }
         None => read_reference(PAPER, "assets/paper_table2.csv")?,

@@ -77,7 +77,7 @@ impl ScoredTable {
     pub fn open(path: &Path) -> Result<ScoredTable> {
         let at = path.display();
         let footer = crate::score::read_footer(path)?;
-        let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+        let file = crate::output::open_input(path)?;
         let metadata = ArrowReaderMetadata::load(&file, ArrowReaderOptions::default())
             .with_context(|| format!("{at}: not a Parquet file"))?;
         let mut group_starts = vec![0usize];

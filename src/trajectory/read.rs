@@ -9,7 +9,6 @@
 //! dense episodes, ordered steps, nulls only where WGCSL has no entry, finite values — so a bad
 //! table fails here with the file, row, episode and step named, not as a NaN loss hours later.
 
-use std::fs::File;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
@@ -136,7 +135,7 @@ pub(crate) fn open_checked(
     batch_episodes: usize,
 ) -> Result<(Footer, ParquetRecordBatchReader)> {
     let at = path.display().to_string();
-    let file = File::open(path).with_context(|| format!("{at}: cannot open"))?;
+    let file = crate::output::open_input(path)?;
     let builder =
         ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
     let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
