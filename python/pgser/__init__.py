@@ -13,6 +13,10 @@ docs/python.md in the repository describes each, with the settings they share wi
 from . import _pgser
 from ._pgser import Sampler, Policy, convert, read_footer, read_table, score, task_info
 
+# Registers the pgser/<task> ids with gymnasium on import, so gymnasium.make("pgser/FetchPush-v4")
+# works after `import pgser` as it does through pgser.make.
+from . import envs  # noqa: E402,F401
+
 __version__ = _pgser.__version__
 long_version = _pgser.long_version
 

@@ -88,6 +88,15 @@ def test_vector_env_equals_gymnasium_robotics_sync_vector_env():
         assert np.array_equal(ar, br) and np.array_equal(atr, btr), f"step {t}"
 
 
+def test_ids_are_registered_on_import():
+    import subprocess
+    import sys
+
+    code = "import gymnasium, pgser; e = gymnasium.make('pgser/FetchSlide-v4'); print(e.spec.max_episode_steps)"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0 and p.stdout.split()[-1] == "50", p.stderr
+
+
 def test_passes_gymnasiums_env_checker():
     from gymnasium.utils.env_checker import check_env
 
