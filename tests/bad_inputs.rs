@@ -276,3 +276,59 @@ fn fifos_symlink_loops_and_outputs_inside_inputs_are_refused() {
     assert!(!r.status.success() && err.contains("output inside input folder"), "{err}");
     assert_eq!(pgser::minari::sha256_folder(&ds).unwrap(), before, "the dataset changed");
 }
+
+/// The last two writers under a file-size limit: `export --format minari` (a dataset folder of
+/// one Arrow file per episode, staged and renamed into place) and `report` (a PNG and two table
+/// files). Each fails in one line naming the file, leaves nothing partial, and a rerun without
+/// the limit writes what an undisturbed run writes.
+#[test]
+fn a_file_size_limit_in_report_and_minari_export_fails_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (table, scored) = reach_tables(tmp.path());
+    let limited = |limit_kib: u64, args: &[&str]| {
+        std::process::Command::new("bash")
+            .arg("-c")
+            .arg(format!("ulimit -f {limit_kib}; exec \"$0\" \"$@\""))
+            .arg(env!("CARGO_BIN_EXE_pgser-etl"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let one_line = |o: &std::process::Output, names: &str| {
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{:?}: {err}", o.status);
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(names) && err.contains("File too large"), "{err}");
+    };
+    // Minari export: an episode file is ~10 KiB, so 4 KiB stops it at episode 0.
+    let parent = tmp.path().join("datasets");
+    std::fs::create_dir(&parent).unwrap();
+    let ds = parent.join("reach-mix-v0");
+    let args = ["export", table.to_str().unwrap(), "--format", "minari", "-o", ds.to_str().unwrap()];
+    one_line(&limited(4, &args), "reach-mix-v0");
+    assert_eq!(std::fs::read_dir(&parent).unwrap().count(), 0, "export left a partial dataset");
+    let o = etl().args(args).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let back = tmp.path().join("back.parquet");
+    let o = etl().args(["convert", ds.to_str().unwrap(), "-o", back.to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(read_table(&back).0.columns() == read_table(&table).0.columns(), "the rerun's dataset differs");
+
+    // report: its previous complete output stays as it was.
+    let rep = tmp.path().join("report");
+    let args = ["report", scored.to_str().unwrap(), "-o", rep.to_str().unwrap(), "--positive-episodes", "50"];
+    // Small samples: the classifiers' time is not what is tested here.
+    let args = [&args[..], &["--max-samples", "1000", "--svm-max-train", "200"]].concat();
+    let o = etl().args(&args).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let before = snapshot(&rep);
+    std::fs::remove_file(rep.join("fig5_q_hist.png")).unwrap();
+    std::fs::write(rep.join("table1.md"), "previous complete output").unwrap();
+    one_line(&limited(16, &args), "fig5_q_hist.png");
+    assert_eq!(std::fs::read_to_string(rep.join("table1.md")).unwrap(), "previous complete output");
+    let left: Vec<_> = std::fs::read_dir(&rep).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 2, "report left a partial or temporary file: {left:?}");
+    let o = etl().args(&args).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(snapshot(&rep), before, "the rerun's report differs from an undisturbed run's");
+}
