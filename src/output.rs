@@ -26,6 +26,7 @@ impl AtomicFile {
             bail!("{}: output path is a folder", dest.display());
         }
         let prefix = format!(".{}.", name.to_string_lossy());
+        sweep_stale(&dir, &prefix);
         let mut builder = tempfile::Builder::new();
         builder.prefix(&prefix).suffix(".tmp");
         // Temporary files are private (0600); a finished output is an ordinary file that the
@@ -35,6 +36,12 @@ impl AtomicFile {
         let tmp = builder
             .tempfile_in(&dir)
             .with_context(|| format!("{}: cannot create a temporary file in {}", dest.display(), dir.display()))?;
+        // Held until this process closes the file (or dies): how `sweep_stale` tells a live
+        // writer's temporary file from a killed one's.
+        // SAFETY: flock on a descriptor we own; it only sets an advisory lock.
+        if unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(tmp.as_file()), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            bail!("{}: cannot lock its temporary file: {}", dest.display(), std::io::Error::last_os_error());
+        }
         Ok(Self { tmp, dest: dest.to_path_buf() })
     }
 
@@ -63,6 +70,31 @@ impl AtomicFile {
             .map_err(|e| e.error)
             .with_context(|| format!("{}: cannot move the finished file into place", dest.display()))?;
         Ok(())
+    }
+}
+
+/// Removes temporary files of `prefix` (`.NAME.` + 6 random characters + `.tmp`) in `dir` that
+/// no live process holds: what a writer killed by SIGKILL, the OOM killer or a power cut leaves
+/// beside its output, since no destructor ran to delete it. A live writer holds an exclusive
+/// flock on its temporary file ([`AtomicFile::create`]), so a lock we can take means its owner
+/// is gone; two pgser processes writing the same output never delete each other's file.
+/// Best effort: a file that cannot be opened or removed is left as it was.
+fn sweep_stale(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        let Some(middle) = name.strip_prefix(prefix).and_then(|m| m.strip_suffix(".tmp")) else { continue };
+        if middle.len() != 6 || !middle.chars().all(|c| c.is_ascii_alphanumeric()) {
+            continue;
+        }
+        let path = entry.path();
+        let Ok(file) = File::open(&path) else { continue };
+        // SAFETY: flock on a descriptor we own, released when `file` is dropped.
+        let free = unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&file), libc::LOCK_EX | libc::LOCK_NB) } == 0;
+        if free {
+            let _ = std::fs::remove_file(&path);
+        }
     }
 }
 
@@ -190,8 +222,31 @@ pub fn hex(bytes: &[u8]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use std::io::Write;
+
+    use super::*;
+
+    /// A killed writer's temporary file is removed by the next writer of the same output; a live
+    /// writer's (locked) is not, nor files that only look alike.
+    #[test]
+    fn the_next_writer_sweeps_what_a_killed_one_left() {
+        let dir = tempfile::tempdir().unwrap();
+        let dest = dir.path().join("t.parquet");
+        let dead = dir.path().join(".t.parquet.Ab3dE9.tmp");
+        let other = dir.path().join(".t.parquet.stale.tmp");
+        let unrelated = dir.path().join(".u.parquet.Ab3dE9.tmp");
+        for p in [&dead, &other, &unrelated] {
+            std::fs::write(p, b"partial").unwrap();
+        }
+        let live = AtomicFile::create(&dest).unwrap();
+        assert!(!dead.exists(), "the killed writer's file is still there");
+        assert!(other.exists() && unrelated.exists());
+        let second = AtomicFile::create(&dest).unwrap();
+        assert!(live.tmp.path().exists(), "a live writer's temporary file was swept");
+        second.commit().unwrap();
+        live.commit().unwrap();
+        assert!(!dead.exists());
+    }
 
     #[test]
     fn uncommitted_output_leaves_nothing() {

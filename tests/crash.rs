@@ -174,3 +174,69 @@ fn the_checks_catch_a_cut_table_and_a_false_record() {
     assert!(f.iter().any(|l| l.starts_with("traj.parquet:")), "{f:?}");
     assert!(f.iter().any(|l| l.contains("claims") && l.contains("traj.parquet")), "{f:?}");
 }
+
+/// `score` and `collect` on their own, SIGKILLed at moments drawn from a seed over an
+/// uninterrupted run's time (`PGSER_CRASH_KILLS` of them each): after every kill the output is
+/// absent or whole, and the next run writes the reference bytes and sweeps the temporary files
+/// the killed runs left (a killed writer runs no destructor; `output::sweep_stale`).
+#[test]
+fn killed_score_and_collect_leave_nothing_a_rerun_keeps() {
+    let kills: usize = std::env::var("PGSER_CRASH_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
+    let seed: u64 = std::env::var("PGSER_CRASH_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let inputs = tempfile::tempdir().unwrap();
+    let (table, _) = common::reach_tables(inputs.path());
+    let ckpt = inputs.path().join("reach.ckpt");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let commands: [(&str, Vec<String>); 2] = [
+        (
+            "scored.parquet",
+            ["score", "--q", &s(&ckpt), "--data", &s(&table), "--swaps", "24"].map(String::from).to_vec(),
+        ),
+        (
+            "push.parquet",
+            ["collect", "--task", "FetchPush", "--policy", "expert", "--episodes", "150", "--seed", "3"]
+                .map(String::from)
+                .to_vec(),
+        ),
+    ];
+    let mut rng = NpRandom::new(seed);
+    for (name, args) in commands {
+        let run = |dir: &Path| {
+            let mut c = etl();
+            c.current_dir(dir).args(&args).args(["-o", name]).env("RAYON_NUM_THREADS", "2");
+            c.stdout(Stdio::null()).stderr(Stdio::null());
+            c
+        };
+        let reference = tempfile::tempdir().unwrap();
+        let started = Instant::now();
+        assert!(run(reference.path()).status().unwrap().success(), "{name}: the reference run failed");
+        let whole = started.elapsed();
+        let want = std::fs::read(reference.path().join(name)).unwrap();
+
+        let dir = tempfile::tempdir().unwrap();
+        let mut left = 0;
+        for k in 0..kills {
+            let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
+            let mut child = run(dir.path()).spawn().unwrap();
+            std::thread::sleep(at);
+            // SAFETY: a plain kill(2) of our own child.
+            unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+            child.wait().unwrap();
+            let mut all = Vec::new();
+            files(dir.path(), &mut all);
+            left += all.iter().filter(|p| is_temporary(p)).count();
+            let out = dir.path().join(name);
+            assert!(
+                !out.exists() || std::fs::read(&out).unwrap() == want,
+                "{name}: kill {k} at {at:?} left a partial output"
+            );
+            std::fs::remove_file(&out).ok();
+        }
+        assert!(run(dir.path()).status().unwrap().success(), "{name}: the rerun failed");
+        let mut all = Vec::new();
+        files(dir.path(), &mut all);
+        assert_eq!(all, [dir.path().join(name)], "{name}: left behind after {kills} kills");
+        assert!(std::fs::read(dir.path().join(name)).unwrap() == want, "{name}: the rerun's bytes differ");
+        eprintln!("{name}: {kills} kills over a {whole:?} run, {left} temporary files left by them, all swept");
+    }
+}
