@@ -19,24 +19,42 @@ use crate::output::hex;
 use crate::pickle::{DTypeKind, MappedFile, NdArray, Obj, Pickle};
 use crate::task::Task;
 
-#[derive(Debug, Clone)]
+/// `pgser-etl convert`'s settings (its flags: the CLI parses them into this), and
+/// `pgser.convert`'s keyword arguments.
+#[derive(Debug, Clone, clap::Args)]
 pub struct ConvertOptions {
+    /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
+    /// Minari dataset folder (ID/ or ID/data/).
+    #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
+    /// Output Parquet file (written atomically).
+    #[arg(short, long)]
     pub output: PathBuf,
-    /// Task name; inferred from the dimensions when absent and unambiguous.
+    /// Task name (FetchReach, FetchPush, …); inferred from dimensions when unambiguous.
+    #[arg(long)]
     pub task: Option<String>,
-    /// Success threshold: required for tasks pgser does not know, an override otherwise.
+    /// Success threshold on the goal distance; required for tasks pgser does not know.
+    #[arg(long)]
     pub threshold: Option<f64>,
-    /// Take the first k_i episodes of input i (GoFAR's expert/random mix).
+    /// Take the first k episodes of each input, one count per input: `--episodes 500,2000`.
+    #[arg(long, value_delimiter = ',')]
     pub episodes: Option<Vec<usize>>,
+    /// Store float32 vectors even when the source is float64.
+    #[arg(long)]
     pub float32: bool,
+    /// Keep NaN and ±Inf values instead of refusing the file.
+    #[arg(long)]
     pub allow_nonfinite: bool,
-    /// Minari datasets: refuse episodes one step longer than the task's T instead of dropping
-    /// their last step.
+    /// A Minari dataset whose episodes are one step longer than the task's T (gymnasium's
+    /// time limit: 50 steps, 51 observations for Fetch): refuse it instead of dropping each
+    /// episode's last step.
+    #[arg(long)]
     pub exact_length: bool,
-    /// Target rows per row group; row groups always hold whole episodes.
+    /// Target rows per row group (row groups always hold whole episodes).
+    #[arg(long, default_value_t = 65_536)]
     pub row_group_rows: usize,
-    /// The command line, recorded in the footer.
+    /// The command line, recorded in the footer (set by the caller, not a flag).
+    #[arg(skip)]
     pub command: String,
 }
 

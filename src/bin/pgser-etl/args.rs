@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
 use pgser::agent::Backend;
-use pgser::{minari, pipeline, score};
+use pgser::{convert, minari, pipeline, score};
 
 #[derive(Parser)]
 #[command(
@@ -30,38 +30,7 @@ pub enum Command {
         achieved_goal, desired_goal) with episodes of one length: n steps become T = n+1 rows (where n+1 is the task's T+1, as \
         gymnasium's time limit records Fetch episodes, the last step is dropped; --exact-length refuses). The task is \
         --task, else the id of the dataset's env_spec (FetchReach-v4 is FetchReach). See docs/minari.md.")]
-    Convert {
-        /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
-        /// Minari dataset folder (ID/ or ID/data/).
-        #[arg(required = true)]
-        inputs: Vec<PathBuf>,
-        /// Output Parquet file (written atomically).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Task name (FetchReach, FetchPush, …); inferred from dimensions when unambiguous.
-        #[arg(long)]
-        task: Option<String>,
-        /// Success threshold on the goal distance; required for tasks pgser does not know.
-        #[arg(long)]
-        threshold: Option<f64>,
-        /// Take the first k episodes of each input, one count per input: `--episodes 500,2000`.
-        #[arg(long, value_delimiter = ',')]
-        episodes: Option<Vec<usize>>,
-        /// Store float32 vectors even when the source is float64.
-        #[arg(long)]
-        float32: bool,
-        /// Keep NaN and ±Inf values instead of refusing the file.
-        #[arg(long)]
-        allow_nonfinite: bool,
-        /// A Minari dataset whose episodes are one step longer than the task's T (gymnasium's
-        /// time limit: 50 steps, 51 observations for Fetch): refuse it instead of dropping each
-        /// episode's last step.
-        #[arg(long)]
-        exact_length: bool,
-        /// Target rows per row group (row groups always hold whole episodes).
-        #[arg(long, default_value_t = 65_536)]
-        row_group_rows: usize,
-    },
+    Convert(convert::ConvertOptions),
     /// Simulate episodes in a Fetch or hand environment (expert, trained or random policy) into a table or pickle.
     #[command(
         after_help = "Examples:\n  pgser-etl collect --task FetchPush --policy expert --episodes 500 --seed 0 -o expert.parquet\n  \

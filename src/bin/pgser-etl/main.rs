@@ -27,29 +27,8 @@ fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-etl", || match args.command {
-        Command::Convert {
-            inputs,
-            output,
-            task,
-            threshold,
-            episodes,
-            float32,
-            allow_nonfinite,
-            exact_length,
-            row_group_rows,
-        } => {
-            let opts = convert::ConvertOptions {
-                inputs,
-                output,
-                task,
-                threshold,
-                episodes,
-                float32,
-                allow_nonfinite,
-                exact_length,
-                row_group_rows,
-                command: cli::command_line(),
-            };
+        Command::Convert(mut opts) => {
+            opts.command = cli::command_line();
             let bar = progress::bar("convert", "rows");
             let s = convert::convert(&opts, &bar)?;
             bar.finish_and_clear();
