@@ -106,11 +106,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
     // Every chunk's bytes against the footer's checksums, before statistics are computed from them.
     let verifier = crate::table::Verifier::new(path, &meta)?;
     verifier.check_all()?;
-    let footer = meta
-        .file_metadata()
-        .key_value_metadata()
-        .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
-        .and_then(|e| e.value.as_deref())
+    let footer = crate::table::footer_text(meta.file_metadata())
         .map(|t| serde_json::from_str(t).with_context(|| format!("{at}: the `{FOOTER_KEY}` footer is not valid JSON")))
         .transpose()?;
     let traj: Option<trajectory::Footer> = footer

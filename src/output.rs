@@ -142,7 +142,7 @@ pub fn read_input_text(path: &Path) -> Result<String> {
 }
 
 /// What kind of file system object `meta` describes, for messages.
-pub fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+fn file_kind(meta: &std::fs::Metadata) -> &'static str {
     use std::os::unix::fs::FileTypeExt;
     let t = meta.file_type();
     match () {

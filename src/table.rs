@@ -255,13 +255,13 @@ impl Verifier {
         let ranges: Vec<Vec<(u64, u64)>> =
             meta.row_groups().iter().map(|rg| rg.columns().iter().map(|c| c.byte_range()).collect()).collect();
         let leaves = meta.file_metadata().schema_descr().columns().iter().map(|c| c.path().string()).collect();
-        let footer = meta.file_metadata().key_value_metadata().and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY));
+        let footer = footer_text(meta.file_metadata());
         // Checksums describe the file pgser wrote. A file another tool rewrote (pyarrow, polars)
         // can carry the footer over with them, but not the bytes they are of: it is unverifiable,
         // not corrupt.
         let by_pgser = meta.file_metadata().created_by().is_some_and(|c| c.starts_with("pgser "));
         let footer = footer.filter(|_| by_pgser);
-        let sums = match footer.and_then(|e| e.value.as_deref()).map(serde_json::from_str::<serde_json::Value>) {
+        let sums = match footer.map(serde_json::from_str::<serde_json::Value>) {
             Some(Ok(v)) => match v.get(CHECKSUMS_KEY) {
                 None => None,
                 Some(c) => {
@@ -343,15 +343,17 @@ impl Verifier {
     }
 }
 
+/// The raw `pgser` footer (JSON text) in a Parquet file's key-value metadata, if there is one.
+pub fn footer_text(meta: &parquet::file::metadata::FileMetaData) -> Option<&str> {
+    meta.key_value_metadata()?.iter().find(|e| e.key == FOOTER_KEY)?.value.as_deref()
+}
+
 /// The `pgser` footer of a Parquet file, parsed.
 pub fn read_footer(path: &Path) -> Result<serde_json::Value> {
     let file = crate::output::open_input(path)?;
     let reader = SerializedFileReader::new(file).with_context(|| format!("{}: not a Parquet file", path.display()))?;
-    let kv = reader.metadata().file_metadata().key_value_metadata();
-    let text = kv
-        .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
-        .and_then(|e| e.value.clone())
+    let text = footer_text(reader.metadata().file_metadata())
         .with_context(|| format!("{}: no `{FOOTER_KEY}` footer: not written by pgser", path.display()))?;
-    serde_json::from_str(&text)
+    serde_json::from_str(text)
         .with_context(|| format!("{}: the `{FOOTER_KEY}` footer is not valid JSON", path.display()))
 }

@@ -69,7 +69,10 @@ fn table(path: &Path) -> Result<Report> {
         .with_context(|| format!("{at}: not a readable Parquet file (its footer is corrupt or it was cut short)"))?;
     let verifier = Verifier::new(path, builder.metadata())?;
     verifier.check_all()?;
-    let kind = crate::table::read_footer(path).ok().and_then(|f| f["kind"].as_str().map(str::to_string));
+    let footer = crate::table::footer_text(builder.metadata().file_metadata());
+    let kind = footer
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())
+        .and_then(|f| f["kind"].as_str().map(str::to_string));
     let groups = builder.metadata().num_row_groups();
     let rows = builder.metadata().file_metadata().num_rows();
     let mut read = 0i64;

@@ -32,8 +32,6 @@ pub struct Sampler {
     rx: Mutex<Option<Receiver<Drawn>>>,
     worker: Mutex<Option<JoinHandle<()>>>,
     dims: (usize, usize, usize),
-    /// Batches left to hand out; None: endless.
-    left: Mutex<Option<u64>>,
     #[pyo3(get)]
     task: String,
     #[pyo3(get)]
@@ -128,7 +126,6 @@ impl Sampler {
             rx: Mutex::new(Some(rx)),
             worker: Mutex::new(Some(worker)),
             dims: (t.obs_dim, t.goal_dim, t.act_dim),
-            left: Mutex::new(num_batches),
             task: t.name,
             batch_size,
             scored,
@@ -142,15 +139,6 @@ impl Sampler {
     /// The next batch: obs, goal, action, reward, next_obs, weight (float32), episode, step,
     /// scored_row (int64; −1 for rows of the original data).
     fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        {
-            let mut left = self.left.lock().unwrap();
-            if let Some(n) = left.as_mut() {
-                if *n == 0 {
-                    return Err(PyStopIteration::new_err(()));
-                }
-                *n -= 1;
-            }
-        }
         let drawn = loop {
             let got =
                 py.detach(|| self.rx.lock().unwrap().as_ref().map(|rx| rx.recv_timeout(Duration::from_millis(100))));
@@ -158,7 +146,8 @@ impl Sampler {
                 None => return Err(PyValueError::new_err("the sampler is closed")),
                 Some(Ok(d)) => break d,
                 Some(Err(RecvTimeoutError::Timeout)) => py.check_signals()?,
-                Some(Err(RecvTimeoutError::Disconnected)) => return Err(PyValueError::new_err("the sampler stopped")),
+                // The worker ended: `num_batches` were handed out (or its error was, last).
+                Some(Err(RecvTimeoutError::Disconnected)) => return Err(PyStopIteration::new_err(())),
             }
         };
         let (b, ids) = drawn.map_err(py_err)?;

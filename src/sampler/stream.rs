@@ -136,12 +136,6 @@ impl BatchStream {
         &self.rng
     }
 
-    /// Whether batches carry importance weights (`--is-beta` with a scored table); without,
-    /// [`Batch::weight`] is empty, which the agent reads as all 1.
-    pub fn weighted(&self) -> bool {
-        self.aug.is_some() && self.cfg.priority.is_beta.is_some()
-    }
-
     /// The next batch, with where each of its rows came from.
     pub fn next_batch(&mut self) -> Result<(Batch, RowIds)> {
         let mut batch = Batch::default();

@@ -138,7 +138,7 @@ pub(crate) fn open_checked(
     let file = crate::output::open_input(path)?;
     let builder =
         ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
-    let footer = trajectory_footer(&at, builder.metadata().file_metadata().key_value_metadata())?;
+    let footer = trajectory_footer(&at, crate::table::footer_text(builder.metadata().file_metadata()))?;
     let file_rows = builder.metadata().file_metadata().num_rows();
     if usize::try_from(file_rows).ok() != Some(footer.rows) {
         bail!(
@@ -176,11 +176,8 @@ pub(crate) fn rows_read_error(at: &str, rows: usize, f: &Footer) -> anyhow::Erro
 }
 
 /// The `pgser` footer, required to be a trajectory footer that agrees with itself.
-fn trajectory_footer(at: &str, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<Footer> {
-    let text = kv
-        .and_then(|kv| kv.iter().find(|e| e.key == FOOTER_KEY))
-        .and_then(|e| e.value.as_deref())
-        .with_context(|| format!("{at}: no `{FOOTER_KEY}` footer, so not a pgser table; {EXPECTED}"))?;
+fn trajectory_footer(at: &str, text: Option<&str>) -> Result<Footer> {
+    let text = text.with_context(|| format!("{at}: no `{FOOTER_KEY}` footer, so not a pgser table; {EXPECTED}"))?;
     let json: serde_json::Value =
         serde_json::from_str(text).with_context(|| format!("{at}: the `{FOOTER_KEY}` footer is not valid JSON"))?;
     match json.get("kind").and_then(|k| k.as_str()) {
