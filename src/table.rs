@@ -118,8 +118,11 @@ pub struct TableWriter {
     row_groups: usize,
     /// Encoded row groups, in order, to the writer thread.
     tx: Option<SyncSender<Vec<ArrowColumnChunk>>>,
-    thread: Option<JoinHandle<Result<(FileWriter, Vec<Vec<u32>>)>>>,
+    thread: Option<JoinHandle<Result<Written>>>,
 }
+
+/// What the writer thread hands back: the file writer and each row group's column-chunk CRCs.
+type Written = (FileWriter, Vec<Vec<u32>>);
 
 impl TableWriter {
     pub fn create(dest: &Path, schema: SchemaRef) -> Result<Self> {

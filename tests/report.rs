@@ -585,7 +585,7 @@ fn table2_assembles_the_papers_layout_with_its_values_and_tests() {
     assert_eq!(&f[..8], ["FetchPush", "TD3BC-mem", "5", "30", "1", "▲b ▲s", "10", "0.5"]);
     assert_eq!(f[8].parse::<f64>().unwrap(), p((30.0, 1.0), (10.0, 1.0)));
     assert!(f[10].ends_with("push.csv:4"), "{}", f[10]);
-    assert!(lines.iter().any(|l| *l == "FetchSlide,TD3,0,,,,,,,,not run"));
+    assert!(lines.contains(&"FetchSlide,TD3,0,,,,,,,,not run"));
 }
 
 #[test]

@@ -310,7 +310,10 @@ fn read_reference(text: &str, at: &str) -> Result<Vec<(&'static str, usize, f64,
 
 /// One task's line: for each learner, whether mem ≥ swap ≥ baseline holds in the means, and the
 /// comparisons that are significant (Welch, two-sided, α = [`ALPHA`]).
-fn ordering_line(task: &str, short: &str, find: &dyn Fn(&str, usize) -> Option<(f64, f64, usize)>) -> String {
+/// A cell's (mean, std, seeds) by learner variant and column.
+type Lookup<'a> = &'a dyn Fn(&str, usize) -> Option<(f64, f64, usize)>;
+
+fn ordering_line(task: &str, short: &str, find: Lookup) -> String {
     let mut parts = Vec::new();
     for (algo, learner) in [("td3bc", "TD3BC"), ("td3", "TD3")] {
         let get = |v: &str| find(task, AGENTS.iter().position(|a| a.0 == algo && a.1 == v).expect("a known row"));
