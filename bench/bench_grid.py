@@ -5,8 +5,9 @@ For each A (default 1,3,10,30 on CPU; 1,10,30,60 with --device cuda) it measures
 its own child process:
 
   pgser         `pgser-train bench --agents A` (--pgser, default target/release/pgser-train): the A
-                agents as one stack of networks (one batched matmul per layer for all of them);
+                agents as one stack, on pgser's hand-written CPU update (`--device cpu`);
                 on --device cuda it runs with --pgser-device (wgpu, if pgser was built with it).
+  pgser-burn    the same on burn's flex backend (`--device cpu-burn`), the reference engine (CPU).
   single        train_peer.py, one agent per update call; A agents are trained one after
                 another, so its agent-updates/s do not depend on A. On CPU it is measured two ways
                 and the faster is used for each A: 1 process x T threads (the figure as is), and
@@ -18,8 +19,12 @@ its own child process:
   stacked-graph train_peer_stacked.py --mode bmm --cuda-graph (GPU only).
   jax           train_peer_jax.py: jax.jit(jax.vmap(update)) over the A agents.
 
-Defaults: CPU single, stacked, jax; GPU single, stacked, stacked-graph, jax (--peers to choose,
-'all' for every one that applies). Each peer reports agent-updates/s (A x updates/s) measured
+Defaults: CPU pgser, pgser-burn, single, stacked, jax; GPU pgser, single, stacked, stacked-graph,
+jax (--peers to choose, 'all' for every one that applies).
+
+On CPU the machine's sgemm figure is measured in the same run, before and after the peers
+(bench/sgemm_peak.py with the torch interpreter: the best square-matrix GFLOP/s at --threads), and
+every cell is also given as a percentage of the larger of the two. Each peer reports agent-updates/s (A x updates/s) measured
 in-process around the update loop only (imports, init, compilation and warm-up excluded), for a
 run of about --seconds (the new peers calibrate the number of updates themselves; train_peer.py
 gets it from a short probe run) or exactly --updates. GFLOP/s = agent-updates/s x the per-update
@@ -73,8 +78,8 @@ TASKS = {  # as bench_train.py
     "FetchPickAndPlace": (25, 3, 4),
     "FetchPick": (25, 3, 4),
 }
-ALL_PEERS = ("pgser", "single", "stacked", "stacked-vmap", "stacked-graph", "jax")
-LABELS = {"pgser": "pgser stack", "single": "train_peer.py", "stacked": "stacked bmm", "stacked-vmap": "stacked vmap",
+ALL_PEERS = ("pgser", "pgser-burn", "single", "stacked", "stacked-vmap", "stacked-graph", "jax")
+LABELS = {"pgser": "pgser stack", "pgser-burn": "pgser burn", "single": "train_peer.py", "stacked": "stacked bmm", "stacked-vmap": "stacked vmap",
           "stacked-graph": "stacked bmm+graph", "jax": "jax jit(vmap)"}
 
 
@@ -185,9 +190,9 @@ def main(argv=None):
     gpu = a.device == "cuda"
     agents = [int(x) for x in (a.agents or ("1,10,30,60" if gpu else "1,3,10,30")).split(",")]
     if a.peers in (None, ""):
-        peers = ["pgser", "single", "stacked"] + (["stacked-graph"] if gpu else []) + ["jax"]
+        peers = ["pgser"] + ([] if gpu else ["pgser-burn"]) + ["single", "stacked"] + (["stacked-graph"] if gpu else []) + ["jax"]
     elif a.peers == "all":
-        peers = [p for p in ALL_PEERS if gpu or p != "stacked-graph"]
+        peers = [p for p in ALL_PEERS if (p != "stacked-graph" or gpu) and (p != "pgser-burn" or not gpu)]
     else:
         peers = [p.strip() for p in a.peers.split(",") if p.strip()]
         bad = [p for p in peers if p not in ALL_PEERS]
@@ -215,7 +220,7 @@ def main(argv=None):
 
     # Which interpreters can run which peers (checked once, so a missing framework is one line).
     missing = {}
-    if any(p not in ("jax", "pgser") for p in peers):
+    if any(p not in ("jax", "pgser", "pgser-burn") for p in peers) or not gpu:
         missing["torch"] = has_module(py, "torch")
     if "jax" in peers:
         missing["jax"] = has_module(jpy, "jax")
@@ -224,6 +229,17 @@ def main(argv=None):
             print(f"note: {why}", file=sys.stderr)
 
     load_before = os.getloadavg()
+
+    def sgemm_figure():
+        """The best GFLOP/s of sgemm_peak.py at T threads, or None (no torch, or it failed)."""
+        if gpu or missing.get("torch"):
+            return None
+        r = subprocess.run([py, str(HERE / "sgemm_peak.py"), "--threads", str(T)], capture_output=True, text=True,
+                           env=env, timeout=a.timeout)
+        figs = [float(line.split(":")[1].split()[0]) for line in r.stdout.splitlines() if line.startswith("threads")]
+        return max(figs) if r.returncode == 0 and figs else None
+
+    sgemm_before = sgemm_figure()
 
     def med(runs):
         ok = [r for r in runs if r["ok"]]
@@ -311,28 +327,28 @@ def main(argv=None):
         return single_info
 
     # ---- pgser: the stacked agent of pgser-train ----------------------------------------------------
-    def run_pgser(cells):
-        dev = a.pgser_device or ("wgpu" if gpu else "cpu")
+    def run_pgser(cells, peer="pgser"):
+        dev = "cpu-burn" if peer == "pgser-burn" else a.pgser_device or ("wgpu" if gpu else "cpu")
         for A in agents:
             if not Path(a.pgser).exists():
-                cells["pgser"][A] = {"ok": False, "why": f"{a.pgser} not built", "missing": True}
+                cells[peer][A] = {"ok": False, "why": f"{a.pgser} not built", "missing": True}
                 continue
             base = [a.pgser, "bench", "--task", a.task, "--algo", a.algo, "--agents", str(A), "--batch-size",
                     str(a.batch_size), "--hidden", str(a.hidden), "--threads", t, "--device", dev, "--json"]
             n = a.updates
             if not n:  # probe the rate for --seconds
-                pr = runner.run(f"pgser_probe_A{A}", [*base, "--updates", "3", "--warmup", "1"])
+                pr = runner.run(f"{peer}_probe_A{A}", [*base, "--updates", "3", "--warmup", "1"])
                 n = max(3, int(pr["report"]["updates_per_sec"] * a.seconds)) if pr["ok"] else None
                 if not pr["ok"]:
-                    cells["pgser"][A] = pr
+                    cells[peer][A] = pr
                     continue
-            runs = [runner.run(f"pgser_A{A}", [*base, "--updates", str(n), "--warmup", str(a.warmup)])
+            runs = [runner.run(f"{peer}_A{A}", [*base, "--updates", str(n), "--warmup", str(a.warmup)])
                     for _ in range(a.repeat)]
             x = med(runs)
             if x["ok"]:
                 x["agent_updates_per_sec"] = x["report"]["agent_updates_per_sec"]
-            cells["pgser"][A] = x
-            print(f"{'pgser':14s} A={A:<4d} " + (f"{x['agent_updates_per_sec']:10.1f} agent-updates/s"
+            cells[peer][A] = x
+            print(f"{peer:14s} A={A:<4d} " + (f"{x['agent_updates_per_sec']:10.1f} agent-updates/s"
                                                 if x["ok"] else f"FAILED ({x['why']})"), flush=True)
 
     # ---- many-agent peers -------------------------------------------------------------------------
@@ -377,8 +393,8 @@ def main(argv=None):
         for p in order:
             if p == "single":
                 info = run_single(got)
-            elif p == "pgser":
-                run_pgser(got)
+            elif p in ("pgser", "pgser-burn"):
+                run_pgser(got, p)
             else:
                 run_many(got, p)
         passes.append((got, info))
@@ -394,6 +410,8 @@ def main(argv=None):
             cells[p][A]["rounds"] = [x["agent_updates_per_sec"] for x in runs if x.get("ok")]
     single_info = passes[0][1] if a.rounds == 1 else {"rounds": [info for _, info in passes]}
     load_after = os.getloadavg()
+    sgemm_after = sgemm_figure()
+    sgemm = max([x for x in (sgemm_before, sgemm_after) if x is not None], default=None)
 
     # ---- table --------------------------------------------------------------------------------
     gpu_name = None
@@ -409,6 +427,9 @@ def main(argv=None):
           + (f", median of {a.rounds} rounds" if a.rounds > 1 else ""))
     print(f"machine: {os.cpu_count()} cores, load {load_before[0]:.2f} before / {load_after[0]:.2f} after; "
           f"torch python {py}; jax python {jpy}")
+    if sgemm:
+        print(f"sgemm figure at {T} threads (sgemm_peak.py): {sgemm_before or 0:.0f} before / {sgemm_after or 0:.0f} "
+              f"after; cells give % of {sgemm:.0f} GFLOP/s")
     w = 22
     hdr = f"{'A':>4s}  " + "".join(f"{LABELS[p]:>{w}s}" for p in peers)
     print(hdr)
@@ -423,6 +444,8 @@ def main(argv=None):
             return short
         v = c["agent_updates_per_sec"]
         s = f"{v:,.0f} ({v * flops / 1e9:,.0f})" if v >= 100 else f"{v:,.1f} ({v * flops / 1e9:,.1f})"
+        if sgemm:
+            s += f" {100 * v * flops / 1e9 / sgemm:.0f}%"
         if c.get("how"):
             s = f"{c['how']} {s}"
         return s
@@ -453,6 +476,7 @@ def main(argv=None):
                "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "gpu": gpu_name,
                            "loadavg_before": load_before, "loadavg_after": load_after},
                "single_measurements": single_info,
+               "sgemm_gflops": {"before": sgemm_before, "after": sgemm_after},
                "cells": {p: {str(A): c for A, c in cells[p].items()} for p in peers}}
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(doc, indent=2, default=str) + "\n")

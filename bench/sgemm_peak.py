@@ -1,13 +1,19 @@
 """The machine's sgemm peak that the grid benchmark's "% of peak" is read against: torch's
 float32 matrix product on square matrices, 1 and 2 threads (run with the bench venv's python).
 
-    bench-out/torch-venv/bin/python bench/sgemm_peak.py
+    bench-out/torch-venv/bin/python bench/sgemm_peak.py [--threads T]
+
+bench_grid.py runs it before and after its peers, at its own thread count.
 """
+import argparse
 import time
 
 import torch
 
-for threads in (1, 2):
+ap = argparse.ArgumentParser()
+ap.add_argument("--threads", type=int, help="only this thread count (default: 1 and 2)")
+args = ap.parse_args()
+for threads in [args.threads] if args.threads else (1, 2):
     torch.set_num_threads(threads)
     for n in (512, 1024, 2048):
         a, b = torch.randn(n, n), torch.randn(n, n)

@@ -16,7 +16,7 @@ use clap::Args;
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, checkpoint, shard_count};
+use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Shards, checkpoint};
 use crate::eval::{self, EvalReport};
 use crate::nprandom::NpRandom;
 use crate::output::{AtomicFile, sha256_file};
@@ -129,12 +129,12 @@ pub fn train(
     out: &Path,
     cfg: &TrainConfig,
     resume: bool,
-    device: Device,
+    backend: Backend,
     command: &str,
     bar: &ProgressBar,
 ) -> Result<Summary> {
     let cell = Cell { data: data_path.to_path_buf(), out: out.to_path_buf(), cfg: cfg.clone(), resume };
-    Ok(train_stack(std::slice::from_ref(&cell), device, &[command.to_string()], bar)?.remove(0))
+    Ok(train_stack(std::slice::from_ref(&cell), backend, &[command.to_string()], bar)?.remove(0))
 }
 
 /// One run of a stack: its data, its checkpoint, its settings, and whether it continues from its
@@ -196,8 +196,9 @@ impl Run {
 /// and ends with the same checkpoint, metrics and evaluations as when trained alone, while every
 /// network layer runs once for all of them. `commands[i]` is recorded in cell i's checkpoint.
 /// The cells share `schedule`, the task, and the update count they start from.
-pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &ProgressBar) -> Result<Vec<Summary>> {
+pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &ProgressBar) -> Result<Vec<Summary>> {
     let first = cells.first().context("no cell to train")?;
+    let device = backend.device()?;
     let _training = stop::Training::start();
     for c in cells {
         if schedule(&c.cfg) != schedule(&first.cfg) {
@@ -235,9 +236,8 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         runs.push(run);
         agents.push(agent);
     }
-    // One part per worker thread on the CPU (agent/shards.rs): the same bits, both cores busy.
-    let shards = shard_count(agents.len(), &device);
-    let mut agent = Shards::new(agents, shards);
+    // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
+    let mut agent = Shards::new(agents, backend);
     let cfg = first.cfg.clone();
     let evaluate = |agent: &Shards| -> Result<Option<Vec<EvalReport>>> {
         if cfg.eval_episodes == 0 {
@@ -256,6 +256,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
         // SIGTERM (`stop`): save where we are (unless a scheduled save just did) and stop.
         if stop::requested() && agent.updates() < cfg.updates {
             if saved_at != Some(agent.updates()) {
+                agent.sync();
                 for (i, run) in runs.iter().enumerate() {
                     run.save(&agent, i)?;
                 }
@@ -298,6 +299,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
             }
         }
         if cfg.save_every > 0 && u.is_multiple_of(cfg.save_every) && u < cfg.updates {
+            agent.sync();
             for (i, run) in runs.iter().enumerate() {
                 run.save(&agent, i)?;
             }
@@ -322,6 +324,7 @@ pub fn train_stack(cells: &[Cell], device: Device, commands: &[String], bar: &Pr
             });
         }
     }
+    agent.sync();
     for (i, run) in runs.iter().enumerate() {
         run.save(&agent, i)?;
     }

@@ -225,7 +225,7 @@ fn a_stack_of_cells_writes_what_each_cell_writes_alone_and_resumes_exactly() {
     };
     let commands: Vec<String> = (0..3).map(|i| format!("cell {i}")).collect();
     let bar = indicatif::ProgressBar::hidden();
-    let device = || burn::tensor::Device::flex();
+    let device = || pgser::agent::Backend::Cpu;
     let stacked = dir.path().join("stack");
     let alone = dir.path().join("alone");
     std::fs::create_dir_all(&stacked).unwrap();

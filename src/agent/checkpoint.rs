@@ -253,6 +253,7 @@ pub fn save(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, Strin
 /// `save`, written beside `path` but not yet moved into place, so that a trainer can put a
 /// checkpoint, its resume state and its metrics in place one right after the other.
 pub fn stage(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<AtomicFile> {
+    assert!(!agent.is_stale(), "a checkpoint written from a stack without its last updates (Agent::sync missed)");
     let mut t = Tensors::default();
     let critics = agent.critics.tensors();
     t.push_member("actor", &agent.actor.member(i));
@@ -324,6 +325,7 @@ pub fn save_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String
 
 /// `save_resume`, not yet moved into place (see `stage`).
 pub fn stage_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<String, String>) -> Result<AtomicFile> {
+    assert!(!agent.is_stale(), "a resume state written from a stack without its last updates (Agent::sync missed)");
     let mut t = Tensors::default();
     let targets = agent.critics_target.tensors();
     t.push_member("actor_target", &agent.actor_target.member(i));

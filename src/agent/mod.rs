@@ -15,6 +15,7 @@
 
 mod adam;
 pub mod checkpoint;
+mod fused;
 mod host;
 mod shards;
 mod td3;
@@ -29,7 +30,7 @@ use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
 pub use host::HostActor;
-pub use shards::{Shards, shard_count};
+pub use shards::Shards;
 pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
 
 use crate::nprandom::NpRandom;
@@ -409,20 +410,24 @@ fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
     (mean.iter().map(|&m| m as f32).collect(), std)
 }
 
-/// Where the networks run. `cpu` is burn's flex backend (the fastest CPU backend that builds
-/// everywhere, see BENCHMARKS.md); `wgpu` (Vulkan, Metal, DX12) exists when pgser is built with
-/// `--features wgpu`.
+/// Where the networks run, and on which engine.
+/// - `cpu`: the hand-written update (`fused.rs`), pgser's fastest on a CPU (BENCHMARKS.md);
+/// - `cpu-burn`: burn's flex backend, the reference the `cpu` engine is tested against;
+/// - `wgpu` (Vulkan, Metal, DX12): burn on a GPU, when pgser is built with `--features wgpu`.
+///
+/// Everything but training (evaluation, scoring, reports) runs the same on `cpu` and `cpu-burn`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum Backend {
     Cpu,
+    CpuBurn,
     Wgpu,
 }
 
 impl Backend {
     pub fn device(self) -> anyhow::Result<Device> {
         match self {
-            Backend::Cpu => Ok(Device::flex()),
+            Backend::Cpu | Backend::CpuBurn => Ok(Device::flex()),
             #[cfg(feature = "wgpu")]
             Backend::Wgpu => Ok(wgpu_device()),
             #[allow(unreachable_patterns)]
@@ -437,8 +442,14 @@ impl Backend {
     pub fn name(self) -> &'static str {
         match self {
             Backend::Cpu => "cpu",
+            Backend::CpuBurn => "cpu-burn",
             Backend::Wgpu => "wgpu",
         }
+    }
+
+    /// Whether stacks train on the hand-written CPU engine.
+    pub fn fused(self) -> bool {
+        self == Backend::Cpu
     }
 }
 

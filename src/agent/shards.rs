@@ -1,4 +1,4 @@
-//! A stack of agents split across the CPU's cores.
+//! A stack of agents split across the CPU's cores, on burn's engine (`--device cpu-burn`).
 //!
 //! On the flex backend one stack runs each layer as one batched product, but the rest of an
 //! update (burn's elementwise ops, its autodiff bookkeeping, Adam, Polyak) runs on the thread that
@@ -7,12 +7,14 @@
 //! not depend on the stack it sits in (its rows of every batched product are its own; the tests
 //! in `tests.rs` check this to the bit), so the shard count changes the speed, never the
 //! checkpoints: a run on 2 threads writes the bytes of the same run on 1. A GPU gets one shard: a
-//! stack there is one queue of kernels, and splitting it only adds launches.
+//! stack there is one queue of kernels, and splitting it only adds launches. So does the
+//! hand-written CPU engine (`--device cpu`, `fused.rs`), which spreads its own pieces over the
+//! pool.
 
-use burn::tensor::{Device, Tensor};
+use burn::tensor::Tensor;
 use rayon::prelude::*;
 
-use super::{Agent, Batch, UpdateStats};
+use super::{Agent, Backend, Batch, UpdateStats};
 use crate::task::Task;
 
 /// Agents trained in lockstep, held as `parts`: contiguous sub-stacks of near-equal size. Agent i
@@ -27,18 +29,20 @@ pub struct Shards {
     pools: Vec<rayon::ThreadPool>,
 }
 
-/// Parts for a stack of `agents` on `device`: one per worker thread of the current rayon pool on
-/// the CPU (at most one per agent), one on a GPU.
-pub fn shard_count(agents: usize, device: &Device) -> usize {
-    if *device == Device::flex() { rayon::current_num_threads().clamp(1, agents.max(1)) } else { 1 }
+/// Parts for a stack of `agents` on `backend`: one per worker thread of the current rayon pool on
+/// burn's CPU backend (at most one per agent); one on a GPU, and on the hand-written CPU engine,
+/// which spreads its own work over the pool.
+fn shard_count(agents: usize, backend: Backend) -> usize {
+    if backend == Backend::CpuBurn { rayon::current_num_threads().clamp(1, agents.max(1)) } else { 1 }
 }
 
 impl Shards {
     /// `agents` (stacks, each usually of one agent, all with the same settings, task and update
-    /// count) regrouped in order into `shards` stacks; the first `len % shards` get one more.
-    pub fn new(agents: Vec<Agent>, shards: usize) -> Shards {
+    /// count) regrouped in order into the parts `backend` wants; the first `len % parts` get one
+    /// more. On `Backend::Cpu` the stack trains on the hand-written engine.
+    pub fn new(agents: Vec<Agent>, backend: Backend) -> Shards {
         assert!(!agents.is_empty(), "no agent to shard");
-        let k = shards.clamp(1, agents.len());
+        let k = shard_count(agents.len(), backend).clamp(1, agents.len());
         let mut rest = agents.into_iter();
         let (mut parts, mut starts, mut start) = (Vec::with_capacity(k), Vec::with_capacity(k), 0);
         let units = rest.len();
@@ -47,7 +51,11 @@ impl Shards {
             let group: Vec<Agent> = rest.by_ref().take(take).collect();
             starts.push(start);
             start += group.iter().map(Agent::agents).sum::<usize>();
-            parts.push(if group.len() == 1 { group.into_iter().next().expect("one") } else { Agent::stack(group) });
+            let mut part = if group.len() == 1 { group.into_iter().next().expect("one") } else { Agent::stack(group) };
+            if backend.fused() {
+                part.fuse();
+            }
+            parts.push(part);
         }
         let pools = if k > 1 {
             (0..k)
@@ -84,7 +92,13 @@ impl Shards {
         &self.parts
     }
 
-    /// Agent i of the whole as (its part, its index there): what checkpoints are written from.
+    /// Brings every part's burn state up to date (`Agent::sync`): before checkpoints are written.
+    pub fn sync(&mut self) {
+        self.parts.iter_mut().for_each(Agent::sync);
+    }
+
+    /// Agent i of the whole as (its part, its index there): what checkpoints are written from
+    /// (after `sync`).
     pub fn locate(&self, i: usize) -> (&Agent, usize) {
         let p = self.starts.partition_point(|&s| s <= i) - 1;
         (&self.parts[p], i - self.starts[p])

@@ -9,7 +9,8 @@
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::{Adam, AgentConfig, Algo, Mlp, Normalizer, host, init_member};
+use super::fused::{self, Fused};
+use super::{Adam, AgentConfig, Algo, Member, Mlp, Normalizer, host, init_member};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
 
@@ -88,6 +89,12 @@ pub struct Agent {
     pub updates: u64,
     /// Agent i's target-policy smoothing noise stream.
     pub noise_rngs: Vec<NpRandom>,
+    /// The hand-written CPU engine (`fused.rs`), when this stack trains on it: it then holds the
+    /// newest networks, targets and Adam state, and the burn fields above are as of the last
+    /// `sync` (`stale` says whether updates came since). Checkpoints are written from the burn
+    /// fields and refuse a stale agent, so a missed `sync` fails loudly, never silently.
+    pub(super) fused: Option<Box<Fused>>,
+    stale: bool,
 }
 
 /// Layer sizes of the actor ([s, g] → action) and of each critic ([s, g, a] → Q).
@@ -134,6 +141,8 @@ impl Agent {
             critics,
             updates: 0,
             noise_rngs: seeds.iter().map(|&s| NpRandom::spawned(s, &[STREAM_NOISE])).collect(),
+            fused: None,
+            stale: false,
             config,
             task,
             norms,
@@ -141,8 +150,10 @@ impl Agent {
         }
     }
 
-    /// Agents trained separately (same settings, task and update count) as one stack, in order.
-    pub fn stack(parts: Vec<Agent>) -> Agent {
+    /// Agents trained separately (same settings, task and update count) as one stack, in order,
+    /// on burn's engine (`fuse` moves it to the CPU engine).
+    pub fn stack(mut parts: Vec<Agent>) -> Agent {
+        parts.iter_mut().for_each(Agent::sync);
         let first = &parts[0];
         for p in &parts[1..] {
             assert!(p.config == first.config && p.task == first.task && p.updates == first.updates);
@@ -162,7 +173,63 @@ impl Agent {
             task: first.task.clone(),
             updates: first.updates,
             device: first.device.clone(),
+            fused: None,
+            stale: false,
         }
+    }
+
+    /// Trains from now on with the hand-written CPU engine (`fused.rs`), from the current state.
+    pub fn fuse(&mut self) {
+        if self.fused.is_some() {
+            return;
+        }
+        let (actor_sizes, critic_sizes) = super::net_sizes(&self.config, &self.task);
+        let k = self.config.algo.critics();
+        let flat = |m: &Member| fused::flatten(m);
+        let (actor, actor_target, critics, critics_target) =
+            (self.actor.tensors(), self.actor_target.tensors(), self.critics.tensors(), self.critics_target.tensors());
+        let net = |p: &[(Vec<usize>, Vec<f32>)], t: &[(Vec<usize>, Vec<f32>)], opt: &Adam, j: usize| {
+            let (m, v) = opt.member(j);
+            fused::Net {
+                p: flat(&super::member_of(p, j)),
+                m: flat(&m),
+                v: flat(&v),
+                target: flat(&super::member_of(t, j)),
+            }
+        };
+        let nets = (0..self.agents())
+            .map(|i| fused::Nets {
+                actor: net(&actor, &actor_target, &self.actor_opt, i),
+                critics: (0..k).map(|c| net(&critics, &critics_target, &self.critics_opt, k * i + c)).collect(),
+            })
+            .collect();
+        let (a, c) = (self.actor_opt.step, self.critics_opt.step);
+        self.fused = Some(Box::new(Fused::new(&actor_sizes, &critic_sizes, nets, a, c)));
+    }
+
+    /// Writes the CPU engine's state back into the burn fields (a no-op when they are current).
+    pub fn sync(&mut self) {
+        let Some(f) = self.fused.as_deref() else { return };
+        if !self.stale {
+            return;
+        }
+        let (a, k, d, lr) = (self.agents(), self.config.algo.critics(), &self.device, self.config.lr());
+        let actors = |pick: fn(&fused::Net) -> &Vec<f32>| (0..a).map(|i| f.actor_member(i, pick)).collect::<Vec<_>>();
+        let critics = |pick: fn(&fused::Net) -> &Vec<f32>| {
+            (0..a * k).map(|j| f.critic_member(j / k, j % k, pick)).collect::<Vec<_>>()
+        };
+        self.actor = Mlp::from_members(&actors(|n| &n.p), d);
+        self.actor_target = Mlp::from_members(&actors(|n| &n.target), d);
+        self.actor_opt = Adam::from_members(lr, f.actor_step, &actors(|n| &n.m), &actors(|n| &n.v), d);
+        self.critics = Mlp::from_members(&critics(|n| &n.p), d);
+        self.critics_target = Mlp::from_members(&critics(|n| &n.target), d);
+        self.critics_opt = Adam::from_members(lr, f.critic_step, &critics(|n| &n.m), &critics(|n| &n.v), d);
+        self.stale = false;
+    }
+
+    /// Whether updates on the CPU engine came since the last `sync`.
+    pub fn is_stale(&self) -> bool {
+        self.stale
     }
 
     /// Agents in the stack.
@@ -177,6 +244,18 @@ impl Agent {
         let ddpg = c.algo == Algo::Ddpg;
         assert_eq!(batches.len(), a, "one batch per agent");
         assert!(batches.iter().all(|b| b.n == n), "the agents' batches differ in size");
+        if let Some(f) = self.fused.as_deref_mut() {
+            self.updates += 1;
+            self.stale = true;
+            let stats = f.update(c, batches, &self.norms, &mut self.noise_rngs, self.updates);
+            let column = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [a]), &self.device);
+            let actor = stats[0].2.is_some().then(|| column(stats.iter().map(|s| s.2.unwrap_or(0.0)).collect()));
+            return UpdateStats {
+                critic_loss: column(stats.iter().map(|s| s.0).collect()),
+                q_mean: column(stats.iter().map(|s| s.1).collect()),
+                actor_loss: actor,
+            };
+        }
         let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
         let next_sg = self.input(batches.iter().map(|b| (&b.next_obs[..], &b.goal[..])), n);
         let action = self.stacked(batches.iter().map(|b| &b.action[..]), [a, n, act_dim]);
@@ -270,6 +349,9 @@ impl Agent {
     /// Every agent's policy at once, agent i on `rows[i]` = (observations, goals) of `n` rows:
     /// one forward pass for all agents' environments.
     pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Vec<Vec<f32>> {
+        if let Some(f) = self.fused.as_deref() {
+            return f.act_all(&self.norms, rows, n);
+        }
         let out = host(tanh(self.actor.forward(self.input(rows.iter().copied(), n)))).1;
         out.chunks(n * self.task.act_dim).map(<[f32]>::to_vec).collect()
     }
@@ -277,6 +359,9 @@ impl Agent {
     /// min(Q1, Q2)(s, g, a) of agent 0 for `n` rows (DDPG: its critic's Q): the score PGSER's
     /// Alg. 2 ranks swapped transitions by.
     pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Vec<f32> {
+        if let Some(f) = self.fused.as_deref() {
+            return f.q(&self.norms[0], obs, goal, action, n);
+        }
         let a = self.agents();
         let sg = self.input(std::iter::repeat_n((obs, goal), a), n);
         let act = self.stacked(std::iter::repeat_n(action, a), [a, n, self.task.act_dim]);

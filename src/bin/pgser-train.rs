@@ -204,7 +204,8 @@ fn main() -> ExitCode {
                 // time limit or `kill` loses nothing).
                 train::stop::install()?;
                 let bar = progress::bar("online", "cycles");
-                let s = train::online::train_online(&cfg, &output, resume, device, &cli::command_line(), &bar)?;
+                let s =
+                    train::online::train_online(&cfg, &output, resume, args.run.device, &cli::command_line(), &bar)?;
                 let eval = s.eval.map_or(String::new(), |e| {
                     format!(
                         "; eval over {} episodes: success {:.3}, return {:.2}",
@@ -257,8 +258,7 @@ fn main() -> ExitCode {
                 if agents == 0 {
                     anyhow::bail!("--agents must be at least 1");
                 }
-                let name = args.run.device.name();
-                let r = train::bench_agents(&task, &agent, batch_size, updates, warmup, device, name, agents);
+                let r = train::bench_agents(&task, &agent, batch_size, updates, warmup, args.run.device, agents)?;
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
                 } else {
@@ -295,7 +295,7 @@ fn main() -> ExitCode {
                         .collect()
                 };
                 let commands = vec![cli::command_line(); cells.len()];
-                let summaries = train::train_stack(&cells, device, &commands, &bar)?;
+                let summaries = train::train_stack(&cells, args.run.device, &commands, &bar)?;
                 for s in &summaries {
                     if let Some(e) = &s.eval {
                         eprintln!(

@@ -279,20 +279,11 @@ fn measure_rates(p: &Pipeline, task: &Task, trains: &[Priced], cost: &Cost, back
             Some(&s) => s,
             None => {
                 let bench = |n, warmup| {
-                    crate::train::bench_agents(
-                        task,
-                        &cfg.agent,
-                        cfg.batch_size,
-                        n,
-                        warmup,
-                        device.clone(),
-                        backend.name(),
-                        t.agents,
-                    )
+                    crate::train::bench_agents(task, &cfg.agent, cfg.batch_size, n, warmup, backend, t.agents)
                 };
-                let probe = bench(2, 1).updates_per_sec;
+                let probe = bench(2, 1)?.updates_per_sec;
                 let n = (probe * UPDATE_SECONDS).clamp(3.0, 2000.0) as u64;
-                let s = 1.0 / bench(n, 2).agent_updates_per_sec;
+                let s = 1.0 / bench(n, 2)?.agent_updates_per_sec;
                 update_secs.insert(key, s);
                 s
             }

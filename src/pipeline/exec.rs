@@ -335,7 +335,7 @@ fn execute_stack(steps: &[&Step], device: Backend, resume: &[bool]) -> Result<Ve
             1 => names[0].to_string(),
             n => format!("{} (+{} in its stack)", names[0], n - 1),
         });
-        crate::train::train_stack(&stack, device.device()?, &commands, &bar).with_context(|| {
+        crate::train::train_stack(&stack, device, &commands, &bar).with_context(|| {
             format!("training {} (one stack); checkpoints are left as they were at their last save", names.join(", "))
         })?;
     }
@@ -355,12 +355,11 @@ fn execute_online(
     bar: &indicatif::ProgressBar,
 ) -> Result<&'static str> {
     let command = format!("pgser pipeline step {}", step.name);
-    let device = device.device()?;
     let mut continuing = resume && out.exists() && checkpoint::resume_path(out).exists();
     if resume && out.exists() && !continuing {
         set_aside_stale(out)?;
     }
-    let mut result = train_online(cfg, out, continuing, device.clone(), &command, bar);
+    let mut result = train_online(cfg, out, continuing, device, &command, bar);
     if let Err(e) = &result
         && continuing
         && e.downcast_ref::<crate::train::StaleCheckpoint>().is_some()

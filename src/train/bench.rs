@@ -6,10 +6,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Result;
-use burn::tensor::Device;
 use serde::Serialize;
 
-use crate::agent::{Agent, AgentConfig, Batch, Normalizer, Shards, shard_count};
+use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Shards};
 use crate::nprandom::NpRandom;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::scored::{ScoredSampler, ScoredTable};
@@ -41,10 +40,10 @@ pub fn bench_agents(
     batch_size: usize,
     updates: u64,
     warmup: u64,
-    device: Device,
-    backend: &str,
+    backend: Backend,
     agents: usize,
-) -> BenchReport {
+) -> Result<BenchReport> {
+    let device = backend.device()?;
     let mut rng = NpRandom::new(0);
     let mut uniform = |n: usize| (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<f32>>();
     let n = batch_size;
@@ -65,11 +64,11 @@ pub fn bench_agents(
         })
         .collect();
     let norm = Normalizer::identity(task, agent_cfg.norm_clip);
-    // As the trainer holds a grid: one part per worker thread on the CPU (agent/shards.rs).
-    let shards = shard_count(agents, &device);
+    // As the trainer holds a grid (agent/shards.rs).
     let alone =
         (0..agents as u64).map(|s| Agent::new(agent_cfg.clone(), task.clone(), norm.clone(), s, device.clone()));
-    let mut agent = Shards::new(alone.collect(), shards);
+    let mut agent = Shards::new(alone.collect(), backend);
+    let shards = agent.parts().len();
     let mut run = |k: u64| {
         let mut last = None;
         for i in 0..k {
@@ -84,10 +83,10 @@ pub fn bench_agents(
     let t0 = Instant::now();
     run(updates);
     let seconds = t0.elapsed().as_secs_f64();
-    BenchReport {
+    Ok(BenchReport {
         task: task.name.clone(),
         algo: agent_cfg.algo,
-        backend: backend.to_string(),
+        backend: backend.name().to_string(),
         threads: rayon::current_num_threads(),
         batch_size,
         agents,
@@ -96,7 +95,7 @@ pub fn bench_agents(
         seconds,
         updates_per_sec: updates as f64 / seconds,
         agent_updates_per_sec: (updates * agents as u64) as f64 / seconds,
-    }
+    })
 }
 
 /// `pgser-train bench-sampler`: prioritized batches/s from a scored table, from disk or memory.

@@ -21,13 +21,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Result, bail};
-use burn::tensor::Device;
 use clap::Args;
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{Agent, AgentConfig, Algo, Batch};
+use crate::agent::{Agent, AgentConfig, Algo, Backend, Batch};
 use crate::env::{self, GoalEnv, Obs, applied_action};
 use crate::eval::{self, EvalReport};
 use crate::nprandom::NpRandom;
@@ -242,10 +241,11 @@ pub fn train_online(
     cfg: &OnlineConfig,
     out: &Path,
     resume: bool,
-    device: Device,
+    backend: Backend,
     command: &str,
     bar: &ProgressBar,
 ) -> Result<OnlineSummary> {
+    let device = backend.device()?;
     let _training = super::stop::Training::start();
     let mut envs: Vec<Box<dyn GoalEnv + Send>> =
         (0..cfg.episodes_per_cycle).map(|_| env::make(&cfg.task)).collect::<Result<_>>()?;
@@ -269,6 +269,9 @@ pub fn train_online(
             metrics: vec![],
         }
     };
+    if backend.fused() {
+        run.agent.fuse();
+    }
     bar.set_length(cfg.epochs * cfg.cycles);
     bar.set_position(run.progress.epoch * cfg.cycles + run.progress.cycle);
     let (mut steps, mut rollout_secs, mut updates, mut update_secs) = (0u64, 0.0f64, 0u64, 0.0f64);

@@ -157,7 +157,8 @@ impl Run {
     /// place one right after the other, checkpoint last (as `pgser-train` does): a checkpoint in
     /// place always has its metrics, resume state and buffer, and each of them names the point
     /// of the run it belongs to, so `--resume` never continues from a mixed set.
-    pub(super) fn save(&self) -> Result<()> {
+    pub(super) fn save(&mut self) -> Result<()> {
+        self.agent.sync();
         let out = &self.out;
         let note = self.progress.note(&self.cfg);
         let mut extra = BTreeMap::new();
