@@ -26,7 +26,7 @@ impl AtomicFile {
             bail!("{}: output path is a folder", dest.display());
         }
         let prefix = format!(".{}.", name.to_string_lossy());
-        sweep_stale(&dir, &prefix);
+        sweep_stale(&dir, &prefix, Stale::File);
         let mut builder = tempfile::Builder::new();
         builder.prefix(&prefix).suffix(".tmp");
         // Temporary files are private (0600); a finished output is an ordinary file that the
@@ -73,19 +73,88 @@ impl AtomicFile {
     }
 }
 
-/// Removes temporary files of `prefix` (`.NAME.` + 6 random characters + `.tmp`) in `dir` that
-/// no live process holds: what a writer killed by SIGKILL, the OOM killer or a power cut leaves
-/// beside its output, since no destructor ran to delete it. A live writer holds an exclusive
-/// flock on its temporary file ([`AtomicFile::create`]), so a lock we can take means its owner
-/// is gone; two pgser processes writing the same output never delete each other's file.
-/// Best effort: a file that cannot be opened or removed is left as it was.
-fn sweep_stale(dir: &Path, prefix: &str) {
+/// A folder output (a Minari dataset) built beside its destination and renamed into place whole:
+/// the folder counterpart of [`AtomicFile`]. Dropped before `commit`, the folder is deleted; a
+/// writer that dies without a destructor leaves it, locked by nobody, for the next writer of the
+/// same output to sweep. The destination must not exist: a rename never replaces a folder.
+pub struct AtomicDir {
+    tmp: Option<tempfile::TempDir>,
+    /// The folder opened and flocked for as long as this writer lives (see `sweep_stale`).
+    _lock: File,
+    dest: PathBuf,
+}
+
+impl AtomicDir {
+    pub fn create(dest: &Path) -> Result<Self> {
+        let name = dest.file_name().with_context(|| format!("{}: output path has no file name", dest.display()))?;
+        let dir = folder_of(dest);
+        let prefix = format!(".{}.", name.to_string_lossy());
+        sweep_stale(&dir, &prefix, Stale::Folder);
+        let tmp = tempfile::Builder::new()
+            .prefix(&prefix)
+            .tempdir_in(&dir)
+            .with_context(|| format!("{}: cannot create a folder in {}", dest.display(), dir.display()))?;
+        let lock =
+            File::open(tmp.path()).with_context(|| format!("{}: cannot open its staging folder", dest.display()))?;
+        // SAFETY: flock on a descriptor we own; it only sets an advisory lock.
+        if unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            bail!("{}: cannot lock its staging folder: {}", dest.display(), std::io::Error::last_os_error());
+        }
+        Ok(Self { tmp: Some(tmp), _lock: lock, dest: dest.to_path_buf() })
+    }
+
+    /// Where to write the output's contents.
+    pub fn path(&self) -> &Path {
+        self.tmp.as_ref().expect("present until commit").path()
+    }
+
+    /// Moves the finished folder into place, readable like any other output (a staging folder
+    /// is private, 0700).
+    pub fn commit(mut self) -> Result<()> {
+        let tmp = self.tmp.take().expect("present until commit");
+        #[cfg(unix)]
+        std::fs::set_permissions(tmp.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755))
+            .with_context(|| format!("{}: cannot set the permissions of its staging folder", self.dest.display()))?;
+        let path = tmp.keep();
+        if let Err(e) = std::fs::rename(&path, &self.dest) {
+            let _ = std::fs::remove_dir_all(&path);
+            bail!("{}: cannot move the finished folder into place ({e})", self.dest.display());
+        }
+        Ok(())
+    }
+}
+
+/// What a killed writer leaves: an [`AtomicFile`]'s temporary file or an [`AtomicDir`]'s folder.
+#[derive(Clone, Copy, PartialEq)]
+enum Stale {
+    File,
+    Folder,
+}
+
+/// Removes the temporaries of `prefix` in `dir` that no live process holds: files
+/// `.NAME.` + 6 random characters + `.tmp`, or folders `.NAME.` + 6 random characters. They are
+/// what a writer killed by SIGKILL, the OOM killer or a power cut leaves beside its output, since
+/// no destructor ran to delete them. A live writer holds an exclusive flock on its temporary
+/// ([`AtomicFile::create`], [`AtomicDir::create`]), so a lock we can take means its owner is gone;
+/// two pgser processes writing the same output never delete each other's. Best effort: what
+/// cannot be opened or removed is left as it was.
+fn sweep_stale(dir: &Path, prefix: &str, kind: Stale) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
         let name = entry.file_name();
         let name = name.to_string_lossy();
-        let Some(middle) = name.strip_prefix(prefix).and_then(|m| m.strip_suffix(".tmp")) else { continue };
+        let Some(rest) = name.strip_prefix(prefix) else { continue };
+        let middle = match kind {
+            Stale::File => rest.strip_suffix(".tmp"),
+            Stale::Folder => Some(rest),
+        };
+        let Some(middle) = middle else { continue };
         if middle.len() != 6 || !middle.chars().all(|c| c.is_ascii_alphanumeric()) {
+            continue;
+        }
+        // Never follow a link: only a real file or folder of ours is removed.
+        let Ok(meta) = entry.path().symlink_metadata() else { continue };
+        if (kind == Stale::Folder) != meta.is_dir() {
             continue;
         }
         let path = entry.path();
@@ -93,7 +162,10 @@ fn sweep_stale(dir: &Path, prefix: &str) {
         // SAFETY: flock on a descriptor we own, released when `file` is dropped.
         let free = unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&file), libc::LOCK_EX | libc::LOCK_NB) } == 0;
         if free {
-            let _ = std::fs::remove_file(&path);
+            let _ = match kind {
+                Stale::File => std::fs::remove_file(&path),
+                Stale::Folder => std::fs::remove_dir_all(&path),
+            };
         }
     }
 }

@@ -382,3 +382,40 @@ fn export_never_overwrites_and_names_datasets_by_id() {
         2,
     );
 }
+
+/// An export killed mid-write (SIGKILL runs no destructor) leaves its staging folder
+/// `.NAME.XXXXXX` beside the dataset; the next export of that dataset removes it, unless a live
+/// writer still holds it (its flock), and finishes with the same dataset as an undisturbed run.
+#[test]
+fn a_killed_exports_staging_folder_is_swept_and_a_live_ones_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let table = d.join("t.parquet");
+    ok(&["convert", s(&fixture("fetchreach-default-arrow-v0")), "-o", s(&table)]);
+    let clean = d.join("clean");
+    std::fs::create_dir(&clean).unwrap();
+    ok(&["export", s(&table), "--format", "minari", "-o", s(&clean.join("ds-v0"))]);
+
+    // What a killed export leaves: a half-written staging folder nobody holds.
+    let dead = d.join(".ds-v0.k1LLed");
+    std::fs::create_dir_all(dead.join("data/0")).unwrap();
+    std::fs::write(dead.join("data/0/observation.arrow"), b"half").unwrap();
+    // A live writer's: held by this process.
+    let live = d.join(".ds-v0.L1veOn");
+    std::fs::create_dir(&live).unwrap();
+    let held = std::fs::File::open(&live).unwrap();
+    assert_eq!(unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&held), libc::LOCK_EX | libc::LOCK_NB) }, 0);
+    // Not ours: other names, and a file with a staging folder's name.
+    let other = d.join(".ds-v1.k1LLed");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::write(d.join(".ds-v0.fi1eXX"), b"not a folder").unwrap();
+
+    ok(&["export", s(&table), "--format", "minari", "-o", s(&d.join("ds-v0"))]);
+    assert!(!dead.exists(), "the killed export's staging folder is swept");
+    assert!(live.is_dir() && other.is_dir() && d.join(".ds-v0.fi1eXX").is_file(), "only stale folders of ds-v0 go");
+    let (a, b) = (d.join("a.parquet"), d.join("b.parquet"));
+    ok(&["convert", s(&d.join("ds-v0")), "-o", s(&a)]);
+    ok(&["convert", s(&clean.join("ds-v0")), "-o", s(&b)]);
+    assert_same_table(&a, &b);
+    drop(held);
+}

@@ -209,11 +209,7 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
         obs: [f.obs_dim, f.goal_dim, f.goal_dim].map(|dim| BoxSpace { dim, size }),
         action: BoxSpace { dim: f.act_dim, size },
     };
-    let parent = crate::output::folder_of(out);
-    let staging = tempfile::Builder::new()
-        .prefix(&format!(".{id}."))
-        .tempdir_in(&parent)
-        .with_context(|| format!("{}: cannot create a folder in {}", out.display(), parent.display()))?;
+    let staging = crate::output::AtomicDir::create(out)?;
     let data = staging.path().join("data");
     let mkdir = |d: &Path| std::fs::create_dir_all(d).with_context(|| format!("{}: cannot create", d.display()));
     let row = |k: usize, dim: usize, steps: usize, e: usize| &table.arrays[k][e * steps * dim..(e + 1) * steps * dim];
@@ -261,15 +257,7 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
     }
     write_json(&data.join("metadata.json"), &meta)?;
     // Renamed into place whole; `out` was checked absent, and rename refuses a non-empty folder.
-    // A staging folder is private (0700); the dataset is readable like any other output.
-    #[cfg(unix)]
-    std::fs::set_permissions(staging.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755))?;
-    let path = staging.keep();
-    if let Err(e) = std::fs::rename(&path, out) {
-        let _ = std::fs::remove_dir_all(&path);
-        bail!("{}: cannot move the finished dataset into place ({e})", out.display());
-    }
-    Ok(())
+    staging.commit()
 }
 
 /// Rewards as gymnasium-robotics computes them, to the bit: Fetch's `-(d > threshold)` in
