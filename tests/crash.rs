@@ -240,3 +240,103 @@ fn killed_score_and_collect_leave_nothing_a_rerun_keeps() {
         eprintln!("{name}: {kills} kills over a {whole:?} run, {left} temporary files left by them, all swept");
     }
 }
+
+/// Everything a training run's files hold, as numbers: the checkpoint's networks and
+/// normalizer, the resume state's targets, Adam moments and steps and noise stream, and the
+/// metrics lines with their timings dropped. The files themselves also record the command line,
+/// which differs once `--resume` is added.
+fn training_state(ckpt: &Path) -> (Vec<Vec<f32>>, String) {
+    let device = pgser::agent::Backend::Cpu.device().unwrap();
+    let (mut agent, _) = pgser::agent::checkpoint::load(ckpt, device).unwrap();
+    pgser::agent::checkpoint::load_resume(&mut agent, &pgser::agent::checkpoint::resume_path(ckpt)).unwrap();
+    let mut nets = Vec::new();
+    for net in [&agent.actor, &agent.critics, &agent.actor_target, &agent.critics_target] {
+        nets.extend(net.tensors().into_iter().map(|(_, v)| v));
+    }
+    let (m, v) = agent.critics_opt.member(0);
+    nets.extend(m.into_iter().chain(v).flat_map(|(w, b)| [w, b]));
+    let mut metrics = String::new();
+    let path = format!("{}.metrics.jsonl", ckpt.display());
+    for line in std::fs::read_to_string(path).unwrap_or_default().lines() {
+        let mut v: serde_json::Value = serde_json::from_str(line).unwrap();
+        if let Some(o) = v.as_object_mut() {
+            o.retain(|k, _| !k.contains("sec") && !k.contains("per_s"));
+        }
+        metrics.push_str(&v.to_string());
+    }
+    let about = format!(
+        "updates {} steps {}/{} noise {:?} norm {:?}\n{metrics}",
+        agent.updates,
+        agent.actor_opt.step,
+        agent.critics_opt.step,
+        agent.noise_rngs[0].words(),
+        agent.norms[0]
+    );
+    (nets, about)
+}
+
+/// `pgser-train --resume` and `pgser-train online --resume` on their own, SIGKILLed at moments
+/// drawn from a seed over an uninterrupted run's time: after every kill, a checkpoint in place
+/// loads with its resume state (or there is none yet); each run continues from what the killed
+/// one saved, and the last one ends with an uninterrupted run's networks, targets, Adam state,
+/// streams and metrics, with no temporary file left.
+#[test]
+fn killed_training_resumes_to_the_uninterrupted_state() {
+    let kills: usize = std::env::var("PGSER_CRASH_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
+    let seed: u64 = std::env::var("PGSER_CRASH_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let inputs = tempfile::tempdir().unwrap();
+    let (table, _) = common::reach_tables(inputs.path());
+    let table = table.to_str().unwrap().to_string();
+    let offline: Vec<String> = ["--data", &table, "--updates", "400", "--save-every", "50", "--batch-size", "64"]
+        .into_iter()
+        .chain(["--eval-every", "100", "--eval-episodes", "2", "--hidden", "64", "--seed", "3"])
+        .map(String::from)
+        .collect();
+    let online: Vec<String> = ["online", "--task", "FetchReach", "--epochs", "8", "--cycles", "2"]
+        .into_iter()
+        .chain(["--episodes-per-cycle", "2", "--updates-per-cycle", "10", "--batch-size", "64", "--hidden", "64"])
+        .chain(["--eval-episodes", "2", "--seed", "3"])
+        .map(String::from)
+        .collect();
+    let mut rng = NpRandom::new(seed);
+    for (what, args) in [("train", offline), ("online", online)] {
+        let run = |dir: &Path, resume: bool| {
+            let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"));
+            c.current_dir(dir).args(&args).args(["-o", "a.ckpt", "--threads", "2"]);
+            if resume {
+                c.arg("--resume");
+            }
+            c.stdout(Stdio::null()).stderr(Stdio::null());
+            c
+        };
+        let reference = tempfile::tempdir().unwrap();
+        let started = Instant::now();
+        assert!(run(reference.path(), false).status().unwrap().success(), "{what}: the reference run failed");
+        let whole = started.elapsed();
+        let want = training_state(&reference.path().join("a.ckpt"));
+
+        let dir = tempfile::tempdir().unwrap();
+        let ckpt = dir.path().join("a.ckpt");
+        for k in 0..kills {
+            let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
+            let mut child = run(dir.path(), ckpt.exists()).spawn().unwrap();
+            std::thread::sleep(at);
+            // SAFETY: a plain kill(2) of our own child.
+            unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+            child.wait().unwrap();
+            if ckpt.exists() {
+                // Loads, with a resume state of the same update (training_state checks both).
+                let (_, about) = training_state(&ckpt);
+                assert!(about.starts_with("updates "), "{what}: kill {k} at {at:?}");
+            }
+        }
+        assert!(run(dir.path(), ckpt.exists()).status().unwrap().success(), "{what}: the last run failed");
+        let got = training_state(&ckpt);
+        assert!(got.0 == want.0, "{what}: the weights after {kills} kills differ from an uninterrupted run's");
+        assert_eq!(got.1, want.1, "{what}: counters, streams or metrics differ");
+        let mut all = Vec::new();
+        files(dir.path(), &mut all);
+        assert!(all.iter().all(|p| !is_temporary(p)), "{what}: temporary files left: {all:?}");
+        eprintln!("{what}: {kills} kills over a {whole:?} run, resumed to the uninterrupted state");
+    }
+}
