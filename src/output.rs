@@ -64,11 +64,18 @@ impl AtomicFile {
     /// Flush to disk and move into place.
     pub fn commit(self) -> Result<()> {
         let dest = self.dest.clone();
+        self.commit_as(&dest)
+    }
+
+    /// Flush to disk and move to `path` (in the destination's folder) instead: for a file that
+    /// must wait there until another is in place (`checkpoint::commit_with`).
+    pub fn commit_as(self, path: &Path) -> Result<()> {
+        let dest = self.dest.clone();
         self.tmp.as_file().sync_all().with_context(|| format!("{}: fsync failed", dest.display()))?;
         self.tmp
-            .persist(&dest)
+            .persist(path)
             .map_err(|e| e.error)
-            .with_context(|| format!("{}: cannot move the finished file into place", dest.display()))?;
+            .with_context(|| format!("{}: cannot move the finished file into place", path.display()))?;
         Ok(())
     }
 }

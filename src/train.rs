@@ -178,17 +178,15 @@ impl Run {
         let out = &self.cell.out;
         let mut resume_extra = BTreeMap::new();
         resume_extra.insert("batch_rng".to_string(), serde_json::to_string(&self.batches.rng().words())?);
-        // All three are written first, then put in place one right after the other, checkpoint
-        // last: a checkpoint in place always has its metrics (later lines are dropped on resume)
-        // and its resume state. Both record their update count and `--resume` refuses a pair
-        // whose counts differ, so the microseconds between the last two renames are reported
-        // if a crash hits them, never continued from.
+        // All three are written first, then put in place: the metrics (later lines are dropped
+        // on resume), then the checkpoint with its resume state (`checkpoint::commit_with`), so
+        // that a crash at any instant leaves a checkpoint whose resume state loads with it. Both
+        // record their update count, and `--resume` never continues from a mixed pair.
         let metrics = stage_metrics(&metrics_path(out), &self.metrics)?;
         let resume = checkpoint::stage_resume(agent, i, &checkpoint::resume_path(out), &resume_extra)?;
         let model = checkpoint::stage(agent, i, out, &self.extra)?;
         metrics.commit()?;
-        resume.commit()?;
-        model.commit()
+        checkpoint::commit_with(model, vec![resume])
     }
 }
 

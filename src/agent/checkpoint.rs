@@ -310,6 +310,36 @@ pub fn load(path: &Path, device: Device) -> Result<(Agent, HashMap<String, Strin
     Ok((agent, meta))
 }
 
+/// Where a checkpoint's companion file (its resume state, an online run's replay buffer) waits
+/// while the checkpoint is put in place: `FILE.next`.
+pub fn pending_path(path: &Path) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push(".next");
+    PathBuf::from(p)
+}
+
+/// Puts a staged checkpoint and its staged companions (resume state, replay buffer) in place so
+/// that a crash at any instant leaves files that load together. Each companion is first moved to
+/// its `pending_path`, the checkpoint then replaces the old one, and the companions last replace
+/// theirs. Killed before the checkpoint's rename, the old checkpoint is in place with its own
+/// companions; killed after it, the new checkpoint's companions are the pending ones, which the
+/// readers take when the ones in place are of another update (`load_resume`, the online
+/// trainer's buffer). The next save replaces whatever pending file a crash left.
+pub fn commit_with(model: AtomicFile, companions: Vec<AtomicFile>) -> Result<()> {
+    let mut moves = Vec::with_capacity(companions.len());
+    for c in companions {
+        let (dest, pending) = (c.dest().to_path_buf(), pending_path(c.dest()));
+        c.commit_as(&pending)?;
+        moves.push((pending, dest));
+    }
+    model.commit()?;
+    for (pending, dest) in moves {
+        std::fs::rename(&pending, &dest)
+            .with_context(|| format!("{}: cannot move the finished file into place", dest.display()))?;
+    }
+    Ok(())
+}
+
 /// Where the resume state of `path` lives.
 pub fn resume_path(path: &Path) -> PathBuf {
     let mut p = path.as_os_str().to_owned();
@@ -346,18 +376,33 @@ pub fn stage_resume(agent: &Agent, i: usize, path: &Path, extra: &BTreeMap<Strin
 
 /// Restores what `save_resume` wrote into a stack of one agent loaded from the model file of the
 /// same update; returns the resume file's metadata (with the trainer's extra keys).
+///
+/// A resume state of another update is refused, unless the pending one beside it
+/// ([`pending_path`], left by a save killed between its renames, [`commit_with`]) is of the
+/// checkpoint's update: that one is then read.
 pub fn load_resume(agent: &mut Agent, path: &Path) -> Result<HashMap<String, String>> {
     assert_eq!(agent.agents(), 1, "resume states are restored one agent at a time");
-    let f = Loaded::open(path)?;
-    let meta = f.metadata()?;
+    let mut f = Loaded::open(path)?;
+    let mut meta = f.metadata()?;
     let updates: u64 = f.meta_json(&meta, "updates")?;
     if updates != agent.updates {
-        bail!(
-            "{}: resume state is from update {updates} but the checkpoint is from update {}; they do not belong together",
-            path.display(),
-            agent.updates
-        );
+        let pending = pending_path(path);
+        let fits = |p: &Path| -> Option<(Loaded, HashMap<String, String>)> {
+            let f = Loaded::open(p).ok()?;
+            let meta = f.metadata().ok()?;
+            (f.meta_json::<u64>(&meta, "updates").ok()? == agent.updates).then_some((f, meta))
+        };
+        let Some(found) = pending.exists().then(|| fits(&pending)).flatten() else {
+            bail!(
+                "{}: resume state is from update {updates} but the checkpoint is from update {}; they do not belong together",
+                path.display(),
+                agent.updates
+            );
+        };
+        (f, meta) = found;
     }
+    let path = f.path.clone();
+    let path = path.as_path();
     let device = agent.device.clone();
     let (actor_sizes, critic_sizes) = net_sizes(&agent.config, &agent.task);
     agent.actor_target = Mlp::from_members(&[f.member("actor_target", &actor_sizes)?], &device);

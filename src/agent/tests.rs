@@ -436,3 +436,46 @@ fn a_grid_split_across_cores_trains_each_agent_as_alone() {
         assert_eq!(acts[i], mine, "agent {i}: actions");
     }
 }
+
+#[test]
+fn a_save_killed_between_its_renames_leaves_a_pair_that_loads() {
+    // checkpoint::commit_with's two crash windows, taken by hand: killed before the checkpoint's
+    // rename (the old pair in place, the new resume state pending), and after it (the new
+    // checkpoint in place beside the old resume state, the new one pending).
+    let task = Task::known("FetchReach").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.ckpt");
+    let resume = checkpoint::resume_path(&path);
+    let mut agent = Agent::new(small_config(Algo::Td3), task.clone(), unit_norm(&task), 1, device());
+    agent.update(&[random_batch(&task, 16, 0)]);
+    let old = |a: &Agent| {
+        checkpoint::commit_with(
+            checkpoint::stage(a, 0, &path, &Default::default()).unwrap(),
+            vec![checkpoint::stage_resume(a, 0, &resume, &Default::default()).unwrap()],
+        )
+        .unwrap()
+    };
+    old(&agent);
+    agent.update(&[random_batch(&task, 16, 1)]);
+    let model = checkpoint::stage(&agent, 0, &path, &Default::default()).unwrap();
+    let staged = checkpoint::stage_resume(&agent, 0, &resume, &Default::default()).unwrap();
+    staged.commit_as(&checkpoint::pending_path(&resume)).unwrap();
+    // Window 1: the old checkpoint and its own resume state.
+    let (mut back, _) = checkpoint::load(&path, device()).unwrap();
+    checkpoint::load_resume(&mut back, &resume).unwrap();
+    assert_eq!(back.updates, 1);
+    // Window 2: the new checkpoint; its resume state is the pending one.
+    model.commit().unwrap();
+    let (mut back, _) = checkpoint::load(&path, device()).unwrap();
+    checkpoint::load_resume(&mut back, &resume).unwrap();
+    assert_eq!((back.updates, back.critics_opt.step), (2, 2));
+    assert_eq!(back.critics_opt.member(1), agent.critics_opt.member(1));
+    // Without the pending file the pair is refused, as before.
+    std::fs::remove_file(checkpoint::pending_path(&resume)).unwrap();
+    let (mut back, _) = checkpoint::load(&path, device()).unwrap();
+    let err = checkpoint::load_resume(&mut back, &resume).unwrap_err().to_string();
+    assert!(err.contains("do not belong together"), "{err}");
+    // A completed save leaves no pending file.
+    old(&agent);
+    assert!(!checkpoint::pending_path(&resume).exists());
+}

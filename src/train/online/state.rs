@@ -154,9 +154,9 @@ impl RunningNorm {
 
 impl Run {
     /// Writes metrics, resume state, buffer and checkpoint, each staged first and then put in
-    /// place one right after the other, checkpoint last (as `pgser-train` does): a checkpoint in
-    /// place always has its metrics, resume state and buffer, and each of them names the point
-    /// of the run it belongs to, so `--resume` never continues from a mixed set.
+    /// place as `pgser-train` does (`checkpoint::commit_with`): a checkpoint in place always has
+    /// its metrics, resume state and buffer, whatever instant a crash hits, and each of them
+    /// names the point of the run it belongs to, so `--resume` never continues from a mixed set.
     pub(super) fn save(&mut self) -> Result<()> {
         self.agent.sync();
         let out = &self.out;
@@ -173,9 +173,7 @@ impl Run {
         let buffer = self.replay.stage(&buffer_path(out), &note, &self.command)?;
         let model = checkpoint::stage(&self.agent, 0, out, &extra)?;
         metrics.commit()?;
-        resume.commit()?;
-        buffer.commit()?;
-        model.commit()
+        checkpoint::commit_with(model, vec![resume, buffer])
     }
 }
 
@@ -217,7 +215,16 @@ pub(super) fn restore(cfg: &OnlineConfig, out: &Path, command: &str, device: Dev
         ));
     }
     let task = agent.task.clone();
-    let replay = Replay::load(&buffer_path(out), &task, cfg.capacity(&task), json("buffer")?)?;
+    // The buffer of this checkpoint: the one in place, or the pending one a save killed between
+    // its renames left (`checkpoint::commit_with`).
+    let (buffer, note) = (buffer_path(out), json("buffer")?);
+    let replay = match Replay::load(&buffer, &task, cfg.capacity(&task), note) {
+        Err(e) => match checkpoint::pending_path(&buffer) {
+            pending if pending.exists() => Replay::load(&pending, &task, cfg.capacity(&task), note).map_err(|_| e)?,
+            _ => return Err(e),
+        },
+        ok => ok?,
+    };
     let metrics: Vec<EpochLine> =
         read_metrics::<EpochLine>(&metrics_path(out))?.into_iter().filter(|m| m.epoch <= progress.epoch).collect();
     Ok(Run {
