@@ -180,9 +180,14 @@ $(JAX_PY):
 	python3 -m venv bench-out/jax-venv
 	bench-out/jax-venv/bin/pip install --quiet jax numpy
 
-# Needs cargo-fuzz (cargo install cargo-fuzz); stable Rust works with RUSTC_BOOTSTRAP=1.
+# Every reader under libFuzzer, FUZZ_SECONDS each (default 600), seeded from the repo's own files
+# (fuzz/seeds.sh); FUZZ_TARGETS picks some. Needs cargo-fuzz (cargo install cargo-fuzz); stable
+# Rust works with RUSTC_BOOTSTRAP=1. A crash's input lands in fuzz/artifacts/TARGET/.
+FUZZ_TARGETS ?= pickle table scored checkpoint resume metrics pipeline minari wgcsl
 fuzz: deps
-	cd fuzz && RUSTC_BOOTSTRAP=1 cargo fuzz run pickle -- -max_total_time=$${FUZZ_SECONDS:-300}
+	cd fuzz && ./seeds.sh
+	cd fuzz && for t in $(FUZZ_TARGETS); do \
+	  RUSTC_BOOTSTRAP=1 cargo fuzz run $$t corpus/$$t -- -max_total_time=$${FUZZ_SECONDS:-600} || exit 1; done
 
 clean:
 	$(CARGO) clean

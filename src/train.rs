@@ -517,7 +517,9 @@ fn stage_metrics<T: Serialize>(path: &Path, lines: &[T]) -> Result<AtomicFile> {
     Ok(out)
 }
 
-fn read_metrics<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
+/// A metrics file's records, one JSON object per line, as `--resume` reads them (public for the
+/// fuzz target of this reader); a missing file has none.
+pub fn read_metrics<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
     if !path.exists() {
         return Ok(Vec::new());
     }
