@@ -1,6 +1,7 @@
 //! The agent: a goal-conditioned actor and twin critics (one for DDPG; burn modules), their
-//! normalizer, and the TD3 / TD3+BC / DDPG update (`td3.rs`), Adam (`adam.rs`) and the
-//! checkpoint file (`checkpoint.rs`).
+//! normalizer, and the TD3 / TD3+BC / DDPG update (`td3.rs`, on burn; `fused.rs`, the same update
+//! written out by hand, the CPU's default), Adam (`adam.rs`) and the checkpoint file
+//! (`checkpoint.rs`).
 //!
 //! The agent dimension: an `Agent` is a stack of A agents of the same settings, each network
 //! layer one `[A, in, out]` tensor (the twin critics an ensemble of two inside it), so that a
