@@ -17,3 +17,24 @@ pub fn file(name: &str, data: &[u8]) -> PathBuf {
     std::fs::write(&p, data).unwrap();
     p
 }
+
+/// `pgser-etl convert INPUT` with default settings, its output removed: what both the Minari and
+/// the WGCSL targets put their input through.
+#[allow(dead_code)] // only the targets that read through convert use it
+pub fn convert(input: PathBuf) {
+    let out = scratch().join("converted.parquet");
+    let opts = pgser::trajectory::ConvertOptions {
+        inputs: vec![input],
+        output: out.clone(),
+        task: None,
+        threshold: None,
+        episodes: None,
+        float32: false,
+        allow_nonfinite: false,
+        exact_length: false,
+        row_group_rows: 65_536,
+        command: String::new(),
+    };
+    let _ = pgser::convert::convert(&opts, &indicatif::ProgressBar::hidden());
+    let _ = std::fs::remove_file(&out);
+}

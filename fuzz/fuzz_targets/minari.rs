@@ -41,19 +41,5 @@ fuzz_target!(|data: &[u8]| {
         arrow.unwrap_or_else(|| ep.join("episode.arrow"))
     };
     std::fs::write(&target, rest).unwrap();
-    let out = common::scratch().join("m.parquet");
-    let opts = pgser::trajectory::ConvertOptions {
-        inputs: vec![dir],
-        output: out.clone(),
-        task: None,
-        threshold: None,
-        episodes: None,
-        float32: false,
-        allow_nonfinite: false,
-        exact_length: false,
-        row_group_rows: 65_536,
-        command: String::new(),
-    };
-    let _ = pgser::convert::convert(&opts, &indicatif::ProgressBar::hidden());
-    let _ = std::fs::remove_file(&out);
+    common::convert(dir);
 });

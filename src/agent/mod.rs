@@ -1,5 +1,5 @@
 //! The agent: a goal-conditioned actor and twin critics (one for DDPG; burn modules), their
-//! normalizer, and the TD3 / TD3+BC / DDPG update (`td3.rs`, on burn; `fused.rs`, the same update
+//! normalizer, and the TD3 / TD3+BC / DDPG update (`td3.rs`, on burn; `fused/`, the same update
 //! written out by hand, the CPU's default), Adam (`adam.rs`) and the checkpoint file
 //! (`checkpoint.rs`).
 //!
@@ -412,7 +412,7 @@ fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
 }
 
 /// Where the networks run, and on which engine.
-/// - `cpu`: the hand-written update (`fused.rs`), pgser's fastest on a CPU (BENCHMARKS.md);
+/// - `cpu`: the hand-written update (`fused/`), pgser's fastest on a CPU (BENCHMARKS.md);
 /// - `cpu-burn`: burn's flex backend, the reference the `cpu` engine is tested against;
 /// - `wgpu` (Vulkan, Metal, DX12): burn on a GPU, when pgser is built with `--features wgpu`.
 ///

@@ -8,7 +8,7 @@
 //! in `tests.rs` check this to the bit), so the shard count changes the speed, never the
 //! checkpoints: a run on 2 threads writes the bytes of the same run on 1. A GPU gets one shard: a
 //! stack there is one queue of kernels, and splitting it only adds launches. So does the
-//! hand-written CPU engine (`--device cpu`, `fused.rs`), which spreads its own pieces over the
+//! hand-written CPU engine (`--device cpu`, `fused/`), which spreads its own pieces over the
 //! pool.
 
 use burn::tensor::Tensor;

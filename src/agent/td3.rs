@@ -89,7 +89,7 @@ pub struct Agent {
     pub updates: u64,
     /// Agent i's target-policy smoothing noise stream.
     pub noise_rngs: Vec<NpRandom>,
-    /// The hand-written CPU engine (`fused.rs`), when this stack trains on it: it then holds the
+    /// The hand-written CPU engine (`fused/`), when this stack trains on it: it then holds the
     /// newest networks, targets and Adam state, and the burn fields above are as of the last
     /// `sync` (`stale` says whether updates came since). Checkpoints are written from the burn
     /// fields and refuse a stale agent, so a missed `sync` fails loudly, never silently.
@@ -178,7 +178,7 @@ impl Agent {
         }
     }
 
-    /// Trains from now on with the hand-written CPU engine (`fused.rs`), from the current state.
+    /// Trains from now on with the hand-written CPU engine (`fused/`), from the current state.
     pub fn fuse(&mut self) {
         if self.fused.is_some() {
             return;

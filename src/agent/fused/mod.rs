@@ -35,82 +35,18 @@ use crate::nprandom::NpRandom;
 
 use super::td3::Batch;
 
+mod net;
 #[cfg(test)]
-#[path = "fused_tests.rs"]
 mod tests;
 
-// Adam's constants as `adam.rs` has them (f64, each product rounded to f32 as burn does).
-const BETA1: f64 = 0.9;
-const BETA2: f64 = 0.999;
-const EPS: f64 = 1e-8;
-/// Most parts a batch is cut into.
-const MAX_PARTS: usize = 4;
-/// Adam runs over each network in chunks of this many parameters, side by side.
-const ADAM_CHUNK: usize = 16 * 1024;
+use net::{MAX_PARTS, Shape, adam, backward, forward, unflatten};
+pub use net::{Net, flatten};
 
 /// The parts a batch of `n` rows is cut into: about 256 rows each (a product of that height still
 /// runs near the micro-kernel's peak), at least one, at most four. A function of `n` only, so the
 /// bytes never depend on the machine.
 pub fn parts(n: usize) -> usize {
     (n / 256).clamp(1, MAX_PARTS)
-}
-
-/// Layer sizes of one network and where each layer's weight `[in, out]` and bias `[out]` sit in
-/// its flat parameter buffer (in `Member` order: w0, b0, w1, b1, ...).
-#[derive(Debug, Clone)]
-struct Shape {
-    sizes: Vec<usize>,
-    offsets: Vec<usize>,
-    len: usize,
-}
-
-impl Shape {
-    fn new(sizes: &[usize]) -> Shape {
-        let mut offsets = Vec::new();
-        let mut len = 0;
-        for io in sizes.windows(2) {
-            offsets.push(len);
-            len += io[0] * io[1] + io[1];
-        }
-        Shape { sizes: sizes.to_vec(), offsets, len }
-    }
-
-    fn layers(&self) -> usize {
-        self.sizes.len() - 1
-    }
-
-    fn weight(&self, l: usize) -> std::ops::Range<usize> {
-        let o = self.offsets[l];
-        o..o + self.sizes[l] * self.sizes[l + 1]
-    }
-
-    fn bias(&self, l: usize) -> std::ops::Range<usize> {
-        let e = self.weight(l).end;
-        e..e + self.sizes[l + 1]
-    }
-
-    fn widest(&self) -> usize {
-        *self.sizes.iter().max().expect("a network has layers")
-    }
-}
-
-/// One network's parameters, Adam moments and target copy, flat in `Shape` order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Net {
-    pub p: Vec<f32>,
-    pub m: Vec<f32>,
-    pub v: Vec<f32>,
-    pub target: Vec<f32>,
-}
-
-/// A member's layers as one flat buffer, and back.
-pub fn flatten(member: &Member) -> Vec<f32> {
-    member.iter().flat_map(|(w, b)| w.iter().chain(b).copied()).collect()
-}
-
-fn unflatten(flat: &[f32], sizes: &[usize]) -> Member {
-    let shape = Shape::new(sizes);
-    (0..shape.layers()).map(|l| (flat[shape.weight(l)].to_vec(), flat[shape.bias(l)].to_vec())).collect()
 }
 
 /// One agent's networks: its actor and its K critics.
@@ -169,6 +105,8 @@ pub struct Fused {
     pub actor_step: u64,
     pub critic_step: u64,
     work: Vec<Work>,
+    /// The batch size `work` is sized for (0: not yet).
+    sized_for: usize,
     /// Each agent's target-policy noise for the current update, `[n, a]`.
     noise: Vec<Vec<f32>>,
     /// Each agent's λ in the current update.
@@ -195,6 +133,7 @@ impl Fused {
             actor_step,
             critic_step,
             work: Vec::new(),
+            sized_for: 0,
         }
     }
 
@@ -209,12 +148,11 @@ impl Fused {
 
     /// Buffers for batches of `n` rows (once; again only if the batch size changes).
     fn size_work(&mut self, n: usize, k: usize) {
-        let p = parts(n);
-        if self.work.len() == self.nets.len() * p
-            && self.work.iter().map(|w| w.rows).sum::<usize>() == n * self.nets.len()
-        {
+        if self.sized_for == n {
             return;
         }
+        self.sized_for = n;
+        let p = parts(n);
         let width = self.critic.sizes[0];
         let act = *self.actor.sizes.last().expect("sizes");
         let outs = |s: &Shape, rows: usize| s.sizes[1..].iter().map(|&d| vec![0.0; rows * d]).collect::<Vec<_>>();
@@ -565,128 +503,6 @@ fn actor_backward(
     );
 }
 
-/// The network's forward pass for `rows` rows of `x` (row stride `x_rs`, its first `sizes[0]`
-/// columns the input): `outs[l]` gets layer l's output, ReLU'd below the top.
-fn forward(shape: &Shape, p: &[f32], x: &[f32], x_rs: usize, rows: usize, outs: &mut [Vec<f32>]) {
-    let top = shape.layers() - 1;
-    for l in 0..shape.layers() {
-        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
-        let (below, here) = outs.split_at_mut(l);
-        let (input, in_rs) = if l == 0 { (x, x_rs) } else { (&below[l - 1][..], din) };
-        let out = &mut here[0][..rows * dout];
-        matmul(rows, dout, din, out, (input, in_rs, 1), (&p[shape.weight(l)], dout, 1));
-        let b = &p[shape.bias(l)];
-        for row in out.chunks_exact_mut(dout) {
-            if l == top {
-                row.iter_mut().zip(b).for_each(|(y, b)| *y += b);
-            } else {
-                row.iter_mut().zip(b).for_each(|(y, b)| *y = (*y + b).max(0.0));
-            }
-        }
-    }
-}
-
-/// The network's backward pass from `g` = ∂loss/∂(top layer's output) (`rows × out`,
-/// overwritten; `tmp` is scratch of the same size). Writes ∂W, ∂b into `grad` when given, and
-/// the gradient of the input columns `from..sizes[0]` into `dx` (`rows × (sizes[0] − from)`).
-#[allow(clippy::too_many_arguments)]
-fn backward(
-    shape: &Shape,
-    p: &[f32],
-    x: &[f32],
-    x_rs: usize,
-    rows: usize,
-    outs: &[Vec<f32>],
-    g: &mut Vec<f32>,
-    tmp: &mut Vec<f32>,
-    mut grad: Option<&mut Vec<f32>>,
-    dx: Option<(&mut Vec<f32>, usize)>,
-) {
-    let top = shape.layers() - 1;
-    if let Some(grad) = grad.as_deref_mut() {
-        let dout = shape.sizes[top + 1];
-        let db = &mut grad[shape.bias(top)];
-        db.fill(0.0);
-        for row in g[..rows * dout].chunks_exact(dout) {
-            db.iter_mut().zip(row).for_each(|(d, x)| *d += x);
-        }
-    }
-    for l in (0..=top).rev() {
-        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
-        let (input, in_rs) = if l == 0 { (x, x_rs) } else { (&outs[l - 1][..], din) };
-        if let Some(grad) = grad.as_deref_mut() {
-            // ∂W = inputᵀ·G: the input read transposed through its strides.
-            matmul(din, dout, rows, &mut grad[shape.weight(l)], (input, 1, in_rs), (&g[..rows * dout], dout, 1));
-        }
-        let w = &p[shape.weight(l)];
-        if l > 0 {
-            // G·Wᵀ, masked by the ReLU below, with that layer's ∂b in the same pass.
-            matmul(rows, din, dout, &mut tmp[..rows * din], (&g[..rows * dout], dout, 1), (w, 1, dout));
-            let mut db = grad.as_deref_mut().map(|grad| &mut grad[shape.bias(l - 1)]);
-            if let Some(db) = db.as_deref_mut() {
-                db.fill(0.0);
-            }
-            for (t, below) in tmp[..rows * din].chunks_exact_mut(din).zip(outs[l - 1].chunks_exact(din)) {
-                // A select, not a branch: the loop vectorizes.
-                t.iter_mut().zip(below).for_each(|(ti, &bi)| *ti = if bi > 0.0 { *ti } else { 0.0 });
-                if let Some(db) = db.as_deref_mut() {
-                    db.iter_mut().zip(t.iter()).for_each(|(d, x)| *d += x);
-                }
-            }
-            std::mem::swap(g, tmp);
-        } else if let Some((dx, from)) = dx {
-            // The input columns from..din only: rows from..din of W.
-            let cols = din - from;
-            matmul(
-                rows,
-                cols,
-                dout,
-                &mut dx[..rows * cols],
-                (&g[..rows * dout], dout, 1),
-                (&w[from * dout..], 1, dout),
-            );
-            return;
-        }
-    }
-}
-
-/// `dst` (`m × n`, row-major) = A·B, A given as (values, row stride, column stride) of an `m × k`
-/// matrix and B of a `k × n` one: transposes are strides, never copies. One thread: the caller
-/// spreads whole products over the pool, which keeps every sum in one fixed order.
-fn matmul(m: usize, n: usize, k: usize, dst: &mut [f32], a: (&[f32], usize, usize), b: (&[f32], usize, usize)) {
-    let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
-        assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "matmul operand out of bounds");
-    };
-    last(m, k, a);
-    last(k, n, b);
-    assert!(dst.len() >= m * n, "matmul output out of bounds");
-    // SAFETY: the asserts above keep every element gemm reads inside `a` and `b` and every one it
-    // writes inside `dst`; `dst` is a unique borrow, so it overlaps neither input.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.0.as_ptr(),
-            a.2 as isize,
-            a.1 as isize,
-            b.0.as_ptr(),
-            b.2 as isize,
-            b.1 as isize,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
-}
-
 /// The critics' Adam step of every agent (and with `tau`, their targets' Polyak step).
 fn step_critics(nets: &mut [Nets], work: &[Work], step: u64, lr: f64, tau: Option<f64>, p: usize) {
     nets.par_iter_mut().enumerate().for_each(|(i, nets)| {
@@ -695,52 +511,4 @@ fn step_critics(nets: &mut [Nets], work: &[Work], step: u64, lr: f64, tau: Optio
             adam(net, |q| &grads[q].critic_grad[k], p, lr, step, tau);
         }
     });
-}
-
-/// Adam (PyTorch's formulation, as `adam.rs`) on `net` from the sum of the parts' gradients in
-/// part order, and with `tau`, the target's Polyak step from the new parameters in the same pass.
-/// Every constant is rounded to f32 as burn rounds a scalar, so both engines compute alike.
-fn adam<'a>(
-    net: &mut Net,
-    grad: impl Fn(usize) -> &'a [f32] + Sync,
-    parts: usize,
-    lr: f64,
-    step: u64,
-    tau: Option<f64>,
-) {
-    let t = step as i32;
-    let bc2_sqrt = (1.0 - BETA2.powi(t)).sqrt() as f32;
-    let step_size = (lr / (1.0 - BETA1.powi(t))) as f32;
-    let (b1, nb1, b2, nb2, eps) = (BETA1 as f32, (1.0 - BETA1) as f32, BETA2 as f32, (1.0 - BETA2) as f32, EPS as f32);
-    let (keep, take) = tau.map_or((1.0, 0.0), |tau| ((1.0 - tau) as f32, tau as f32));
-    debug_assert!(parts <= MAX_PARTS);
-    let Net { p, m, v, target } = net;
-    p.par_chunks_mut(ADAM_CHUNK)
-        .zip(m.par_chunks_mut(ADAM_CHUNK))
-        .zip(v.par_chunks_mut(ADAM_CHUNK))
-        .zip(target.par_chunks_mut(ADAM_CHUNK))
-        .enumerate()
-        .for_each(|(ci, (((p, m), v), target))| {
-            let base = ci * ADAM_CHUNK;
-            // In blocks, each loop a plain zip over slices, so that every one of them vectorizes.
-            let mut g = [0.0f32; 256];
-            for start in (0..p.len()).step_by(g.len()) {
-                let len = g.len().min(p.len() - start);
-                let (g, at) = (&mut g[..len], base + start..base + start + len);
-                g.copy_from_slice(&grad(0)[at.clone()]);
-                for q in 1..parts {
-                    g.iter_mut().zip(&grad(q)[at.clone()]).for_each(|(g, x)| *g += x);
-                }
-                let (p, m, v) = (&mut p[start..start + len], &mut m[start..start + len], &mut v[start..start + len]);
-                for (((p, m), v), g) in p.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(g.iter()) {
-                    *m = *m * b1 + g * nb1;
-                    *v = *v * b2 + g * g * nb2;
-                    *p -= *m / (v.sqrt() / bc2_sqrt + eps) * step_size;
-                }
-                if tau.is_some() {
-                    let t = &mut target[start..start + len];
-                    t.iter_mut().zip(p.iter()).for_each(|(t, p)| *t = *t * keep + p * take);
-                }
-            }
-        });
 }
