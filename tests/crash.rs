@@ -1,6 +1,8 @@
 //! Killed at any moment: a small pipeline (convert, Q pre-training, scoring, report, a stack of
-//! baseline / swap / mem agents, results) is SIGKILLed at moments drawn from a seed, spread over
-//! a whole run, each run continuing from what the one before left. After every kill:
+//! baseline / swap / mem agents, results) is SIGKILLed at moments drawn from a seed, each run
+//! continuing from what the one before left. Half the kills land at a time spread over a whole
+//! run, half on entry to a `write`, `fsync` or `rename` (strace's fault injection,
+//! `common/kill.rs`), where a file is half-written. After every kill:
 //! - every file under `out/` that a reader opens is whole: tables read back, checkpoints load,
 //!   records and metrics parse, PNGs end with their last chunk (temporary files of a killed
 //!   writer are allowed until the next run);
@@ -12,10 +14,11 @@
 
 mod common;
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Stdio;
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
 
+use common::kill::Moments;
 use common::{etl, snapshot, text};
 use pgser::nprandom::NpRandom;
 
@@ -41,11 +44,16 @@ updates = 300
     common::sample_pipeline(dir, "crash.toml", "crash", rest)
 }
 
-fn run_to_end(dir: &Path) -> Duration {
-    let t = Instant::now();
-    let o = etl().current_dir(dir).args(["pipeline", "run", "crash.toml", "--threads", "2"]).output().unwrap();
+/// `pipeline run crash.toml` in `dir`.
+fn run(dir: &Path) -> Command {
+    let mut c = etl();
+    c.current_dir(dir).args(["pipeline", "run", "crash.toml", "--threads", "2"]);
+    c
+}
+
+fn run_to_end(dir: &Path) {
+    let o = run(dir).output().unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
-    t.elapsed()
 }
 
 fn files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -60,20 +68,51 @@ fn is_temporary(p: &Path) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
 }
 
-/// What is wrong with `out` after a kill, one line per fault.
-fn faults(out: &Path) -> Vec<String> {
+/// Files a run rewrites as it goes (a training's saves): they may hold an earlier complete
+/// state than the uninterrupted run's last, so they are checked by loading them.
+fn rewritten(name: &str) -> bool {
+    [".ckpt", ".ckpt.resume", ".metrics.jsonl", ".next"].iter().any(|e| name.ends_with(e))
+}
+
+/// A training's metrics are put in place before its checkpoint (`train.rs`, `Run::save`): they
+/// must be the uninterrupted run's first lines, at least up to the checkpoint's update.
+fn metrics_fault(path: &Path, ckpt: &Path, want: Option<&Vec<u8>>, device: &burn::tensor::Device) -> Option<String> {
+    let got = std::fs::read_to_string(path).unwrap();
+    let want = String::from_utf8(want?.clone()).unwrap();
+    if !want.starts_with(&got) || !(got.is_empty() || got.ends_with('\n')) {
+        return Some("not the first lines of an uninterrupted run's metrics".into());
+    }
+    let (agent, _) = pgser::agent::checkpoint::load(ckpt, device.clone()).ok()?;
+    let updates = |l: &str| serde_json::from_str::<serde_json::Value>(l).unwrap()["updates"].as_u64().unwrap();
+    let needed = want.lines().filter(|l| updates(l) <= agent.updates).count();
+    (got.lines().count() < needed).then(|| format!("{needed} lines due by update {}", agent.updates))
+}
+
+/// What is wrong with `out` after a kill, one line per fault. Every output written once must
+/// be the bytes of the uninterrupted run's (`want`, by path under `out`); every file is checked
+/// by reading it as its kind too.
+fn faults(out: &Path, want: &BTreeMap<PathBuf, Vec<u8>>) -> Vec<String> {
     let mut all = Vec::new();
     files(out, &mut all);
     let mut bad = Vec::new();
     let device = pgser::agent::Backend::Cpu.device().unwrap();
     for p in all.iter().filter(|p| !is_temporary(p)) {
-        let at = p.strip_prefix(out).unwrap().display().to_string();
+        let rel = p.strip_prefix(out).unwrap();
+        let at = rel.display().to_string();
         let name = p.file_name().unwrap().to_string_lossy().into_owned();
-        let fault = if name.ends_with(".parquet") {
+        if !rel.starts_with(".pipeline") && !rewritten(&name) && want.get(rel) != Some(&std::fs::read(p).unwrap()) {
+            bad.push(format!("{at}: not the bytes an uninterrupted run writes there"));
+        }
+        let fault = if let Some(ckpt) = name.strip_suffix(".metrics.jsonl") {
+            metrics_fault(p, &p.with_file_name(ckpt), want.get(rel), &device)
+        } else if name.ends_with(".parquet") {
             let o = etl().args(["inspect", "--json"]).arg(p).output().unwrap();
             (!o.status.success()).then(|| text(&o.stderr))
         } else if name.ends_with(".ckpt") {
             pgser::agent::checkpoint::load(p, device.clone()).err().map(|e| format!("{e:#}"))
+        } else if name.ends_with(".resume") || name.ends_with(".next") {
+            // A resume state, or a save's companion waiting beside its place: whole on its own.
+            pgser::verify::verify(p).err().map(|e| format!("{e:#}"))
         } else if name.ends_with(".json") {
             serde_json::from_slice::<serde_json::Value>(&std::fs::read(p).unwrap()).err().map(|e| e.to_string())
         } else if name.ends_with(".jsonl") {
@@ -113,66 +152,78 @@ fn killed_at_any_moment_nothing_is_partial_and_the_rerun_is_byte_identical() {
     let kills: usize = std::env::var("PGSER_CRASH_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
     let seed: u64 = std::env::var("PGSER_CRASH_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
 
-    // The reference: one uninterrupted run, and how long it takes.
+    // The reference: one uninterrupted run, how long it takes and what I/O it makes.
     let reference = tempfile::tempdir().unwrap();
     pipeline(reference.path());
-    let whole = run_to_end(reference.path());
+    let moments = Moments::measure(&mut run(reference.path()), "pipeline");
     let want = snapshot(&reference.path().join("out"));
 
     let dir = tempfile::tempdir().unwrap();
     pipeline(dir.path());
     let out = dir.path().join("out");
     let mut rng = NpRandom::new(seed);
-    let mut report = Vec::new();
-    for k in 0..kills {
-        // A moment anywhere in a whole run's time (later runs skip finished steps, so late
-        // moments often find the run already done: that is a kill after the end).
-        let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
-        let mut child = etl()
-            .current_dir(dir.path())
-            .args(["pipeline", "run", "crash.toml", "--threads", "2"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        std::thread::sleep(at);
-        // SAFETY: a plain kill(2) of our own child.
-        unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
-        child.wait().unwrap();
-        if out.exists() {
-            let f = faults(&out);
-            assert!(f.is_empty(), "kill {k} at {at:?}:\n{}", f.join("\n"));
+    let (mut report, mut rounds, mut k) = (Vec::new(), 0, 0);
+    while k < kills {
+        let at = moments.draw(k, &mut rng, &out, &run(dir.path()));
+        if !at.kill(&mut run(dir.path())) {
+            // The run reached its end before the moment: this round of kills is over, and the
+            // next starts from nothing, so that every kill lands in a live run.
+            same_as_uninterrupted(&out, &want, &report);
+            std::fs::remove_dir_all(&out).unwrap();
+            (rounds, report) = (rounds + 1, Vec::new());
+            continue;
         }
-        report.push(format!("{:.2}", at.as_secs_f64()));
+        if out.exists() {
+            let f = faults(&out, &want);
+            assert!(f.is_empty(), "kill {k} at {at}:\n{}", f.join("\n"));
+        }
+        report.push(at.to_string());
+        k += 1;
     }
     run_to_end(dir.path());
-    let got = snapshot(&out);
+    same_as_uninterrupted(&out, &want, &report);
+    eprintln!(
+        "{kills} kills of a {:?} run in {} round(s) (the last at {report:?}): nothing partial, every rerun byte-identical",
+        moments.whole,
+        rounds + 1
+    );
+}
+
+/// After a round of kills the pipeline ran to its end: every output is the uninterrupted run's,
+/// and nothing else is left (no temporary file).
+fn same_as_uninterrupted(out: &Path, want: &BTreeMap<PathBuf, Vec<u8>>, kills: &[String]) {
+    let got = snapshot(out);
     let extra: Vec<_> = got.keys().filter(|p| !want.contains_key(*p)).collect();
-    assert!(extra.is_empty(), "left behind after {kills} kills (at {report:?} s): {extra:?}");
-    for (p, bytes) in &want {
+    assert!(extra.is_empty(), "left behind after kills at {kills:?}: {extra:?}");
+    for (p, bytes) in want {
         assert!(
             got.get(p) == Some(bytes),
-            "{}: differs from an uninterrupted run after kills at {report:?} s",
+            "{}: differs from an uninterrupted run after kills at {kills:?}",
             p.display()
         );
     }
-    eprintln!("{kills} kills at {report:?} s of a {whole:?} run: nothing partial, the rerun byte-identical");
 }
 
-/// The harness would see a partial file: a table cut short is caught by the check above.
+/// The harness would see a partial file: a table cut short, or an empty results file, is caught
+/// by the check above.
 #[test]
 fn the_checks_catch_a_cut_table_and_a_false_record() {
     let dir = tempfile::tempdir().unwrap();
     pipeline(dir.path());
     run_to_end(dir.path());
     let out = dir.path().join("out");
-    assert!(faults(&out).is_empty());
+    let want = snapshot(&out);
+    assert!(faults(&out, &want).is_empty());
     let traj = out.join("traj.parquet");
     let bytes = std::fs::read(&traj).unwrap();
     std::fs::write(&traj, &bytes[..bytes.len() / 2]).unwrap();
-    let f = faults(&out);
+    let f = faults(&out, &want);
     assert!(f.iter().any(|l| l.starts_with("traj.parquet:")), "{f:?}");
     assert!(f.iter().any(|l| l.contains("claims") && l.contains("traj.parquet")), "{f:?}");
+    // What a writer without the rename leaves when killed at its one write: an empty file.
+    std::fs::write(out.join("results.md"), "").unwrap();
+    let f = faults(&out, &want);
+    assert!(f.iter().any(|l| l.starts_with("results.md: not the bytes")), "{f:?}");
 }
 
 /// `score` and `collect` on their own, SIGKILLed at moments drawn from a seed over an
@@ -208,27 +259,21 @@ fn killed_score_and_collect_leave_nothing_a_rerun_keeps() {
             c
         };
         let reference = tempfile::tempdir().unwrap();
-        let started = Instant::now();
-        assert!(run(reference.path()).status().unwrap().success(), "{name}: the reference run failed");
-        let whole = started.elapsed();
+        let moments = Moments::measure(&mut run(reference.path()), name);
         let want = std::fs::read(reference.path().join(name)).unwrap();
 
         let dir = tempfile::tempdir().unwrap();
         let mut left = 0;
         for k in 0..kills {
-            let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
-            let mut child = run(dir.path()).spawn().unwrap();
-            std::thread::sleep(at);
-            // SAFETY: a plain kill(2) of our own child.
-            unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
-            child.wait().unwrap();
+            let at = moments.draw(k, &mut rng, dir.path(), &run(dir.path()));
+            at.kill(&mut run(dir.path()));
             let mut all = Vec::new();
             files(dir.path(), &mut all);
             left += all.iter().filter(|p| is_temporary(p)).count();
             let out = dir.path().join(name);
             assert!(
                 !out.exists() || std::fs::read(&out).unwrap() == want,
-                "{name}: kill {k} at {at:?} left a partial output"
+                "{name}: kill {k} at {at} left a partial output"
             );
             std::fs::remove_file(&out).ok();
         }
@@ -237,7 +282,10 @@ fn killed_score_and_collect_leave_nothing_a_rerun_keeps() {
         files(dir.path(), &mut all);
         assert_eq!(all, [dir.path().join(name)], "{name}: left behind after {kills} kills");
         assert!(std::fs::read(dir.path().join(name)).unwrap() == want, "{name}: the rerun's bytes differ");
-        eprintln!("{name}: {kills} kills over a {whole:?} run, {left} temporary files left by them, all swept");
+        eprintln!(
+            "{name}: {kills} kills over a {:?} run, {left} temporary files left by them, all swept",
+            moments.whole
+        );
     }
 }
 
@@ -310,33 +358,45 @@ fn killed_training_resumes_to_the_uninterrupted_state() {
             c
         };
         let reference = tempfile::tempdir().unwrap();
-        let started = Instant::now();
-        assert!(run(reference.path(), false).status().unwrap().success(), "{what}: the reference run failed");
-        let whole = started.elapsed();
+        let moments = Moments::measure(&mut run(reference.path(), false), what);
         let want = training_state(&reference.path().join("a.ckpt"));
 
         let dir = tempfile::tempdir().unwrap();
         let ckpt = dir.path().join("a.ckpt");
-        for k in 0..kills {
-            let at = Duration::from_secs_f64(rng.random() * whole.as_secs_f64());
-            let mut child = run(dir.path(), ckpt.exists()).spawn().unwrap();
-            std::thread::sleep(at);
-            // SAFETY: a plain kill(2) of our own child.
-            unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
-            child.wait().unwrap();
+        // Where a round of kills ends (the run reached its last update): the uninterrupted
+        // run's state, and no temporary file.
+        let same = |round: usize| {
+            let got = training_state(&ckpt);
+            assert!(got.0 == want.0, "{what}: the weights after round {round} differ from an uninterrupted run's");
+            assert_eq!(got.1, want.1, "{what}: counters, streams or metrics differ after round {round}");
+            let mut all = Vec::new();
+            files(dir.path(), &mut all);
+            assert!(all.iter().all(|p| !is_temporary(p)), "{what}: temporary files left: {all:?}");
+        };
+        let (mut k, mut rounds) = (0, 0);
+        while k < kills {
+            let at = moments.draw(k, &mut rng, dir.path(), &run(dir.path(), ckpt.exists()));
+            if !at.kill(&mut run(dir.path(), ckpt.exists())) {
+                same(rounds);
+                for e in std::fs::read_dir(dir.path()).unwrap() {
+                    std::fs::remove_file(e.unwrap().path()).unwrap();
+                }
+                rounds += 1;
+                continue;
+            }
             if ckpt.exists() {
                 // Loads, with a resume state of the same update (training_state checks both).
-                let (_, about) = training_state(&ckpt);
-                assert!(about.starts_with("updates "), "{what}: kill {k} at {at:?}");
+                let loaded = std::panic::catch_unwind(|| training_state(&ckpt));
+                assert!(loaded.is_ok(), "{what}: kill {k} at {at} left a checkpoint that does not load");
             }
+            k += 1;
         }
         assert!(run(dir.path(), ckpt.exists()).status().unwrap().success(), "{what}: the last run failed");
-        let got = training_state(&ckpt);
-        assert!(got.0 == want.0, "{what}: the weights after {kills} kills differ from an uninterrupted run's");
-        assert_eq!(got.1, want.1, "{what}: counters, streams or metrics differ");
-        let mut all = Vec::new();
-        files(dir.path(), &mut all);
-        assert!(all.iter().all(|p| !is_temporary(p)), "{what}: temporary files left: {all:?}");
-        eprintln!("{what}: {kills} kills over a {whole:?} run, resumed to the uninterrupted state");
+        same(rounds);
+        eprintln!(
+            "{what}: {kills} kills of a {:?} run in {} round(s), each resumed to the uninterrupted state",
+            moments.whole,
+            rounds + 1
+        );
     }
 }
