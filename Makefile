@@ -19,7 +19,7 @@ ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
-.PHONY: all build python test test-example test-wgpu check-wgpu vulkan-deps slurm-deps hdf5-deps demo bench bench-venv deps venv fuzz clean
+.PHONY: all build python test test-example test-wgpu check-wgpu vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
@@ -93,7 +93,7 @@ test-example: python bench-venv
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-test: deps venv check-wgpu slurm-deps
+test: deps venv check-wgpu slurm-deps strace-deps
 	$(CARGO) test --release $(FEATURES)
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
@@ -108,6 +108,16 @@ test: deps venv check-wgpu slurm-deps
 
 # tests/slurm.rs starts a single-node Slurm from Debian's packages: installed here when missing
 # and we are root with apt-get. Never fatal: without them those tests print SKIPPED.
+# strace: tests/crash.rs kills runs at I/O calls through its fault injection (without it every
+# kill is timed, and the test says so).
+strace-deps:
+	@if command -v strace >/dev/null 2>&1 || [ -x /usr/bin/strace ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  { DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends strace >/dev/null || \
+	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+	      strace >/dev/null; }; } || echo "make strace-deps: could not install strace"; \
+	else echo "make strace-deps: no strace, and not root with apt-get: tests/crash.rs kills at times only"; fi
+
 slurm-deps:
 	@if { command -v slurmctld || [ -x /usr/sbin/slurmctld ]; } >/dev/null 2>&1 && \
 	    { command -v munged || [ -x /usr/sbin/munged ]; } >/dev/null 2>&1; then :; \
@@ -188,6 +198,11 @@ fuzz: deps
 	cd fuzz && ./seeds.sh
 	cd fuzz && for t in $(FUZZ_TARGETS); do \
 	  RUSTC_BOOTSTRAP=1 cargo fuzz run $$t corpus/$$t -- -max_total_time=$${FUZZ_SECONDS:-600} || exit 1; done
+
+# The crash and out-of-disk tests run against a build whose outputs are written in place
+# (feature mutant-direct-write): each must fail (scripts/mutants.sh). Rebuilds pgser only.
+mutants: deps
+	FEATURES="$(FEATURES)" scripts/mutants.sh
 
 clean:
 	$(CARGO) clean

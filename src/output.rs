@@ -16,6 +16,7 @@ pub struct AtomicFile {
 }
 
 impl AtomicFile {
+    #[cfg_attr(feature = "mutant-direct-write", allow(unreachable_code))]
     pub fn create(dest: &Path) -> Result<Self> {
         let name = dest.file_name().with_context(|| format!("{}: output path has no file name", dest.display()))?;
         let dir = folder_of(dest);
@@ -27,6 +28,8 @@ impl AtomicFile {
         }
         let prefix = format!(".{}.", name.to_string_lossy());
         sweep_stale(&dir, &prefix, Stale::File);
+        #[cfg(feature = "mutant-direct-write")]
+        return Ok(Self { tmp: mutant::direct_file(dest)?, dest: dest.to_path_buf() });
         let mut builder = tempfile::Builder::new();
         builder.prefix(&prefix).suffix(".tmp");
         // Temporary files are private (0600); a finished output is an ordinary file that the
@@ -86,12 +89,15 @@ impl AtomicFile {
 /// same output to sweep. The destination must not exist: a rename never replaces a folder.
 pub struct AtomicDir {
     tmp: Option<tempfile::TempDir>,
+    /// Where the contents are written: the staging folder `tmp`.
+    staging: PathBuf,
     /// The folder opened and flocked for as long as this writer lives (see `sweep_stale`).
     _lock: File,
     dest: PathBuf,
 }
 
 impl AtomicDir {
+    #[cfg_attr(feature = "mutant-direct-write", allow(unreachable_code))]
     pub fn create(dest: &Path) -> Result<Self> {
         let name = dest.file_name().with_context(|| format!("{}: output path has no file name", dest.display()))?;
         let dir = folder_of(dest);
@@ -101,23 +107,30 @@ impl AtomicDir {
             .prefix(&prefix)
             .tempdir_in(&dir)
             .with_context(|| format!("{}: cannot create a folder in {}", dest.display(), dir.display()))?;
+        #[cfg(feature = "mutant-direct-write")]
+        return mutant::direct_folder(tmp, dest);
         let lock =
             File::open(tmp.path()).with_context(|| format!("{}: cannot open its staging folder", dest.display()))?;
         // SAFETY: flock on a descriptor we own; it only sets an advisory lock.
         if unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
             bail!("{}: cannot lock its staging folder: {}", dest.display(), std::io::Error::last_os_error());
         }
-        Ok(Self { tmp: Some(tmp), _lock: lock, dest: dest.to_path_buf() })
+        let staging = tmp.path().to_path_buf();
+        Ok(Self { tmp: Some(tmp), staging, _lock: lock, dest: dest.to_path_buf() })
     }
 
     /// Where to write the output's contents.
     pub fn path(&self) -> &Path {
-        self.tmp.as_ref().expect("present until commit").path()
+        &self.staging
     }
 
     /// Moves the finished folder into place, readable like any other output (a staging folder
     /// is private, 0700).
     pub fn commit(mut self) -> Result<()> {
+        #[cfg(feature = "mutant-direct-write")]
+        if self.tmp.is_none() {
+            return Ok(());
+        }
         let tmp = self.tmp.take().expect("present until commit");
         #[cfg(unix)]
         std::fs::set_permissions(tmp.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755))
@@ -128,6 +141,38 @@ impl AtomicDir {
             bail!("{}: cannot move the finished folder into place ({e})", self.dest.display());
         }
         Ok(())
+    }
+}
+
+/// The test-only mutant `mutant-direct-write` (a cargo feature, never in a build you use): every
+/// output is written in place instead of beside its destination, as a naive writer would. The
+/// crash and out-of-disk tests must fail against it (`make mutants`), which shows they test the
+/// atomic rename rather than pass whatever the writer does.
+#[cfg(feature = "mutant-direct-write")]
+mod mutant {
+    use super::*;
+
+    /// The destination itself, truncated, as the "temporary" file: a failure or a kill leaves it
+    /// half-written, as a direct write does.
+    pub fn direct_file(dest: &Path) -> Result<NamedTempFile> {
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(dest)
+            .with_context(|| format!("{}: cannot create it", dest.display()))?;
+        let mut tmp = NamedTempFile::from_parts(file, tempfile::TempPath::try_from_path(dest)?);
+        tmp.disable_cleanup(true);
+        Ok(tmp)
+    }
+
+    /// The destination folder itself, created at once and never removed.
+    pub fn direct_folder(staged: tempfile::TempDir, dest: &Path) -> Result<AtomicDir> {
+        drop(staged);
+        std::fs::create_dir(dest).with_context(|| format!("{}: cannot create it", dest.display()))?;
+        let lock = File::open(dest)?;
+        Ok(AtomicDir { tmp: None, staging: dest.to_path_buf(), _lock: lock, dest: dest.to_path_buf() })
     }
 }
 
