@@ -2,7 +2,8 @@
 //! starts (`common/slurm.rs`): the tiny pipeline through Slurm writes the bytes of a local run;
 //! a failed step cancels the steps that read it and a resubmission after the fix runs only the
 //! rest; a training job sent SIGTERM saves, and its resubmission resumes to the weights of an
-//! uninterrupted run; two concurrent submissions run each step once. Without Slurm (or root)
+//! uninterrupted run; two concurrent submissions run each step once. The cluster's own faults:
+//! a job requeued mid-training, its node set DOWN, and its `--time` run out. Without Slurm (or root)
 //! each test prints `SKIPPED …` and returns; `make test` then says so too.
 
 mod common;
@@ -237,4 +238,204 @@ fn two_concurrent_submissions_run_each_step_once() {
     }
     // Whether they met at a lock depends on the scheduler's timing; say it, do not require it.
     eprintln!("the two submissions met at a step lock {} time(s)", logs.matches("waiting for its lock").count());
+}
+
+/// The job id of `step` from the pipeline's job list (`OUT/.pipeline/slurm.jsonl`), once its
+/// submission has written it.
+fn job_of(out: &Path, step: &str) -> String {
+    let t0 = Instant::now();
+    loop {
+        let jobs = std::fs::read_to_string(out.join(".pipeline/slurm.jsonl")).unwrap_or_default();
+        let found = jobs.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).find(|j| {
+            j["elements"]
+                .as_array()
+                .is_some_and(|e| e.iter().filter_map(|x| x.as_array()).flatten().any(|s| s.as_str() == Some(step)))
+        });
+        if let Some(j) = found {
+            return j["id"].as_str().unwrap().to_string();
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60), "no job for {step} submitted");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Waits until `file` exists and holds `needle` (a job log's line; "" for any file).
+fn wait_for(c: &Cluster, dir: &Path, file: &Path, needle: &str, limit: Duration) {
+    let t0 = Instant::now();
+    while !std::fs::read(file).is_ok_and(|t| String::from_utf8_lossy(&t).contains(needle)) {
+        assert!(t0.elapsed() < limit, "{} never held {needle:?}\n{}{}", file.display(), job_logs(dir), c.logs());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// `pipeline run tiny.toml --executor slurm --wait --json ARGS` in the background.
+fn submit_and_wait(c: &Cluster, dir: &Path, args: &[&str]) -> std::process::Child {
+    c.etl()
+        .current_dir(dir)
+        .args(SLURM_WAIT)
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The tiny pipeline with a pre-training of `updates` that saves every `save_every`.
+fn long_pretrain(dir: &Path, updates: u64, save_every: u64) -> String {
+    let file = tiny_pipeline(dir, 20, 2);
+    let toml = std::fs::read_to_string(&file)
+        .unwrap()
+        .replace("[pretrain]\nupdates = 40", &format!("[pretrain]\nupdates = {updates}"))
+        .replace("save_every = 0", &format!("save_every = {save_every}"));
+    std::fs::write(&file, &toml).unwrap();
+    toml
+}
+
+/// `pipeline run tiny.toml ARGS` locally in a fresh folder: the uninterrupted run's files.
+fn uninterrupted(toml: &str, args: &[&str]) -> BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let alone = tempfile::tempdir().unwrap();
+    std::fs::write(alone.path().join("tiny.toml"), toml).unwrap();
+    local(alone.path(), args);
+    snapshot(&alone.path().join("out"))
+}
+
+fn assert_same_files(got: &BTreeMap<std::path::PathBuf, Vec<u8>>, want: &BTreeMap<std::path::PathBuf, Vec<u8>>) {
+    assert_eq!(got.keys().collect::<Vec<_>>(), want.keys().collect::<Vec<_>>());
+    for (path, bytes) in want {
+        assert!(&got[path] == bytes, "{} differs from an uninterrupted run", path.display());
+    }
+}
+
+/// `scontrol requeue` of a running training job (what preemption does): Slurm stops it and runs
+/// its script again; the step resumes from its checkpoint, the submission's `--wait` follows it
+/// to the end, and the files are those of a run never interrupted.
+#[test]
+fn a_requeued_training_job_resumes_to_the_bytes_of_an_uninterrupted_run() {
+    let _one = serial();
+    let Some(c) = cluster("a_requeued_training_job_resumes_to_the_bytes_of_an_uninterrupted_run") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (d, out) = (dir.path(), dir.path().join("out"));
+    let toml = long_pretrain(d, 3000, 500);
+    let child = submit_and_wait(&c, d, &["--until", "pretrain"]);
+    let id = job_of(&out, "pretrain");
+    let log = out.join(format!(".pipeline/logs/pretrain-{id}.log"));
+    wait_for(&c, d, &log, "pretrain: running", Duration::from_secs(120));
+    // A scheduled save first, so the requeue finds a checkpoint whatever signal it sends.
+    wait_for(&c, d, &out.join("q.ckpt.resume"), "", Duration::from_secs(120));
+    let rq = c.command("scontrol").args(["requeue", &id]).output().unwrap();
+    assert!(rq.status.success(), "scontrol requeue: {}{}", text(&rq.stderr), c.logs());
+    let o = ok(&c, d, child.wait_with_output().unwrap(), "the requeued submission");
+    let s = step_statuses(&o);
+    assert_eq!((s["convert"].as_str(), s["pretrain"].as_str()), ("ran", "resumed"), "{s:?}\n{}", job_logs(d));
+    // One log, two attempts (`--open-mode=append`).
+    let said = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(said.matches("pretrain: running").count(), 2, "{said}");
+    assert_same_files(&snapshot(&out), &uninterrupted(&toml, &["--until", "pretrain"]));
+}
+
+/// The node set DOWN under a running training job: the job ends (NODE_FAIL; it was submitted
+/// `--no-requeue`, as on a site whose failed jobs are not requeued), the jobs that read its
+/// outputs are cancelled, and a resubmission once the node is back runs only what is left,
+/// resuming the training from its last save, to the bytes of an uninterrupted run.
+#[test]
+fn a_node_down_fails_its_job_cancels_dependents_and_a_resubmission_runs_the_rest() {
+    let _one = serial();
+    let Some(c) = cluster("a_node_down_fails_its_job_cancels_dependents_and_a_resubmission_runs_the_rest") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (d, out) = (dir.path(), dir.path().join("out"));
+    let toml = long_pretrain(d, 3000, 500);
+    let child = submit_and_wait(&c, d, &["--sbatch-arg=--no-requeue"]);
+    let id = job_of(&out, "pretrain");
+    let log = out.join(format!(".pipeline/logs/pretrain-{id}.log"));
+    wait_for(&c, d, &log, "pretrain: running", Duration::from_secs(120));
+    wait_for(&c, d, &out.join("q.ckpt.resume"), "", Duration::from_secs(120));
+    let down = c.command("scontrol").args(["update", "nodename=pgsernode", "state=down", "reason=pgser-test"]).output();
+    assert!(down.unwrap().status.success(), "scontrol update state=down failed{}", c.logs());
+    let o = child.wait_with_output().unwrap();
+    assert!(!o.status.success(), "a failed job was not reported: {}", text(&o.stderr));
+    let s = step_statuses(&o);
+    assert_eq!(s["convert"], "ran", "{s:?}");
+    assert_eq!(s["pretrain"], "failed", "{s:?}");
+    for (step, status) in &s {
+        if !["convert", "pretrain"].contains(&step.as_str()) {
+            assert_eq!(status, "not run", "{step}: {s:?}");
+        }
+    }
+    assert!(!out.join(".pipeline/pretrain.json").exists(), "a killed step was recorded as finished");
+
+    // The node back: `resume` is refused while the killed job is still completing on it.
+    let t0 = Instant::now();
+    loop {
+        let back = c.command("scontrol").args(["update", "nodename=pgsernode", "state=resume"]).output().unwrap();
+        let idle = c.command("sinfo").args(["--noheader", "--format=%T"]).output().unwrap();
+        if back.status.success() || text(&idle.stdout).trim() == "idle" {
+            break;
+        }
+        let why = format!("{}{}", text(&back.stderr), text(&idle.stdout));
+        assert!(t0.elapsed() < Duration::from_secs(60), "the node never came back: {why}{}", c.logs());
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let o = ok(&c, d, etl(&c, d, &SLURM_WAIT), "the resubmission");
+    let s = step_statuses(&o);
+    for (step, status) in &s {
+        let want = match step.as_str() {
+            "convert" => "up to date",
+            "pretrain" => "resumed",
+            _ => "ran",
+        };
+        assert_eq!(status, want, "{step}: {s:?}");
+    }
+    assert_same_files(&snapshot(&out), &uninterrupted(&toml, &[]));
+}
+
+/// A job given too little `--time`: Slurm sends SIGTERM at its limit, the training saves and
+/// exits before KillWait's SIGKILL, the submission reports the step failed with its log, and a
+/// resubmission without the limit continues from the save to the end.
+#[test]
+fn a_job_past_its_time_limit_saves_and_a_resubmission_continues_it() {
+    let _one = serial();
+    let Some(c) = cluster("a_job_past_its_time_limit_saves_and_a_resubmission_continues_it") else { return };
+    // Slurm checks time limits every 30 s, so a 1-minute job ends 60 to 90 s after it starts:
+    // the pre-training must take longer than that here. Measured on this machine first.
+    let probe = tempfile::tempdir().unwrap();
+    long_pretrain(probe.path(), 2000, 0);
+    let t0 = Instant::now();
+    local(probe.path(), &["--until", "pretrain"]);
+    let rate = 2000.0 / t0.elapsed().as_secs_f64();
+    let updates = ((rate * 150.0 / 1000.0).ceil() as u64).max(2) * 1000;
+    eprintln!("pre-training at {rate:.0} updates/s: {updates} updates for ~150 s");
+
+    let dir = tempfile::tempdir().unwrap();
+    let (d, out) = (dir.path(), dir.path().join("out"));
+    long_pretrain(d, updates, 0);
+    let child = submit_and_wait(&c, d, &["--until", "pretrain", "--sbatch-arg=--time=1"]);
+    let id = job_of(&out, "pretrain");
+    let o = child.wait_with_output().unwrap();
+    let s = step_statuses(&o);
+    assert_eq!((s["convert"].as_str(), s["pretrain"].as_str()), ("ran", "failed"), "{s:?}\n{}", job_logs(d));
+    let said = std::fs::read_to_string(out.join(format!(".pipeline/logs/pretrain-{id}.log"))).unwrap();
+    assert!(said.contains("DUE TO TIME LIMIT"), "not stopped by its time limit: {said}");
+    let at = said.split("stopped by SIGTERM at update ").nth(1).unwrap_or_else(|| panic!("no SIGTERM save: {said}"));
+    let stopped: u64 = at.split(' ').next().unwrap().parse().unwrap();
+    assert!(stopped > 0 && stopped < updates, "stopped at update {stopped} of {updates}");
+
+    let o = ok(&c, d, etl(&c, d, &[&SLURM_WAIT[..], &["--until", "pretrain"]].concat()), "the resubmission");
+    let s = step_statuses(&o);
+    assert_eq!((s["convert"].as_str(), s["pretrain"].as_str()), ("up to date", "resumed"), "{s:?}");
+    // Continued to the end, not restarted: the checkpoint is at the last update, and its loss
+    // lines (kept across the stop) are every 10 updates once. That the bytes are an
+    // uninterrupted run's after a SIGTERM save is the test above; here it would cost 150 s more.
+    let (agent, _) = pgser::agent::checkpoint::load(&out.join("q.ckpt"), burn::tensor::Device::flex()).unwrap();
+    assert_eq!(agent.updates, updates);
+    let lines = std::fs::read_to_string(out.join("q.ckpt.metrics.jsonl")).unwrap();
+    let logged: Vec<u64> = lines
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v.get("eval").is_none())
+        .map(|v| v["updates"].as_u64().unwrap())
+        .collect();
+    // Every 10 updates once (`log_every = 10`), across the stop.
+    assert!(logged == (1..=updates / 10).map(|k| k * 10).collect::<Vec<_>>(), "{} loss lines", logged.len());
 }
