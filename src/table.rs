@@ -255,8 +255,22 @@ impl Verifier {
     pub fn new(path: &Path, meta: &parquet::file::metadata::ParquetMetaData) -> Result<Verifier> {
         let at = path.display();
         let file = crate::output::open_input(path)?;
-        let ranges: Vec<Vec<(u64, u64)>> =
-            meta.row_groups().iter().map(|rg| rg.columns().iter().map(|c| c.byte_range()).collect()).collect();
+        // Not `ColumnChunkMetaData::byte_range`, which panics on the negative offsets a corrupt
+        // footer can hold (found by fuzz/fuzz_targets/scored.rs).
+        let mut ranges: Vec<Vec<(u64, u64)>> = Vec::new();
+        for (g, rg) in meta.row_groups().iter().enumerate() {
+            let mut chunks = Vec::new();
+            for (c, chunk) in rg.columns().iter().enumerate() {
+                let start = chunk.dictionary_page_offset().unwrap_or(chunk.data_page_offset());
+                let (Ok(start), Ok(len)) = (u64::try_from(start), u64::try_from(chunk.compressed_size())) else {
+                    bail!(
+                        "{at}: row group {g}, column {c}: the footer gives a negative offset or length: the file is corrupt"
+                    );
+                };
+                chunks.push((start, len));
+            }
+            ranges.push(chunks);
+        }
         let leaves = meta.file_metadata().schema_descr().columns().iter().map(|c| c.path().string()).collect();
         let footer = footer_text(meta.file_metadata());
         // Checksums describe the file pgser wrote. A file another tool rewrote (pyarrow, polars)

@@ -255,3 +255,33 @@ fn truncated_files_are_refused_by_every_reader() {
         assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "a reader of a truncated file wrote something");
     }
 }
+
+/// Inputs the fuzzers found to crash a reader (`fuzz/`), kept as regression tests: each file
+/// read by `verify`, `inspect` and the scored-table sampler gives an error in one line naming
+/// the file, never a panic. `scored-negative-chunk-offset.parquet`: a footer whose column chunk
+/// offset is negative, which parquet's `byte_range` asserts on.
+#[test]
+fn inputs_the_fuzzers_found_fail_in_one_line() {
+    let dir = repo().join("tests/fixtures/fuzz");
+    let mut found = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let p = entry.unwrap().path();
+        found += 1;
+        for cmd in ["verify", "inspect"] {
+            let o = etl().arg(cmd).arg(&p).output().unwrap();
+            // verify reports each file on stdout (`CORRUPT FILE: …`) and sums up on stderr.
+            let (said, err) = (text(&o.stdout), text(&o.stderr));
+            assert!(!o.status.success(), "{cmd} {}: accepted", p.display());
+            assert!(!err.contains("panicked"), "{cmd} {}: {err}", p.display());
+            assert_eq!(err.trim_end().lines().count(), 1, "{cmd}: {err}");
+            let line = if cmd == "verify" { said } else { err };
+            assert!(
+                line.contains(&*p.file_name().unwrap().to_string_lossy()) && line.contains("corrupt"),
+                "{cmd}: {line}"
+            );
+        }
+        let e = pgser::sampler::scored::ScoredTable::open(&p).err().expect("a corrupt scored table opened");
+        assert!(names_the_file(&e, &p), "{e:#}");
+    }
+    assert!(found > 0, "no inputs in {}", dir.display());
+}

@@ -81,8 +81,11 @@ impl ScoredTable {
         let metadata = ArrowReaderMetadata::load(&file, ArrowReaderOptions::default())
             .with_context(|| format!("{at}: not a Parquet file"))?;
         let mut group_starts = vec![0usize];
-        for rg in metadata.metadata().row_groups() {
-            group_starts.push(group_starts.last().unwrap() + rg.num_rows() as usize);
+        for (g, rg) in metadata.metadata().row_groups().iter().enumerate() {
+            let Ok(n) = usize::try_from(rg.num_rows()) else {
+                bail!("{at}: row group {g} has a negative row count: the file is corrupt");
+            };
+            group_starts.push(group_starts.last().unwrap() + n);
         }
         let rows = *group_starts.last().unwrap();
         if rows == 0 {
