@@ -83,6 +83,14 @@ impl AtomicFile {
     }
 }
 
+/// `path` with `suffix` appended to its file name: the files that live beside a checkpoint
+/// (`.resume`, `.metrics.jsonl`, `.buffer.parquet`, `.next`, `.stale`).
+pub fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push(suffix);
+    PathBuf::from(p)
+}
+
 /// A folder output (a Minari dataset) built beside its destination and renamed into place whole:
 /// the folder counterpart of [`AtomicFile`]. Dropped before `commit`, the folder is deleted; a
 /// writer that dies without a destructor leaves it, locked by nobody, for the next writer of the

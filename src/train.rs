@@ -115,9 +115,7 @@ pub struct Summary {
 
 /// Where the metrics of checkpoint `out` go: `out` + `.metrics.jsonl`.
 pub fn metrics_path(out: &Path) -> PathBuf {
-    let mut p = out.as_os_str().to_owned();
-    p.push(".metrics.jsonl");
-    PathBuf::from(p)
+    crate::output::with_suffix(out, ".metrics.jsonl")
 }
 
 /// Trains on `data_path` (a trajectory table, or a scored table for the `-mem` variant) into

@@ -313,9 +313,7 @@ pub fn load(path: &Path, device: Device) -> Result<(Agent, HashMap<String, Strin
 /// Where a checkpoint's companion file (its resume state, an online run's replay buffer) waits
 /// while the checkpoint is put in place: `FILE.next`.
 pub fn pending_path(path: &Path) -> PathBuf {
-    let mut p = path.as_os_str().to_owned();
-    p.push(".next");
-    PathBuf::from(p)
+    crate::output::with_suffix(path, ".next")
 }
 
 /// Puts a staged checkpoint and its staged companions (resume state, replay buffer) in place so
@@ -342,9 +340,7 @@ pub fn commit_with(model: AtomicFile, companions: Vec<AtomicFile>) -> Result<()>
 
 /// Where the resume state of `path` lives.
 pub fn resume_path(path: &Path) -> PathBuf {
-    let mut p = path.as_os_str().to_owned();
-    p.push(".resume");
-    PathBuf::from(p)
+    crate::output::with_suffix(path, ".resume")
 }
 
 /// Writes the state of agent `i` that `load` does not restore: targets, Adam, the noise stream,

@@ -389,11 +389,7 @@ fn execute_online(
 /// `NAME.stale` (`.resume.stale`, `.metrics.jsonl.stale`, an online run's `.buffer.parquet.stale`), replacing an older stale copy; returns
 /// the checkpoint's new path.
 fn set_aside_stale(ckpt: &Path) -> Result<PathBuf> {
-    let stale = |p: &Path| {
-        let mut s = p.as_os_str().to_owned();
-        s.push(".stale");
-        PathBuf::from(s)
-    };
+    let stale = |p: &Path| crate::output::with_suffix(p, ".stale");
     for p in [ckpt.to_path_buf(), checkpoint::resume_path(ckpt), metrics_path(ckpt), buffer_path(ckpt)] {
         if p.exists() {
             std::fs::rename(&p, stale(&p))

@@ -18,9 +18,7 @@ use crate::train::{StaleCheckpoint, metrics_path, read_metrics, stage_metrics};
 /// Where the replay buffer of checkpoint `out` goes: `out` + `.buffer.parquet`, a trajectory
 /// table of the buffer's episodes (T + 1 rows each).
 pub fn buffer_path(out: &Path) -> PathBuf {
-    let mut p = out.as_os_str().to_owned();
-    p.push(".buffer.parquet");
-    PathBuf::from(p)
+    crate::output::with_suffix(out, ".buffer.parquet")
 }
 
 /// Where a run stands: epochs done, cycles done in the current epoch, totals, and the sums the
