@@ -162,7 +162,7 @@ fn killed_at_any_moment_nothing_is_partial_and_the_rerun_is_byte_identical() {
     pipeline(dir.path());
     let out = dir.path().join("out");
     let mut rng = NpRandom::new(seed);
-    let (mut report, mut rounds, mut k) = (Vec::new(), 0, 0);
+    let (mut report, mut rounds, mut k, mut checked) = (Vec::new(), 0, 0, 0);
     while k < kills {
         let at = moments.draw(k, &mut rng, &out, &run(dir.path()));
         if !at.kill(&mut run(dir.path())) {
@@ -176,14 +176,21 @@ fn killed_at_any_moment_nothing_is_partial_and_the_rerun_is_byte_identical() {
         if out.exists() {
             let f = faults(&out, &want);
             assert!(f.is_empty(), "kill {k} at {at}:\n{}", f.join("\n"));
+            let mut all = Vec::new();
+            files(&out, &mut all);
+            checked += all.iter().filter(|p| !is_temporary(p)).count();
         }
         report.push(at.to_string());
         k += 1;
+        if k % 25 == 0 {
+            eprintln!("{k} kills in {} round(s), {checked} files checked: nothing partial", rounds + 1);
+        }
     }
     run_to_end(dir.path());
     same_as_uninterrupted(&out, &want, &report);
     eprintln!(
-        "{kills} kills of a {:?} run in {} round(s) (the last at {report:?}): nothing partial, every rerun byte-identical",
+        "{kills} kills of a {:?} run in {} round(s), {checked} files checked after them (the last round's kills at \
+         {report:?}): nothing partial, every round's rerun byte-identical",
         moments.whole,
         rounds + 1
     );

@@ -48,6 +48,15 @@ pub enum Algo {
 }
 
 impl Algo {
+    /// The name users write (flags, pipeline files, file names).
+    pub fn name(self) -> &'static str {
+        match self {
+            Algo::Td3 => "td3",
+            Algo::Td3bc => "td3bc",
+            Algo::Ddpg => "ddpg",
+        }
+    }
+
     /// Critics per agent: TD3's twins, or DDPG's one.
     pub fn critics(self) -> usize {
         match self {

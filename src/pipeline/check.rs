@@ -144,8 +144,9 @@ fn check_train(cfg: &TrainConfig, scored: bool) -> Result<()> {
 }
 
 /// Whether `out` can be created and written, without creating it: the deepest folder on its path
-/// that exists must be a folder (not a file) in which a file can be created; the probe file is
-/// removed at once.
+/// that exists must be a folder (not a file) in which a file can be created. The probe is an
+/// unnamed file (`O_TMPFILE` on Linux), so a kill at any moment leaves nothing behind; a named
+/// probe was left in `out/` by the crash harness's kill 43.
 fn check_writable(out: &Path) -> Result<()> {
     let mut at = out;
     let existing = loop {
@@ -158,9 +159,21 @@ fn check_writable(out: &Path) -> Result<()> {
             },
         }
     };
-    tempfile::Builder::new()
-        .prefix(".pgser-probe-")
-        .tempfile_in(existing)
-        .with_context(|| format!("cannot write in {}", existing.display()))?;
+    tempfile::tempfile_in(existing).with_context(|| format!("cannot write in {}", existing.display()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_writability_probe_leaves_no_name_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        check_writable(&dir.path().join("out/deeper")).unwrap();
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "the probe left a file, or made the folder");
+        std::fs::write(dir.path().join("f"), b"").unwrap();
+        let e = format!("{:#}", check_writable(&dir.path().join("f/out")).unwrap_err());
+        assert!(e.ends_with("f is a file, not a folder"), "{e}");
+    }
 }

@@ -245,7 +245,7 @@ impl Priced {
     /// stack it trains in ("td3bc, batch 512, swap random, stack of 15"). Rates are per agent.
     fn setting(&self) -> String {
         let a = &self.cfg.agent;
-        let mut s = format!("{}, batch {}", super::algo_name(a.algo), self.cfg.batch_size);
+        let mut s = format!("{}, batch {}", a.algo.name(), self.cfg.batch_size);
         if (a.hidden, a.layers) != (256, 3) {
             s += &format!(", {}×{}", a.layers, a.hidden);
         }

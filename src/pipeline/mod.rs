@@ -52,7 +52,7 @@ pub use spec::{Data, Pipeline, Variant, normalize, train_config};
 use state::Hashes;
 pub use status::{StepState, render as render_status, status};
 
-use crate::agent::{Algo, Backend};
+use crate::agent::Backend;
 use crate::collect::policy::{PolicyKind, PolicySpec};
 use crate::train::online::OnlineConfig;
 use crate::train::{TrainConfig, metrics_path};
@@ -264,7 +264,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     for &algo in &p.agents.algos {
         for &variant in &p.agents.variants {
             for &seed in &p.agents.seeds {
-                let id = format!("{}_{}_s{seed}", algo_name(algo), variant.name());
+                let id = format!("{}_{}_s{seed}", algo.name(), variant.name());
                 let ckpt = out.join(format!("agents/{id}.ckpt"));
                 let data = if variant == Variant::Mem { &scored } else { &traj };
                 let mut step = train_step(&format!("agent {id}"), data, &ckpt, p.agent_config(algo, variant, seed)?);
@@ -275,7 +275,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                 steps.push(step);
                 runs.push(report::Run {
                     task: p.task.clone(),
-                    algo: algo_name(algo).into(),
+                    algo: algo.name().into(),
                     variant: variant.name().into(),
                     seed,
                     metrics: metrics_path(&ckpt),
@@ -308,8 +308,11 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         action: Action::Results(runs),
     });
     assign_stacks(&mut steps, p.agents.batch.unwrap_or(usize::MAX));
-    let names: std::collections::HashSet<_> = steps.iter().map(|s| &s.name).collect();
-    debug_assert_eq!(names.len(), steps.len());
+    // Records are kept by step name: two steps of one name would claim each other's record.
+    let mut names = std::collections::HashSet::new();
+    if let Some(s) = steps.iter().find(|s| !names.insert(&s.name)) {
+        bail!("two steps are both named {:?}", s.name);
+    }
     Ok(steps)
 }
 
@@ -338,14 +341,6 @@ pub(crate) fn stack_of(step: &Step) -> Option<usize> {
     match &step.action {
         Action::Train { stack, .. } => *stack,
         _ => None,
-    }
-}
-
-fn algo_name(a: Algo) -> &'static str {
-    match a {
-        Algo::Td3 => "td3",
-        Algo::Td3bc => "td3bc",
-        Algo::Ddpg => "ddpg",
     }
 }
 

@@ -149,6 +149,11 @@ struct DataFile {
     expert_checkpoint: Option<String>,
 }
 
+/// The first entry of `list` that an earlier one equals.
+fn repeated<T: PartialEq>(list: &[T]) -> Option<&T> {
+    list.iter().enumerate().find(|(i, x)| list[..*i].contains(x)).map(|(_, x)| x)
+}
+
 impl Pipeline {
     pub fn load(path: &Path) -> Result<Pipeline> {
         let at = path.display();
@@ -203,6 +208,17 @@ impl Pipeline {
         }
         if algos.is_empty() || variants.is_empty() || seeds.is_empty() {
             bail!("[agents]: algos, variants and seeds must not be empty");
+        }
+        // A repeated entry would name two cells of the grid alike: both would claim one agent's
+        // files and record (found by fuzzing the pipeline file).
+        if let Some(a) = repeated(&algos) {
+            bail!("[agents] algos: {:?} is listed twice; each cell of the grid is one agent", a.name());
+        }
+        if let Some(v) = repeated(&variants) {
+            bail!("[agents] variants: {:?} is listed twice; each cell of the grid is one agent", v.name());
+        }
+        if let Some(s) = repeated(&seeds) {
+            bail!("[agents] seeds: {s} is listed twice; each cell of the grid is one agent");
         }
         let p = Pipeline {
             name: f.name,
@@ -375,6 +391,24 @@ mod tests {
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("2 pickles"));
         let bad = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"best\"]");
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("variants"));
+    }
+
+    /// The fuzzer's input (tests/fixtures/fuzz/): a grid file with a seed listed twice, which
+    /// planned two agents under one name. Each kind of repeat is now a one-line error.
+    #[test]
+    fn a_grid_cell_listed_twice_is_named() {
+        let fuzzed = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz/pipeline-seed-listed-twice.toml");
+        let e = format!("{:#}", Pipeline::load(&fuzzed).unwrap_err());
+        assert!(e.contains("pipeline-seed-listed-twice.toml") && e.contains("seeds: 1 is listed twice"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+        let err = |text: &str| format!("{:#}", Pipeline::parse(text, Path::new("t.toml")).unwrap_err());
+        assert!(err(&MIN.replace("seeds = [0, 1]", "seeds = [0, 1, 0]")).contains("seeds: 0 is listed twice"));
+        let twice = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"swap\", \"mem\", \"swap\"]");
+        assert!(err(&twice).contains("variants: \"swap\" is listed twice"), "{}", err(&twice));
+        let twice = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nalgos = [\"td3\", \"td3\"]");
+        assert!(err(&twice).contains("algos: \"td3\" is listed twice"), "{}", err(&twice));
+        assert_eq!(repeated(&[3, 1, 4, 1, 5]), Some(&1));
+        assert_eq!(repeated::<u8>(&[]), None);
     }
 
     #[test]
