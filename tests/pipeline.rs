@@ -441,3 +441,30 @@ fn status_and_rerun_agree_from_any_folder() {
     assert!(again.values().all(|s| s == "up to date"), "{again:?}");
     assert!(snapshot(&sub.join("out")) == before, "a rerun from another folder changed outputs");
 }
+
+/// Pipeline files the fuzzer found to break planning (`tests/fixtures/fuzz/pipeline/`; the first
+/// listed a seed twice, which planned two agents under one name): each is refused by `pipeline run`
+/// (dry or not) and `pipeline status` in one line naming the file, with nothing written.
+#[test]
+fn pipeline_files_the_fuzzer_found_fail_in_one_line() {
+    let found = std::fs::read_dir(common::repo().join("tests/fixtures/fuzz/pipeline")).unwrap();
+    let mut n = 0;
+    for entry in found {
+        let src = entry.unwrap().path();
+        let name = src.file_name().unwrap().to_string_lossy().into_owned();
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::copy(&src, dir.path().join(&name)).unwrap();
+        for cmd in [&["run", "--dry-run"][..], &["run"], &["status"]] {
+            let o = etl().current_dir(dir.path()).arg("pipeline").args(cmd).arg(&name).output().unwrap();
+            let err = text(&o.stderr);
+            assert!(!o.status.success(), "pipeline {cmd:?} {name}: accepted");
+            assert!(!err.contains("panicked"), "pipeline {cmd:?} {name}: {err}");
+            assert_eq!(err.trim_end().lines().count(), 1, "pipeline {cmd:?} {name}: {err}");
+            assert!(err.contains(&name), "pipeline {cmd:?}: {err}");
+            let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+            assert_eq!(left.len(), 1, "pipeline {cmd:?} {name} wrote {left:?}");
+        }
+        n += 1;
+    }
+    assert!(n > 0, "no inputs in tests/fixtures/fuzz/pipeline");
+}

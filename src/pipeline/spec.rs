@@ -393,13 +393,13 @@ mod tests {
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("variants"));
     }
 
-    /// The fuzzer's input (tests/fixtures/fuzz/): a grid file with a seed listed twice, which
+    /// The fuzzer's input (tests/fixtures/fuzz/pipeline/): a grid file with a seed listed twice, which
     /// planned two agents under one name. Each kind of repeat is now a one-line error.
     #[test]
     fn a_grid_cell_listed_twice_is_named() {
-        let fuzzed = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz/pipeline-seed-listed-twice.toml");
+        let fuzzed = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz/pipeline/seed-listed-twice.toml");
         let e = format!("{:#}", Pipeline::load(&fuzzed).unwrap_err());
-        assert!(e.contains("pipeline-seed-listed-twice.toml") && e.contains("seeds: 1 is listed twice"), "{e}");
+        assert!(e.contains("seed-listed-twice.toml") && e.contains("seeds: 1 is listed twice"), "{e}");
         assert!(!e.contains('\n'), "{e}");
         let err = |text: &str| format!("{:#}", Pipeline::parse(text, Path::new("t.toml")).unwrap_err());
         assert!(err(&MIN.replace("seeds = [0, 1]", "seeds = [0, 1, 0]")).contains("seeds: 0 is listed twice"));
