@@ -419,3 +419,37 @@ fn a_killed_exports_staging_folder_is_swept_and_a_live_ones_kept() {
     assert_same_table(&a, &b);
     drop(held);
 }
+
+/// Inputs the Minari fuzzer found to crash `convert` (`tests/fixtures/fuzz/minari/`, each the
+/// fuzz target's input: a first byte picking `data/metadata.json` (even) or episode 0's Arrow
+/// file (odd), then that file's bytes, put into the fixture dataset). The first: a record
+/// batch whose buffer offset lies far past its body, which arrow-ipc's reader asserts on. Each
+/// now fails in one line naming the file, and writes nothing.
+#[test]
+fn datasets_the_fuzzer_found_fail_in_one_line() {
+    let found = std::fs::read_dir(repo().join("tests/fixtures/fuzz/minari")).unwrap();
+    let mut n = 0;
+    for entry in found {
+        let input = std::fs::read(entry.unwrap().path()).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let (d, out) = (dir.path().join("out"), dir.path().join("out/t.parquet"));
+        std::fs::create_dir_all(&d).unwrap();
+        let ds = copy_fixture("fetchreach-default-arrow-v0", dir.path());
+        let target = if input[0] % 2 == 0 {
+            ds.join("data/metadata.json")
+        } else {
+            let ep = ds.join("data/0");
+            std::fs::read_dir(&ep)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .find(|p| p.extension().is_some_and(|x| x == "arrow"))
+                .unwrap()
+        };
+        std::fs::write(&target, &input[1..]).unwrap();
+        let name = target.file_name().unwrap().to_string_lossy().into_owned();
+        let err = fails(&["convert", s(&ds), "-o", s(&out)], &[&name], &d, 0);
+        assert!(err.contains("corrupt") || err.contains("not"), "{err}");
+        n += 1;
+    }
+    assert!(n > 0, "no inputs in tests/fixtures/fuzz/minari");
+}
