@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# The Table 2 grids (pipelines/*_grid_cpu.toml) as a background job that survives stops: hours of
+# CPU each, more than a day for all, so they run on one pinned build, at low priority, and every
+# start continues each grid from its last checkpoint (finished steps are skipped, a training stack
+# resumes from its last save: pipelines/README.md).
+#
+#   scripts/grids.sh pin              copy this checkout's release build, with the MuJoCo library,
+#                                     assets and ziggurat tables it reads, to $GRID_ROOT/bin-COMMIT
+#   scripts/grids.sh start [FILE...]  run the grids one after another on the pinned build, at nice 19,
+#                                     in the background (nothing happens if they are already running)
+#   scripts/grids.sh status           where each grid stands (pipeline status), and whether it runs
+#
+# Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
+# engines), and `cargo build` replaces target/release under a running grid. Why outside the checkout:
+# out/ and the pinned build must outlive a fresh clone of the work tree; out/ is a link to
+# $GRID_ROOT/out. The copy finds its MuJoCo library, assets and tables through the environment
+# (LD_LIBRARY_PATH, PGSER_ASSETS, PGSER_ZIGGURAT), not through the paths baked into the build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+GRID_ROOT=${GRID_ROOT:-/var/tmp/pgser-grids}
+DEFAULT_GRIDS="pipelines/hand_block_z_grid_cpu.toml pipelines/hand_egg_rotate_grid_cpu.toml
+  pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_place_grid_cpu.toml"
+
+pinned() {
+  [ -L "$GRID_ROOT/bin" ] || { echo "grids.sh: no pinned build in $GRID_ROOT: run scripts/grids.sh pin" >&2; exit 1; }
+  readlink -f "$GRID_ROOT/bin"
+}
+
+with_pinned() {
+  local bin
+  bin=$(pinned)
+  LD_LIBRARY_PATH="$bin/mujoco${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" PGSER_ASSETS="$bin/assets" \
+    PGSER_ZIGGURAT="$bin/numpy_ziggurat.bin" "$@"
+}
+
+link_out() {
+  mkdir -p "$GRID_ROOT/out"
+  if [ -e out ] && [ ! -L out ]; then
+    echo "grids.sh: ./out is a folder, not a link to $GRID_ROOT/out: move it aside first" >&2; exit 1
+  fi
+  ln -sfn "$GRID_ROOT/out" out
+}
+
+case "${1:-}" in
+  pin)
+    for f in target/release/pgser-etl target/release/pgser-train .deps/mujoco/libmujoco.so.3.17.0 \
+      .deps/numpy_ziggurat.bin .deps/gymnasium_robotics/assets; do
+      [ -e "$f" ] || { echo "grids.sh: $f is missing: run make build first" >&2; exit 1; }
+    done
+    commit=$(git rev-parse --short HEAD)
+    git diff --quiet HEAD -- src Cargo.toml Cargo.lock || commit="$commit-dirty"
+    dest="$GRID_ROOT/bin-$commit"
+    if [ ! -d "$dest" ]; then
+      tmp="$dest.tmp.$$"
+      mkdir -p "$tmp/mujoco"
+      cp target/release/pgser-etl target/release/pgser-train "$tmp/"
+      cp .deps/mujoco/libmujoco.so.3.17.0 "$tmp/mujoco/"
+      ln -s libmujoco.so.3.17.0 "$tmp/mujoco/libmujoco.so"
+      cp .deps/numpy_ziggurat.bin "$tmp/"
+      cp -r .deps/gymnasium_robotics/assets "$tmp/assets"
+      mv "$tmp" "$dest"
+    fi
+    ln -sfn "$dest" "$GRID_ROOT/bin"
+    echo "pinned: $dest"
+    ;;
+  start)
+    shift
+    grids=${*:-$DEFAULT_GRIDS}
+    bin=$(pinned)
+    if pgrep -f "$GRID_ROOT/bin-.*/pgser-etl pipeline run" >/dev/null; then
+      echo "grids.sh: grids already running:"; pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run"; exit 0
+    fi
+    link_out
+    log="$GRID_ROOT/grids.log"
+    echo "grids on $bin: $grids (log: $log)"
+    # One after another: each grid takes both cores; a grid that fails stops the chain, so that
+    # its error is the last thing in the log.
+    # shellcheck disable=SC2016,SC2086
+    nohup nice -n 19 env LD_LIBRARY_PATH="$bin/mujoco" PGSER_ASSETS="$bin/assets" \
+      PGSER_ZIGGURAT="$bin/numpy_ziggurat.bin" bash -c '
+        bin=$1; shift
+        for g in "$@"; do
+          echo "== $(date -u +%FT%TZ) $g"
+          "$bin/pgser-etl" pipeline run "$g" --threads 2 || exit 1
+        done
+        echo "== $(date -u +%FT%TZ) all grids up to date"' grids "$bin" $grids >> "$log" 2>&1 < /dev/null &
+    ;;
+  status)
+    shift
+    link_out
+    for g in ${*:-$DEFAULT_GRIDS}; do
+      echo "== $g"
+      with_pinned "$(pinned)/pgser-etl" pipeline status "$g" || true
+    done
+    pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || echo "(no grid running)"
+    ;;
+  *)
+    sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'
+    exit 2
+    ;;
+esac
