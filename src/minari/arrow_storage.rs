@@ -101,8 +101,10 @@ fn check_ipc_bounds(at: &str, bytes: &[u8]) -> Result<()> {
             bail!(fault(format!("offset {offset}, metadata {meta} and body {body} bytes do not fit a {n}-byte file")));
         }
         // The message: a continuation marker (0xFFFFFFFF) and its i32 length before it, or the
-        // length alone in files of before Arrow 0.15.
-        let m = &bytes[offset as usize..(offset + meta) as usize];
+        // length alone in files of before Arrow 0.15. Parsed over the whole block, body included,
+        // as arrow-ipc parses it: a narrower slice would refuse a message arrow-ipc accepts (its
+        // flatbuffer may point into the body), and let its buffers through unchecked.
+        let m = &bytes[offset as usize..(offset + meta + body) as usize];
         let m = if m[..4] == [0xff; 4] { &m[8..] } else { &m[4..] };
         let Ok(message) = arrow_ipc::root_as_message(m) else { continue };
         let batch = message.header_as_record_batch().or_else(|| message.header_as_dictionary_batch()?.data());
