@@ -129,12 +129,17 @@ struct WriterThread {
     thread: Option<JoinHandle<Result<Written>>>,
 }
 
+impl WriterThread {
+    /// Close the queue and wait for the thread: its result, or `None` when already joined.
+    fn join(&mut self) -> Option<std::thread::Result<Result<Written>>> {
+        self.tx.take();
+        self.thread.take().map(JoinHandle::join)
+    }
+}
+
 impl Drop for WriterThread {
     fn drop(&mut self) {
-        self.tx.take();
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
+        let _ = self.join();
     }
 }
 
@@ -192,10 +197,9 @@ impl TableWriter {
             .collect()
     }
 
-    fn join(&mut self) -> Result<(FileWriter, Vec<Vec<u32>>)> {
-        self.writer.tx.take();
-        let thread = self.writer.thread.take().expect("joined once");
-        thread.join().map_err(|_| anyhow!("{}: writer thread panicked", self.out.dest().display()))?
+    fn join(&mut self) -> Result<Written> {
+        let joined = self.writer.join().expect("joined once");
+        joined.map_err(|_| anyhow!("{}: writer thread panicked", self.out.dest().display()))?
     }
 
     /// Write the footer and move the finished file into place. Returns its size in bytes.
@@ -232,7 +236,7 @@ fn append_all(
     rx: std::sync::mpsc::Receiver<Vec<ArrowColumnChunk>>,
     at: &Path,
     readback: &File,
-) -> Result<(FileWriter, Vec<Vec<u32>>)> {
+) -> Result<Written> {
     let fail = || format!("{}: write failed", at.display());
     let mut sums = Vec::new();
     for chunks in rx {
