@@ -332,3 +332,26 @@ fn a_file_size_limit_in_report_and_minari_export_fails_cleanly() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert_eq!(snapshot(&rep), before, "the rerun's report differs from an undisturbed run's");
 }
+
+/// The WGCSL fuzzer's inputs (`fuzz/wgcsl`, tests/fixtures/fuzz/wgcsl/): pickles that made
+/// `convert` fail on a path that once left a thread behind. Each fails in one line naming the
+/// file, with nothing written.
+#[test]
+fn pickles_the_fuzzer_found_fail_in_one_line() {
+    let found = std::fs::read_dir(repo().join("tests/fixtures/fuzz/wgcsl")).unwrap();
+    let mut n = 0;
+    for entry in found {
+        let pkl = entry.unwrap().path();
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("t.parquet");
+        let o = convert(&[&pkl], &out, &[]);
+        let line = text(&o.stderr);
+        let line = line.trim_end();
+        assert_eq!(o.status.code(), Some(1), "{}: {line}", pkl.display());
+        assert_eq!(line.lines().count(), 1, "{line}");
+        assert!(line.starts_with("pgser-etl: error: ") && line.contains(&*pkl.to_string_lossy()), "{line}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "left a file behind");
+        n += 1;
+    }
+    assert!(n > 0, "no inputs in tests/fixtures/fuzz/wgcsl");
+}

@@ -165,30 +165,36 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     let maps = open_inputs(opts)?;
     // Hash the inputs on a thread of their own while we parse, validate and write.
     std::thread::scope(|scope| {
-        let hashes = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
-        let (sources, skipped_keys, float_type, task) = read_sources(opts, &maps)?;
-        let total: usize = sources.iter().map(|s| s.take).sum();
+        let hashing = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
+        let written = (|| {
+            let (sources, skipped_keys, float_type, task) = read_sources(opts, &maps)?;
+            let total: usize = sources.iter().map(|s| s.take).sum();
 
-        bar.set_length((total * task.t) as u64);
-        let mut writer =
-            TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
-        // A window of row groups per call keeps every thread busy; whole groups per window keep
-        // the row groups where they would be in one call.
-        let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
-        for (src, map) in sources.iter().zip(&maps) {
-            let view = src.view();
-            for start in (0..src.take).step_by(window) {
-                let end = (start + window).min(src.take);
-                writer.append(&view, start, end)?;
-                crate::progress::advance(bar, ((end - start) * task.t) as u64)?;
-                for a in &src.arrays {
-                    let per_episode = a.data.len() / src.episodes;
-                    map.release(&a.data[start * per_episode..end * per_episode]);
+            bar.set_length((total * task.t) as u64);
+            let mut writer =
+                TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
+            // A window of row groups per call keeps every thread busy; whole groups per window
+            // keep the row groups where they would be in one call.
+            let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
+            for (src, map) in sources.iter().zip(&maps) {
+                let view = src.view();
+                for start in (0..src.take).step_by(window) {
+                    let end = (start + window).min(src.take);
+                    writer.append(&view, start, end)?;
+                    crate::progress::advance(bar, ((end - start) * task.t) as u64)?;
+                    for a in &src.arrays {
+                        let per_episode = a.data.len() / src.episodes;
+                        map.release(&a.data[start * per_episode..end * per_episode]);
+                    }
                 }
             }
-        }
-
-        let hashes = hashes.join().expect("hashing thread panicked");
+            anyhow::Ok((sources, skipped_keys, float_type, task, total, writer))
+        })();
+        // Joined on every path, errors included: a scoped thread whose handle is dropped unjoined
+        // is waited for only until its closure returns, and its OS thread is still exiting after
+        // `convert` has returned (LeakSanitizer saw its thread record: fuzz/wgcsl).
+        let hashes = hashing.join().expect("hashing thread panicked");
+        let (sources, skipped_keys, float_type, task, total, writer) = written?;
         let mut footer = Footer::new(&task, float_type, total, opts.command.clone());
         footer.sources = sources
             .iter()
