@@ -192,9 +192,12 @@ $(JAX_PY):
 
 # Every reader under libFuzzer, FUZZ_SECONDS each (default 600), seeded from the repo's own files
 # (fuzz/seeds.sh); FUZZ_TARGETS picks some. Needs cargo-fuzz (cargo install cargo-fuzz); stable
-# Rust works with RUSTC_BOOTSTRAP=1. A crash's input lands in fuzz/artifacts/TARGET/.
+# Rust works with RUSTC_BOOTSTRAP=1. A crash's input lands in fuzz/artifacts/TARGET/; once fixed,
+# it is committed under tests/fixtures/fuzz/TARGET/, which the tests read back. The seeds need the
+# release build (a tiny training run writes the checkpoint seeds); the first build of the targets
+# under ASan is about an hour on 2 cores.
 FUZZ_TARGETS ?= pickle table scored checkpoint resume metrics pipeline minari wgcsl
-fuzz: deps
+fuzz: build
 	cd fuzz && ./seeds.sh
 	cd fuzz && for t in $(FUZZ_TARGETS); do \
 	  RUSTC_BOOTSTRAP=1 cargo fuzz run $$t corpus/$$t -- -max_total_time=$${FUZZ_SECONDS:-600} || exit 1; done
