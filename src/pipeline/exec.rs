@@ -195,9 +195,10 @@ pub(crate) fn run_units(
     let wake = Condvar::new();
     let per_job = (threads / jobs).max(1);
     std::thread::scope(|s| {
+        let mut workers = Vec::with_capacity(jobs.min(units.len()));
         for _ in 0..jobs.min(units.len()) {
             let (state, wake, mut hashes) = (&state, &wake, hashes.clone());
-            s.spawn(move || {
+            workers.push(s.spawn(move || {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(per_job).build();
                 let pool = match pool.context("cannot start threads") {
                     Ok(pool) => pool,
@@ -236,7 +237,14 @@ pub(crate) fn run_units(
                     }
                     wake.notify_all();
                 }
-            });
+            }));
+        }
+        // Joined, not only waited for: the scope waits for each worker's closure but not for its
+        // OS thread, which would otherwise still be exiting when the run returns.
+        for worker in workers {
+            if let Err(panic) = worker.join() {
+                std::panic::resume_unwind(panic);
+            }
         }
     });
     let st = state.into_inner().expect("no panic holds it");

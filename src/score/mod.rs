@@ -236,35 +236,46 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
     std::thread::scope(|s| -> Result<()> {
         // The reader runs ahead by one window, overlapping decoding with scoring.
         let (tx, rx) = sync_channel(window);
-        s.spawn(move || {
+        let reader = s.spawn(move || {
             for (index, block) in blocks.enumerate() {
                 if tx.send(block.map(|(first, b)| (index, first, b))).is_err() {
                     break;
                 }
             }
         });
-        loop {
-            let mut pending = Vec::with_capacity(window);
-            while pending.len() < window {
-                match rx.recv() {
-                    Ok(block) => pending.push(block?),
-                    Err(_) => break,
+        let scored = (|| -> Result<()> {
+            loop {
+                let mut pending = Vec::with_capacity(window);
+                while pending.len() < window {
+                    match rx.recv() {
+                        Ok(block) => pending.push(block?),
+                        Err(_) => break,
+                    }
                 }
+                if pending.is_empty() {
+                    return Ok(());
+                }
+                let scored: Vec<(RecordBatch, stats::QAccumulator)> = pending
+                    .par_iter()
+                    .map(|(index, first, block)| score_block(o, &agent, &pool, &task, &schema, *index, *first, block))
+                    .collect::<Result<_>>()?;
+                let (batches, accumulators): (Vec<_>, Vec<_>) = scored.into_iter().unzip();
+                accumulators.iter().for_each(|a| q.merge(a));
+                let n: usize = batches.iter().map(|b| b.num_rows()).sum();
+                writer.write_row_groups(&batches)?;
+                rows += n;
+                crate::progress::advance(bar, (n / per) as u64)?;
             }
-            if pending.is_empty() {
-                return Ok(());
-            }
-            let scored: Vec<(RecordBatch, stats::QAccumulator)> = pending
-                .par_iter()
-                .map(|(index, first, block)| score_block(o, &agent, &pool, &task, &schema, *index, *first, block))
-                .collect::<Result<_>>()?;
-            let (batches, accumulators): (Vec<_>, Vec<_>) = scored.into_iter().unzip();
-            accumulators.iter().for_each(|a| q.merge(a));
-            let n: usize = batches.iter().map(|b| b.num_rows()).sum();
-            writer.write_row_groups(&batches)?;
-            rows += n;
-            crate::progress::advance(bar, (n / per) as u64)?;
+        })();
+        // Joined on every path, errors included: the scope waits for the reader's closure but
+        // not for its OS thread, which would still be exiting after score returned (the leak
+        // LeakSanitizer found in convert's hashing thread). Dropping the receiver first ends a
+        // reader blocked on a full window.
+        drop(rx);
+        if let Err(panic) = reader.join() {
+            std::panic::resume_unwind(panic);
         }
+        scored
     })?;
     assert_eq!(rows, transitions * per, "every transition was scored");
 
