@@ -11,13 +11,15 @@
 #   scripts/grids.sh status           where each grid stands (pipeline status), and whether it runs
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
-# engines), and `cargo build` replaces target/release under a running grid. Why outside the checkout:
-# out/ and the pinned build must outlive a fresh clone of the work tree; out/ is a link to
-# $GRID_ROOT/out. The copy finds its MuJoCo library, assets and tables through the environment
+# engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
+# by default .grids/ in the checkout (ignored by git), and out/ is a link to $GRID_ROOT/out. The
+# checkout is what a machine keeps between sessions when it keeps anything: /var/tmp, the first
+# home of the grids, was emptied between sessions (twice, taking a HandBlock-Z run with it) on a
+# machine whose checkout and its ignored target/ were kept. The copy finds its MuJoCo library, assets and tables through the environment
 # (LD_LIBRARY_PATH, PGSER_ASSETS, PGSER_ZIGGURAT), not through the paths baked into the build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-GRID_ROOT=${GRID_ROOT:-/var/tmp/pgser-grids}
+GRID_ROOT=${GRID_ROOT:-$PWD/.grids}
 DEFAULT_GRIDS="pipelines/hand_block_z_grid_cpu.toml pipelines/hand_egg_rotate_grid_cpu.toml
   pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_place_grid_cpu.toml"
 
