@@ -20,8 +20,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GRID_ROOT=${GRID_ROOT:-$PWD/.grids}
-DEFAULT_GRIDS="pipelines/hand_block_z_grid_cpu.toml pipelines/hand_egg_rotate_grid_cpu.toml
-  pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_place_grid_cpu.toml"
+# The order of the chain started on 2026-11-26 (FetchSlide first: its data was already collected),
+# so that a plain `start` continues it.
+DEFAULT_GRIDS="pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_place_grid_cpu.toml
+  pipelines/hand_egg_rotate_grid_cpu.toml pipelines/hand_block_z_grid_cpu.toml"
 
 pinned() {
   [ -L "$GRID_ROOT/bin" ] || { echo "grids.sh: no pinned build in $GRID_ROOT: run scripts/grids.sh pin" >&2; exit 1; }
