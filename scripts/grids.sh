@@ -14,8 +14,8 @@
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
 # by default .grids/ in the checkout (ignored by git), and out/ is a link to $GRID_ROOT/out. The
 # checkout is what a machine keeps between sessions when it keeps anything: /var/tmp, the first
-# home of the grids, was emptied between sessions (twice, taking a HandBlock-Z run with it) on a
-# machine whose checkout and its ignored target/ were kept. The copy finds its MuJoCo library, assets and tables through the environment
+# home of the grids, was emptied between sessions twice (taking a HandBlock-Z run with it each
+# time), and the second time the checkout, with its ignored target/, was kept. The copy finds its MuJoCo library, assets and tables through the environment
 # (LD_LIBRARY_PATH, PGSER_ASSETS, PGSER_ZIGGURAT), not through the paths baked into the build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
