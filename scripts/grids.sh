@@ -15,8 +15,9 @@
 # by default .grids/ in the checkout (ignored by git), and out/ is a link to $GRID_ROOT/out. The
 # checkout is what a machine keeps between sessions when it keeps anything: /var/tmp, the first
 # home of the grids, was emptied between sessions twice (taking a HandBlock-Z run with it each
-# time), and the second time the checkout, with its ignored target/, was kept. The copy finds its MuJoCo library, assets and tables through the environment
-# (LD_LIBRARY_PATH, PGSER_ASSETS, PGSER_ZIGGURAT), not through the paths baked into the build.
+# time), and the second time the checkout, with its ignored target/, was kept. The copy finds
+# its MuJoCo library, assets and tables through the environment (LD_LIBRARY_PATH, PGSER_ASSETS,
+# PGSER_ZIGGURAT), not through the paths baked into the build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GRID_ROOT=${GRID_ROOT:-$PWD/.grids}
@@ -99,7 +100,7 @@ case "${1:-}" in
     pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || echo "(no grid running)"
     ;;
   *)
-    sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'
     exit 2
     ;;
 esac
