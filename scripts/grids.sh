@@ -9,6 +9,8 @@
 #   scripts/grids.sh start [FILE...]  run the grids one after another on the pinned build, at nice 19,
 #                                     in the background (nothing happens if they are already running)
 #   scripts/grids.sh status           where each grid stands (pipeline status), and whether it runs
+#   scripts/grids.sh stop             stop the running grid; its stack saves where it is first
+#   scripts/grids.sh times            wall time per grid, summed over its runs in the log
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -86,9 +88,63 @@ case "${1:-}" in
         bin=$1; shift
         for g in "$@"; do
           echo "== $(date -u +%FT%TZ) $g"
-          "$bin/pgser-etl" pipeline run "$g" --threads 2 || exit 1
+          rc=0; "$bin/pgser-etl" pipeline run "$g" --threads 2 || rc=$?
+          echo "== $(date -u +%FT%TZ) $g: ended, rc $rc"
+          [ "$rc" = 0 ] || exit 1
         done
         echo "== $(date -u +%FT%TZ) all grids up to date"' grids "$bin" $grids >> "$log" 2>&1 < /dev/null &
+    ;;
+  stop)
+    # SIGTERM makes a training stack save at the update it has reached (not the last 2.5k mark),
+    # so stopping loses nothing; the chain then ends instead of starting the next grid.
+    pids=$(pgrep -f "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || true)
+    [ -n "$pids" ] || { echo "(no grid running)"; exit 0; }
+    # shellcheck disable=SC2086
+    kill -TERM $pids
+    for _ in $(seq 600); do
+      # shellcheck disable=SC2086
+      kill -0 $pids 2>/dev/null || break
+      sleep 1
+    done
+    # shellcheck disable=SC2086
+    if kill -0 $pids 2>/dev/null; then echo "grids.sh: still saving after 10 min: pids $pids" >&2; exit 1; fi
+    grep -v '^== ' "$GRID_ROOT/grids.log" | tail -n 1
+    ;;
+  times)
+    # Wall time per grid, summed over the runs in the log: each run is a start line and, since
+    # 2026-11-26, an end line. A run whose machine stopped under it has no end and is not counted.
+    log="$GRID_ROOT/grids.log"
+    [ -f "$log" ] || { echo "grids.sh: no log at $log" >&2; exit 1; }
+    declare -A total runs open lost
+    order=()
+    while read -r _ ts rest; do
+      case "$rest" in
+        *.toml)
+          g=$rest
+          [ -n "${runs[$g]:-}" ] || order+=("$g")
+          [ -z "${open[$g]:-}" ] || lost[$g]=$(( ${lost[$g]:-0} + 1 ))
+          open[$g]=$(date -ud "$ts" +%s); runs[$g]=$(( ${runs[$g]:-0} + 1 )) ;;
+        *.toml:\ ended,*)
+          g=${rest%%: ended,*}
+          if [ -n "${open[$g]:-}" ]; then
+            total[$g]=$(( ${total[$g]:-0} + $(date -ud "$ts" +%s) - ${open[$g]} )); unset "open[$g]"
+          fi ;;
+      esac
+    done < <(grep '^== ' "$log")
+    running=$(pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || true)
+    for g in "${order[@]}"; do
+      note=""
+      if [ -n "${open[$g]:-}" ]; then
+        if [[ "$running" == *"$g"* ]]; then
+          total[$g]=$(( ${total[$g]:-0} + $(date -u +%s) - ${open[$g]} )); note=", running now"
+        else
+          lost[$g]=$(( ${lost[$g]:-0} + 1 ))
+        fi
+      fi
+      [ -z "${lost[$g]:-}" ] || note="$note; ${lost[$g]} run(s) without an end line, not counted"
+      s=${total[$g]:-0}
+      printf '%s: %d h %02d min over %d run(s)%s\n' "$g" $(( s / 3600 )) $(( s % 3600 / 60 )) "${runs[$g]}" "$note"
+    done
     ;;
   status)
     shift
@@ -100,7 +156,7 @@ case "${1:-}" in
     pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || echo "(no grid running)"
     ;;
   *)
-    sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
     exit 2
     ;;
 esac
