@@ -40,6 +40,11 @@ with_pinned() {
     PGSER_ZIGGURAT="$bin/numpy_ziggurat.bin" "$@"
 }
 
+# The grid pipelines running now, as "PID COMMAND" lines (none: exit status 1).
+running() {
+  pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run"
+}
+
 link_out() {
   mkdir -p "$GRID_ROOT/out"
   if [ -e out ] && [ ! -L out ]; then
@@ -74,8 +79,8 @@ case "${1:-}" in
     shift
     grids=${*:-$DEFAULT_GRIDS}
     bin=$(pinned)
-    if pgrep -f "$GRID_ROOT/bin-.*/pgser-etl pipeline run" >/dev/null; then
-      echo "grids.sh: grids already running:"; pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run"; exit 0
+    if now=$(running); then
+      echo "grids.sh: grids already running:"; echo "$now"; exit 0
     fi
     link_out
     log="$GRID_ROOT/grids.log"
@@ -97,7 +102,7 @@ case "${1:-}" in
   stop)
     # SIGTERM makes a training stack save at the update it has reached (not the last 2.5k mark),
     # so stopping loses nothing; the chain then ends instead of starting the next grid.
-    pids=$(pgrep -f "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || true)
+    pids=$(running | cut -d' ' -f1 || true)
     [ -n "$pids" ] || { echo "(no grid running)"; exit 0; }
     # shellcheck disable=SC2086
     kill -TERM $pids
@@ -131,11 +136,11 @@ case "${1:-}" in
           fi ;;
       esac
     done < <(grep '^== ' "$log")
-    running=$(pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || true)
+    now=$(running || true)
     for g in "${order[@]}"; do
       note=""
       if [ -n "${open[$g]:-}" ]; then
-        if [[ "$running" == *"$g"* ]]; then
+        if [[ "$now" == *"$g"* ]]; then
           total[$g]=$(( ${total[$g]:-0} + $(date -u +%s) - ${open[$g]} )); note=", running now"
         else
           lost[$g]=$(( ${lost[$g]:-0} + 1 ))
@@ -153,7 +158,7 @@ case "${1:-}" in
       echo "== $g"
       with_pinned "$(pinned)/pgser-etl" pipeline status "$g" || true
     done
-    pgrep -af "$GRID_ROOT/bin-.*/pgser-etl pipeline run" || echo "(no grid running)"
+    running || echo "(no grid running)"
     ;;
   *)
     sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
