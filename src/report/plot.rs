@@ -80,8 +80,78 @@ fn frame<'a, 'b>(
     Ok(chart)
 }
 
-/// The series' labels in a framed box at `at`.
-fn legend<'a, 'b: 'a>(chart: &mut Chart<'a, 'b>, at: SeriesLabelPosition) -> Result<()> {
+/// A vertical span the figure draws ink over: at `x`, everything from `lo` to `hi` (a line
+/// point has `lo == hi`, a ±std band or a histogram bar a range).
+type Span = (f64, f64, f64);
+
+/// The four corners a legend can take, in the order preferred when several hide as little.
+const CORNERS: [SeriesLabelPosition; 4] = [
+    SeriesLabelPosition::LowerRight,
+    SeriesLabelPosition::UpperLeft,
+    SeriesLabelPosition::UpperRight,
+    SeriesLabelPosition::LowerLeft,
+];
+
+/// The index in [`CORNERS`] of the corner where a legend box of `box_px` pixels hides the fewest
+/// `spans` of a plot of `plot_px` pixels over `x` × `y`. A fixed corner hid curves whenever a
+/// task's results happened to lie there (FetchSlide's TD3+BC curves sat under the legend at
+/// the lower right), and which corner is empty depends on the task, so it is chosen per figure.
+fn quietest_corner(
+    spans: &[Span],
+    (x, y): (std::ops::Range<f64>, std::ops::Range<f64>),
+    plot_px: (u32, u32),
+    box_px: (f64, f64),
+) -> usize {
+    // plotters keeps the box ~10 px from the plot's edges.
+    let w = ((box_px.0 + 10.0) / plot_px.0.max(1) as f64).min(1.0) * (x.end - x.start);
+    let h = ((box_px.1 + 10.0) / plot_px.1.max(1) as f64).min(1.0) * (y.end - y.start);
+    let boxes = [
+        (x.end - w..x.end, y.start..y.start + h),
+        (x.start..x.start + w, y.end - h..y.end),
+        (x.end - w..x.end, y.end - h..y.end),
+        (x.start..x.start + w, y.start..y.start + h),
+    ];
+    let hidden = |(bx, by): &(std::ops::Range<f64>, std::ops::Range<f64>)| {
+        spans.iter().filter(|(sx, lo, hi)| bx.contains(sx) && *lo <= by.end && *hi >= by.start).count()
+    };
+    (0..boxes.len()).min_by_key(|&i| hidden(&boxes[i])).unwrap_or(0)
+}
+
+/// The spans a mean ± std curve covers, sampled along each segment between evaluations, so a
+/// line crossing a corner between two points counts too.
+fn curve_spans(c: &Curve) -> Vec<Span> {
+    const STEPS: usize = 16;
+    let points: Vec<(f64, f64, f64)> =
+        c.x.iter().zip(c.mean.iter().zip(&c.std)).map(|(x, (m, s))| (*x, *m, *s)).collect();
+    let mut spans: Vec<Span> = points.iter().map(|(x, m, s)| (*x, m - s, m + s)).collect();
+    for pair in points.windows(2) {
+        let ((x0, m0, s0), (x1, m1, s1)) = (pair[0], pair[1]);
+        for k in 1..STEPS {
+            let t = k as f64 / STEPS as f64;
+            let (x, m, s) = (x0 + t * (x1 - x0), m0 + t * (m1 - m0), s0 + t * (s1 - s0));
+            spans.push((x, m - s, m + s));
+        }
+    }
+    spans
+}
+
+/// The legend box's size in pixels for these labels at the legend's 15 px font: a sample line or
+/// swatch and a gap, then the text (DejaVu Sans averages ~8.5 px a character at 15 px), and
+/// ~19 px a row.
+fn legend_box_px<'s>(labels: impl Iterator<Item = &'s str>) -> (f64, f64) {
+    let (rows, chars) = labels.fold((0usize, 0usize), |(n, w), l| (n + 1, w.max(l.chars().count())));
+    (45.0 + 8.5 * chars as f64, 12.0 + 19.0 * rows as f64)
+}
+
+/// The series' labels in a framed box at the corner where they hide the fewest of `spans`.
+fn legend<'a, 'b: 'a, 's>(
+    chart: &mut Chart<'a, 'b>,
+    spans: &[Span],
+    labels: impl Iterator<Item = &'s str>,
+) -> Result<()> {
+    let (x, y) = (chart.x_range(), chart.y_range());
+    let at =
+        CORNERS[quietest_corner(spans, (x, y), chart.plotting_area().dim_in_pixel(), legend_box_px(labels))].clone();
     chart
         .configure_series_labels()
         .position(at)
@@ -205,7 +275,13 @@ fn draw_densities(
     let top = if top > 0.0 { top * 1.1 } else { 1.0 };
     let width = (hi - lo) / bins as f64;
     let mut chart = frame(area, &panel.title, labels, lo..hi, 0.0..top, 25)?;
+    let mut spans = Vec::new();
     for (label, d, color) in &panel.series {
+        // Each bar's ink, at its two edges and middle.
+        for (i, h) in d.iter().enumerate().filter(|(_, h)| **h > 0.0) {
+            let x0 = lo + i as f64 * width;
+            spans.extend([0.0, 0.5, 1.0].map(|f| (x0 + f * width, 0.0, *h)));
+        }
         let style = color.mix(0.45).filled();
         let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
             let x0 = lo + i as f64 * width;
@@ -217,7 +293,7 @@ fn draw_densities(
             .label(label.clone())
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 16, y + 6)], style));
     }
-    legend(&mut chart, SeriesLabelPosition::UpperLeft)
+    legend(&mut chart, &spans, panel.series.iter().map(|s| s.0.as_str()))
 }
 
 /// One curve: mean over seeds at each x, with a ±std band.
@@ -262,6 +338,47 @@ pub fn mean_std_curves(
                 .label(c.label.clone())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
         }
-        legend(&mut chart, SeriesLabelPosition::LowerRight)
+        let spans: Vec<Span> = curves.iter().flat_map(curve_spans).collect();
+        legend(&mut chart, &spans, curves.iter().map(|c| c.label.as_str()))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat(label: &str, y: f64) -> Curve {
+        Curve { label: label.into(), x: vec![0.0, 10.0], mean: vec![y, y], std: vec![0.0, 0.0] }
+    }
+
+    /// The legend goes where no curve is: with curves along the bottom it leaves the preferred
+    /// lower right for the upper left; with one along the top it keeps the lower right.
+    #[test]
+    fn the_legend_takes_an_empty_corner() {
+        let range = (0.0..10.0, 0.0..10.0);
+        let bottom: Vec<Span> = [flat("a", 0.5), flat("b", 1.0)].iter().flat_map(curve_spans).collect();
+        assert_eq!(quietest_corner(&bottom, range.clone(), (800, 500), (150.0, 60.0)), 1);
+        let top: Vec<Span> = curve_spans(&flat("a", 9.5));
+        assert_eq!(quietest_corner(&top, range.clone(), (800, 500), (150.0, 60.0)), 0);
+        // A rising curve with a wide band fills the lower left and upper right: one of the others.
+        let rising = Curve { label: "r".into(), x: vec![0.0, 10.0], mean: vec![0.0, 10.0], std: vec![1.0, 1.0] };
+        let corner = quietest_corner(&curve_spans(&rising), range.clone(), (800, 500), (150.0, 60.0));
+        assert!(corner == 0 || corner == 1, "corner {corner}");
+        // A line that crosses a corner between its two points hides it too: (0, 8) → (3, 10)
+        // passes through the upper-left box although neither end is in it, so with curves along
+        // the bottom the upper right is left.
+        let crossing = Curve { label: "c".into(), x: vec![0.0, 3.0], mean: vec![8.0, 10.0], std: vec![0.0, 0.0] };
+        assert!(curve_spans(&crossing).iter().any(|(x, y, _)| *x > 0.0 && *x < 2.0 && *y > 8.6));
+        let mut both = bottom.clone();
+        both.extend(curve_spans(&crossing));
+        assert_eq!(quietest_corner(&both, range, (800, 500), (150.0, 60.0)), 2);
+    }
+
+    #[test]
+    fn the_legend_box_grows_with_its_labels() {
+        let (w1, h1) = legend_box_px(["TD3"].into_iter());
+        let (w2, h2) = legend_box_px(["TD3", "TD3+BC baseline"].into_iter());
+        assert!(w2 > w1 && h2 > h1);
+        assert_eq!(h2 - h1, 19.0);
+    }
 }
