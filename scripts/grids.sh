@@ -11,6 +11,9 @@
 #   scripts/grids.sh status           where each grid stands (pipeline status), and whether it runs
 #   scripts/grids.sh stop             stop the running grid; its stack saves where it is first
 #   scripts/grids.sh times            wall time per grid, summed over its runs in the log
+#   scripts/grids.sh collect [FILE...]
+#                                     copy each finished grid's results and report to results/NAME/,
+#                                     then remake results/table2 and results/fig5 from all of them
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -151,6 +154,37 @@ case "${1:-}" in
       printf '%s: %d h %02d min over %d run(s)%s\n' "$g" $(( s / 3600 )) $(( s % 3600 / 60 )) "${runs[$g]}" "$note"
     done
     ;;
+  collect)
+    # What gets committed of a finished grid (never out/ itself): its Table 2 (results.csv, .md),
+    # training curves and the report of its Q (Fig. 5, Table 1). A grid counts as finished when
+    # `pipeline status` finds its last step, results, up to date, so a grid stopped half way, or
+    # one whose file changed since, is left out and says so.
+    shift
+    results=${GRID_RESULTS:-results}
+    bin=$(pinned)
+    for g in ${*:-$DEFAULT_GRIDS}; do
+      name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$g")
+      src="$GRID_ROOT/out/$name"
+      if ! with_pinned "$bin/pgser-etl" pipeline status "$g" 2>/dev/null | grep -q '\] results: up to date$'; then
+        echo "$name: not finished, not collected"; continue
+      fi
+      mkdir -p "$results/$name"
+      cp "$src/results.csv" "$src/results.md" "$src"/curves_*.png "$src/report/fig5_q_hist.png" \
+        "$src/report/table1.json" "$src/report/table1.md" "$results/$name/"
+      echo "$name: collected into $results/$name"
+    done
+    # Fig. 5 takes each grid's own report, or, where that was lost, the report of a Q remade on
+    # the same data and recipe that RESULTS.md names (a q_remade_BUILD folder beside it).
+    reports=()
+    for d in "$results"/*_grid_cpu; do
+      if [ -f "$d/table1.json" ]; then reports+=("$d")
+      else
+        for r in "$d"/q_remade_*; do if [ -f "$r/table1.json" ]; then reports+=("$r"); fi; done
+      fi
+    done
+    with_pinned "$bin/pgser-etl" table2 "$results"/*_grid_cpu/results.csv -o "$results/table2"
+    [ "${#reports[@]}" = 0 ] || with_pinned "$bin/pgser-etl" fig5 "${reports[@]}" -o "$results/fig5"
+    ;;
   status)
     shift
     link_out
@@ -161,7 +195,7 @@ case "${1:-}" in
     running || echo "(no grid running)"
     ;;
   *)
-    sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'
     exit 2
     ;;
 esac

@@ -51,3 +51,54 @@ def test_stop_with_nothing_running(tmp_path):
     p = grids(tmp_path, "stop")
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "(no grid running)"
+
+
+FAKE_ETL = """#!/bin/bash
+# pgser-etl as far as `grids.sh collect` uses it: `pipeline status FILE` says the results step is
+# up to date for a file marked "# finished"; table2 and fig5 record their arguments.
+case "$1" in
+  pipeline)
+    if grep -q '^# finished' "$3"; then s="up to date"; else s="not started"; fi
+    echo "pipeline x: [37/37] results: $s" ;;
+  table2|fig5) echo "$*" >> "$GRID_ROOT/calls" ;;
+esac
+"""
+
+
+def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
+    root, results = tmp_path / "grids", tmp_path / "results"
+    fake = root / "bin-fake"
+    fake.mkdir(parents=True)
+    (fake / "pgser-etl").write_text(FAKE_ETL)
+    (fake / "pgser-etl").chmod(0o755)
+    (root / "bin").symlink_to(fake)
+    files = []
+    for name, done in [("a_grid_cpu", True), ("b_grid_cpu", False)]:
+        f = tmp_path / f"{name}.toml"
+        f.write_text(("# finished\n" if done else "") + f'name = "{name}"\nout = "../out/{name}"\n')
+        files.append(str(f))
+        out = root / "out" / name
+        (out / "report").mkdir(parents=True)
+        for rel in ["results.csv", "results.md", "curves_A.png", "report/fig5_q_hist.png",
+                    "report/table1.json", "report/table1.md", "q.ckpt"]:
+            (out / rel).write_text(f"{name} {rel}")
+    # An earlier grid whose own report was lost, with the report of a remade Q beside it.
+    (results / "c_grid_cpu" / "q_remade_abc").mkdir(parents=True)
+    (results / "c_grid_cpu" / "results.csv").write_text("c")
+    (results / "c_grid_cpu" / "q_remade_abc" / "table1.json").write_text("{}")
+
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results))
+    p = subprocess.run(["bash", str(SCRIPT), "collect", *files], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines() == [
+        f"a_grid_cpu: collected into {results}/a_grid_cpu",
+        "b_grid_cpu: not finished, not collected",
+    ]
+    got = sorted(f.name for f in (results / "a_grid_cpu").iterdir())
+    assert got == ["curves_A.png", "fig5_q_hist.png", "results.csv", "results.md", "table1.json", "table1.md"]
+    assert (results / "a_grid_cpu" / "table1.json").read_text() == "a_grid_cpu report/table1.json"
+    assert not (results / "b_grid_cpu").exists()
+    assert (root / "calls").read_text().splitlines() == [
+        f"table2 {results}/a_grid_cpu/results.csv {results}/c_grid_cpu/results.csv -o {results}/table2",
+        f"fig5 {results}/a_grid_cpu {results}/c_grid_cpu/q_remade_abc -o {results}/fig5",
+    ]
