@@ -277,14 +277,11 @@ fn draw_densities(
     let mut chart = frame(area, &panel.title, labels, lo..hi, 0.0..top, 25)?;
     let mut spans = Vec::new();
     for (label, d, color) in &panel.series {
-        // Each bar's ink, at its two edges and middle.
-        for (i, h) in d.iter().enumerate().filter(|(_, h)| **h > 0.0) {
-            let x0 = lo + i as f64 * width;
-            spans.extend([0.0, 0.5, 1.0].map(|f| (x0 + f * width, 0.0, *h)));
-        }
         let style = color.mix(0.45).filled();
         let bars = d.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
             let x0 = lo + i as f64 * width;
+            // The bar's ink for the legend's choice of corner: its two edges and middle.
+            spans.extend([0.0, 0.5, 1.0].map(|f| (x0 + f * width, 0.0, *h)));
             Rectangle::new([(x0, 0.0), (x0 + width, *h)], style)
         });
         chart
