@@ -14,6 +14,7 @@
 #   scripts/grids.sh collect [FILE...]
 #                                     copy each finished grid's results and report to results/NAME/,
 #                                     then remake results/table2 and results/fig5 from all of them
+#                                     (drawn by target/release when built, else the pinned build)
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -182,8 +183,14 @@ case "${1:-}" in
         for r in "$d"/q_remade_*; do if [ -f "$r/table1.json" ]; then reports+=("$r"); fi; done
       fi
     done
-    with_pinned "$bin/pgser-etl" table2 "$results"/*_grid_cpu/results.csv -o "$results/table2"
-    [ "${#reports[@]}" = 0 ] || with_pinned "$bin/pgser-etl" fig5 "${reports[@]}" -o "$results/fig5"
+    # The two tables across tasks only read committed CSV and JSON, so their numbers do not depend
+    # on the build: they are drawn by this checkout's build when there is one (the newest plots,
+    # e.g. the legend placed where it hides least), else by the pinned one.
+    render=${GRID_RENDER_ETL:-target/release/pgser-etl}
+    [ -x "$render" ] || render="$bin/pgser-etl"
+    echo "tables across tasks drawn by $render"
+    with_pinned "$render" table2 "$results"/*_grid_cpu/results.csv -o "$results/table2"
+    [ "${#reports[@]}" = 0 ] || with_pinned "$render" fig5 "${reports[@]}" -o "$results/fig5"
     ;;
   status)
     shift

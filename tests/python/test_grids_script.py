@@ -87,12 +87,15 @@ def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
     (results / "c_grid_cpu" / "results.csv").write_text("c")
     (results / "c_grid_cpu" / "q_remade_abc" / "table1.json").write_text("{}")
 
-    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results))
+    # No checkout build to draw with: the pinned build draws the tables across tasks.
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
+               GRID_RENDER_ETL=str(tmp_path / "absent"))
     p = subprocess.run(["bash", str(SCRIPT), "collect", *files], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert p.stdout.splitlines() == [
         f"a_grid_cpu: collected into {results}/a_grid_cpu",
         "b_grid_cpu: not finished, not collected",
+        f"tables across tasks drawn by {fake}/pgser-etl",
     ]
     got = sorted(f.name for f in (results / "a_grid_cpu").iterdir())
     assert got == ["curves_A.png", "fig5_q_hist.png", "results.csv", "results.md", "table1.json", "table1.md"]
@@ -102,3 +105,32 @@ def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
         f"table2 {results}/a_grid_cpu/results.csv {results}/c_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/a_grid_cpu {results}/c_grid_cpu/q_remade_abc -o {results}/fig5",
     ]
+
+
+def test_collect_draws_the_tables_across_tasks_with_the_checkouts_build(tmp_path):
+    """The grid's status still comes from the pinned build; only table2 and fig5, which read
+    committed files, are drawn by the newer build."""
+    root, results = tmp_path / "grids", tmp_path / "results"
+    pinned, newer = root / "bin-old", tmp_path / "release"
+    for d in (pinned, newer):
+        d.mkdir(parents=True)
+        (d / "pgser-etl").write_text(FAKE_ETL.replace('"$GRID_ROOT/calls"', f'"$GRID_ROOT/calls.{d.name}"'))
+        (d / "pgser-etl").chmod(0o755)
+    (root / "bin").symlink_to(pinned)
+    f = tmp_path / "a_grid_cpu.toml"
+    f.write_text('# finished\nname = "a_grid_cpu"\nout = "../out/a_grid_cpu"\n')
+    out = root / "out" / "a_grid_cpu"
+    (out / "report").mkdir(parents=True)
+    for rel in ["results.csv", "results.md", "curves_A.png", "report/fig5_q_hist.png",
+                "report/table1.json", "report/table1.md"]:
+        (out / rel).write_text(rel)
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
+               GRID_RENDER_ETL=str(newer / "pgser-etl"))
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines()[-1] == f"tables across tasks drawn by {newer}/pgser-etl"
+    assert (root / "calls.release").read_text().splitlines() == [
+        f"table2 {results}/a_grid_cpu/results.csv -o {results}/table2",
+        f"fig5 {results}/a_grid_cpu -o {results}/fig5",
+    ]
+    assert not (root / "calls.bin-old").exists()
