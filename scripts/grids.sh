@@ -14,7 +14,7 @@
 #   scripts/grids.sh collect [FILE...]
 #                                     copy each finished grid's results and report to results/NAME/,
 #                                     then remake results/table2 and results/fig5 from all of them
-#                                     (drawn by target/release when built, else the pinned build)
+#                                     (figures drawn by target/release when built, else the pinned build)
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -163,6 +163,12 @@ case "${1:-}" in
     shift
     results=${GRID_RESULTS:-results}
     bin=$(pinned)
+    # The training curves and the tables across tasks are drawn by this checkout's build when
+    # there is one (the newest plots, e.g. the legend placed where it hides least), else by the
+    # pinned one: they only draw numbers the pinned build computed, so the results table the
+    # newer build writes beside its curves must match the grid's byte for byte.
+    render=${GRID_RENDER_ETL:-target/release/pgser-etl}
+    [ -x "$render" ] || render="$bin/pgser-etl"
     for g in ${*:-$DEFAULT_GRIDS}; do
       name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$g")
       src="$GRID_ROOT/out/$name"
@@ -172,6 +178,23 @@ case "${1:-}" in
       mkdir -p "$results/$name"
       cp "$src/results.csv" "$src/results.md" "$src"/curves_*.png "$src/report/fig5_q_hist.png" \
         "$src/report/table1.json" "$src/report/table1.md" "$results/$name/"
+      if [ "$render" != "$bin/pgser-etl" ]; then
+        # The results step again, on a hard-linked copy of out/ (outputs are replaced by rename,
+        # so the grid's own files are never written) with its record removed so that it runs.
+        tmp=$(mktemp -d)
+        trap 'rm -rf "$tmp"' EXIT  # also when the step or the check below fails
+        out=$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$g")
+        mkdir -p "$tmp/pipelines/$(dirname "$out")"
+        cp "$g" "$tmp/pipelines/"
+        cp -al "$src" "$tmp/pipelines/$out"
+        rm -f "$tmp/pipelines/$out/.pipeline/results.json"
+        with_pinned "$render" pipeline step "$tmp/pipelines/$(basename "$g")" results --threads 1 >/dev/null
+        cmp -s "$tmp/pipelines/$out/results.csv" "$src/results.csv" ||
+          { echo "grids.sh: $name: $render computes another results.csv than the grid's" >&2; exit 1; }
+        cp "$tmp/pipelines/$out"/curves_*.png "$results/$name/"
+        rm -rf "$tmp"
+        echo "$name: curves drawn by $render"
+      fi
       echo "$name: collected into $results/$name"
     done
     # Fig. 5 takes each grid's own report, or, where that was lost, the report of a Q remade on
@@ -183,11 +206,7 @@ case "${1:-}" in
         for r in "$d"/q_remade_*; do if [ -f "$r/table1.json" ]; then reports+=("$r"); fi; done
       fi
     done
-    # The two tables across tasks only read committed CSV and JSON, so their numbers do not depend
-    # on the build: they are drawn by this checkout's build when there is one (the newest plots,
-    # e.g. the legend placed where it hides least), else by the pinned one.
-    render=${GRID_RENDER_ETL:-target/release/pgser-etl}
-    [ -x "$render" ] || render="$bin/pgser-etl"
+    # The two tables across tasks read only committed CSV and JSON.
     echo "tables across tasks drawn by $render"
     with_pinned "$render" table2 "$results"/*_grid_cpu/results.csv -o "$results/table2"
     [ "${#reports[@]}" = 0 ] || with_pinned "$render" fig5 "${reports[@]}" -o "$results/fig5"

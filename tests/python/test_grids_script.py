@@ -53,14 +53,19 @@ def test_stop_with_nothing_running(tmp_path):
     assert p.stdout.strip() == "(no grid running)"
 
 
-FAKE_ETL = """#!/bin/bash
+FAKE_ETL = r"""#!/bin/bash
 # pgser-etl as far as `grids.sh collect` uses it: `pipeline status FILE` says the results step is
 # up to date for a file marked "# finished"; table2 and fig5 record their arguments.
-case "$1" in
-  pipeline)
+case "$1 $2" in
+  "pipeline status")
     if grep -q '^# finished' "$3"; then s="up to date"; else s="not started"; fi
     echo "pipeline x: [37/37] results: $s" ;;
-  table2|fig5) echo "$*" >> "$GRID_ROOT/calls" ;;
+  "pipeline step")
+    # The results step drawn again: new curves, and the results table as $RESULTS_CSV says.
+    out="$(dirname "$3")/$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$3")"
+    echo redrawn > "$out/curves_A.png.tmp" && mv "$out/curves_A.png.tmp" "$out/curves_A.png"
+    if [ -n "${RESULTS_CSV:-}" ]; then echo "$RESULTS_CSV" > "$out/r.tmp" && mv "$out/r.tmp" "$out/results.csv"; fi ;;
+  table2*|fig5*) echo "$*" >> "$GRID_ROOT/calls" ;;
 esac
 """
 
@@ -107,9 +112,8 @@ def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
     ]
 
 
-def test_collect_draws_the_tables_across_tasks_with_the_checkouts_build(tmp_path):
-    """The grid's status still comes from the pinned build; only table2 and fig5, which read
-    committed files, are drawn by the newer build."""
+def newer_build_layout(tmp_path):
+    """A finished grid on a pinned build, and a newer build to draw with."""
     root, results = tmp_path / "grids", tmp_path / "results"
     pinned, newer = root / "bin-old", tmp_path / "release"
     for d in (pinned, newer):
@@ -126,11 +130,36 @@ def test_collect_draws_the_tables_across_tasks_with_the_checkouts_build(tmp_path
         (out / rel).write_text(rel)
     env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
                GRID_RENDER_ETL=str(newer / "pgser-etl"))
+    return root, results, newer, out, f, env
+
+
+def test_collect_draws_curves_and_tables_across_tasks_with_the_checkouts_build(tmp_path):
+    """The grid's status still comes from the pinned build; its curves (the results step run
+    again on a linked copy of out/) and table2 and fig5 are drawn by the newer build."""
+    root, results, newer, out, f, env = newer_build_layout(tmp_path)
     p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
-    assert p.stdout.splitlines()[-1] == f"tables across tasks drawn by {newer}/pgser-etl"
+    assert p.stdout.splitlines() == [
+        f"a_grid_cpu: curves drawn by {newer}/pgser-etl",
+        f"a_grid_cpu: collected into {results}/a_grid_cpu",
+        f"tables across tasks drawn by {newer}/pgser-etl",
+    ]
+    assert (results / "a_grid_cpu" / "curves_A.png").read_text() == "redrawn\n"
+    assert (results / "a_grid_cpu" / "results.csv").read_text() == "results.csv"
+    # The grid's own out/ is untouched.
+    assert (out / "curves_A.png").read_text() == "curves_A.png"
     assert (root / "calls.release").read_text().splitlines() == [
         f"table2 {results}/a_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/a_grid_cpu -o {results}/fig5",
     ]
     assert not (root / "calls.bin-old").exists()
+
+
+def test_collect_stops_when_the_newer_build_computes_another_results_table(tmp_path):
+    root, results, newer, out, f, env = newer_build_layout(tmp_path)
+    env["RESULTS_CSV"] = "other numbers"
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 1
+    assert f"a_grid_cpu: {newer}/pgser-etl computes another results.csv than the grid's" in p.stderr
+    assert (out / "results.csv").read_text() == "results.csv"
+    assert not (root / "calls.release").exists()
