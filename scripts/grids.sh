@@ -181,17 +181,17 @@ case "${1:-}" in
       if [ "$render" != "$bin/pgser-etl" ]; then
         # The results step again, on a hard-linked copy of out/ (outputs are replaced by rename,
         # so the grid's own files are never written) with its record removed so that it runs.
+        # The copy keeps the layout $src assumes: the file in pipelines/, its out in out/NAME.
         tmp=$(mktemp -d)
         trap 'rm -rf "$tmp"' EXIT  # also when the step or the check below fails
-        out=$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$g")
-        mkdir -p "$tmp/pipelines/$(dirname "$out")"
+        mkdir "$tmp/pipelines" "$tmp/out"
         cp "$g" "$tmp/pipelines/"
-        cp -al "$src" "$tmp/pipelines/$out"
-        rm -f "$tmp/pipelines/$out/.pipeline/results.json"
+        cp -al "$src" "$tmp/out/$name"
+        rm -f "$tmp/out/$name/.pipeline/results.json"
         with_pinned "$render" pipeline step "$tmp/pipelines/$(basename "$g")" results --threads 1 >/dev/null
-        cmp -s "$tmp/pipelines/$out/results.csv" "$src/results.csv" ||
+        cmp -s "$tmp/out/$name/results.csv" "$src/results.csv" ||
           { echo "grids.sh: $name: $render computes another results.csv than the grid's" >&2; exit 1; }
-        cp "$tmp/pipelines/$out"/curves_*.png "$results/$name/"
+        cp "$tmp/out/$name"/curves_*.png "$results/$name/"
         rm -rf "$tmp"
         echo "$name: curves drawn by $render"
       fi
