@@ -14,7 +14,8 @@
 #   scripts/grids.sh collect [FILE...]
 #                                     copy each finished grid's results and report to results/NAME/,
 #                                     then remake results/table2 and results/fig5 from all of them
-#                                     (figures drawn by target/release when built, else the pinned build)
+#                                     (figures drawn by target/release when built, else the pinned build;
+#                                     the numbers are always the grid's)
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -163,12 +164,15 @@ case "${1:-}" in
     shift
     results=${GRID_RESULTS:-results}
     bin=$(pinned)
-    # The training curves and the tables across tasks are drawn by this checkout's build when
-    # there is one (the newest plots, e.g. the legend placed where it hides least), else by the
-    # pinned one: they only draw numbers the pinned build computed, so the results table the
-    # newer build writes beside its curves must match the grid's byte for byte.
+    # The training curves, the Q histogram of the report and the tables across tasks are drawn by
+    # this checkout's build when there is one (the newest plots, e.g. the legend placed where it
+    # hides least), else by the pinned one: they only draw numbers the pinned build computed, so the
+    # results table and Table 1 the newer build writes beside its figures must match the grid's
+    # byte for byte. Without this, every collect would put back the pinned build's older drawing
+    # over a figure committed since.
     render=${GRID_RENDER_ETL:-target/release/pgser-etl}
     [ -x "$render" ] || render="$bin/pgser-etl"
+    render=$(realpath "$render")
     for g in ${*:-$DEFAULT_GRIDS}; do
       name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$g")
       src="$GRID_ROOT/out/$name"
@@ -179,21 +183,27 @@ case "${1:-}" in
       cp "$src/results.csv" "$src/results.md" "$src"/curves_*.png "$src/report/fig5_q_hist.png" \
         "$src/report/table1.json" "$src/report/table1.md" "$results/$name/"
       if [ "$render" != "$bin/pgser-etl" ]; then
-        # The results step again, on a hard-linked copy of out/ (outputs are replaced by rename,
-        # so the grid's own files are never written) with its record removed so that it runs.
-        # The copy keeps the layout $src assumes: the file in pipelines/, its out in out/NAME.
+        # The report and results steps again, on a hard-linked copy of out/ (outputs are replaced
+        # by rename, so the grid's own files are never written) with their records removed so
+        # that they run. The copy keeps the layout the grid ran in, the file in pipelines/ and its
+        # out in out/NAME, and the steps run from the copy's root, so the paths Table 1 records
+        # are the grid's own (out/NAME/...) and its JSON can be compared whole.
         tmp=$(mktemp -d)
-        trap 'rm -rf "$tmp"' EXIT  # also when the step or the check below fails
+        trap 'rm -rf "$tmp"' EXIT  # also when a step or a check below fails
         mkdir "$tmp/pipelines" "$tmp/out"
         cp "$g" "$tmp/pipelines/"
         cp -al "$src" "$tmp/out/$name"
-        rm -f "$tmp/out/$name/.pipeline/results.json"
-        with_pinned "$render" pipeline step "$tmp/pipelines/$(basename "$g")" results --threads 1 >/dev/null
-        cmp -s "$tmp/out/$name/results.csv" "$src/results.csv" ||
-          { echo "grids.sh: $name: $render computes another results.csv than the grid's" >&2; exit 1; }
-        cp "$tmp/out/$name"/curves_*.png "$results/$name/"
+        rm -f "$tmp/out/$name/.pipeline/report.json" "$tmp/out/$name/.pipeline/results.json"
+        for step in report results; do
+          (cd "$tmp" && with_pinned "$render" pipeline step "pipelines/$(basename "$g")" $step --threads 1 >/dev/null)
+        done
+        for f in results.csv report/table1.json; do
+          cmp -s "$tmp/out/$name/$f" "$src/$f" ||
+            { echo "grids.sh: $name: $render computes another $(basename "$f") than the grid's" >&2; exit 1; }
+        done
+        cp "$tmp/out/$name"/curves_*.png "$tmp/out/$name/report/fig5_q_hist.png" "$results/$name/"
         rm -rf "$tmp"
-        echo "$name: curves drawn by $render"
+        echo "$name: curves and Q histogram drawn by $render"
       fi
       echo "$name: collected into $results/$name"
     done

@@ -61,10 +61,18 @@ case "$1 $2" in
     if grep -q '^# finished' "$3"; then s="up to date"; else s="not started"; fi
     echo "pipeline x: [37/37] results: $s" ;;
   "pipeline step")
-    # The results step drawn again: new curves, and the results table as $RESULTS_CSV says.
+    # A step drawn again, each output replaced by rename: the report's histogram and Table 1 (as
+    # $TABLE1_JSON says), or the results step's curves and table (as $RESULTS_CSV says). The step
+    # is recorded, with the folder it ran in, so a test can tell where it ran.
     out="$(dirname "$3")/$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$3")"
-    echo redrawn > "$out/curves_A.png.tmp" && mv "$out/curves_A.png.tmp" "$out/curves_A.png"
-    if [ -n "${RESULTS_CSV:-}" ]; then echo "$RESULTS_CSV" > "$out/r.tmp" && mv "$out/r.tmp" "$out/results.csv"; fi ;;
+    echo "$4 $PWD" >> "$GRID_ROOT/steps"
+    if [ "$4" = report ]; then
+      echo redrawn > "$out/report/h.tmp" && mv "$out/report/h.tmp" "$out/report/fig5_q_hist.png"
+      if [ -n "${TABLE1_JSON:-}" ]; then echo "$TABLE1_JSON" > "$out/report/t.tmp" && mv "$out/report/t.tmp" "$out/report/table1.json"; fi
+    else
+      echo redrawn > "$out/curves_A.png.tmp" && mv "$out/curves_A.png.tmp" "$out/curves_A.png"
+      if [ -n "${RESULTS_CSV:-}" ]; then echo "$RESULTS_CSV" > "$out/r.tmp" && mv "$out/r.tmp" "$out/results.csv"; fi
+    fi ;;
   table2*|fig5*) echo "$*" >> "$GRID_ROOT/calls" ;;
 esac
 """
@@ -134,20 +142,30 @@ def newer_build_layout(tmp_path):
 
 
 def test_collect_draws_curves_and_tables_across_tasks_with_the_checkouts_build(tmp_path):
-    """The grid's status still comes from the pinned build; its curves (the results step run
-    again on a linked copy of out/) and table2 and fig5 are drawn by the newer build."""
+    """The grid's status still comes from the pinned build; its curves and the report's Q
+    histogram (the results and report steps run again on a linked copy of out/) and table2 and
+    fig5 are drawn by the newer build, so a collect never puts an older drawing back over a
+    committed redraw."""
     root, results, newer, out, f, env = newer_build_layout(tmp_path)
     p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert p.stdout.splitlines() == [
-        f"a_grid_cpu: curves drawn by {newer}/pgser-etl",
+        f"a_grid_cpu: curves and Q histogram drawn by {newer}/pgser-etl",
         f"a_grid_cpu: collected into {results}/a_grid_cpu",
         f"tables across tasks drawn by {newer}/pgser-etl",
     ]
     assert (results / "a_grid_cpu" / "curves_A.png").read_text() == "redrawn\n"
+    assert (results / "a_grid_cpu" / "fig5_q_hist.png").read_text() == "redrawn\n"
     assert (results / "a_grid_cpu" / "results.csv").read_text() == "results.csv"
+    assert (results / "a_grid_cpu" / "table1.json").read_text() == "report/table1.json"
+    # Both steps ran, from the root of a copy laid out like the grid's (pipelines/, out/NAME), so
+    # the paths Table 1 records are the grid's own; the copy is gone afterwards.
+    steps = [line.split(" ", 1) for line in (root / "steps").read_text().splitlines()]
+    assert [s for s, _ in steps] == ["report", "results"]
+    assert steps[0][1] == steps[1][1] and not os.path.exists(steps[0][1])
     # The grid's own out/ is untouched.
     assert (out / "curves_A.png").read_text() == "curves_A.png"
+    assert (out / "report" / "fig5_q_hist.png").read_text() == "report/fig5_q_hist.png"
     assert (root / "calls.release").read_text().splitlines() == [
         f"table2 {results}/a_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/a_grid_cpu -o {results}/fig5",
@@ -162,4 +180,14 @@ def test_collect_stops_when_the_newer_build_computes_another_results_table(tmp_p
     assert p.returncode == 1
     assert f"a_grid_cpu: {newer}/pgser-etl computes another results.csv than the grid's" in p.stderr
     assert (out / "results.csv").read_text() == "results.csv"
+    assert not (root / "calls.release").exists()
+
+
+def test_collect_stops_when_the_newer_build_computes_another_table1(tmp_path):
+    root, results, newer, out, f, env = newer_build_layout(tmp_path)
+    env["TABLE1_JSON"] = "other accuracies"
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 1
+    assert f"a_grid_cpu: {newer}/pgser-etl computes another table1.json than the grid's" in p.stderr
+    assert (out / "report" / "table1.json").read_text() == "report/table1.json"
     assert not (root / "calls.release").exists()
