@@ -191,3 +191,12 @@ def test_collect_stops_when_the_newer_build_computes_another_table1(tmp_path):
     assert f"a_grid_cpu: {newer}/pgser-etl computes another table1.json than the grid's" in p.stderr
     assert (out / "report" / "table1.json").read_text() == "report/table1.json"
     assert not (root / "calls.release").exists()
+
+
+def test_usage_prints_the_whole_header(tmp_path):
+    p = grids(tmp_path)
+    assert p.returncode == 2
+    lines = p.stdout.splitlines()
+    assert lines[0].startswith("The Table 2 grids")
+    assert lines[-1] == "PGSER_ZIGGURAT), not through the paths baked into the build."
+    assert not any(line.startswith(("set ", "cd ")) for line in lines)
