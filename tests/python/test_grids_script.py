@@ -6,6 +6,8 @@ running says so and succeeds. Run on a log written here, in a GRID_ROOT of its o
 import os
 import subprocess
 
+import pytest
+
 from conftest import REPO
 
 SCRIPT = REPO / "scripts" / "grids.sh"
@@ -173,23 +175,17 @@ def test_collect_draws_curves_and_tables_across_tasks_with_the_checkouts_build(t
     assert not (root / "calls.bin-old").exists()
 
 
-def test_collect_stops_when_the_newer_build_computes_another_results_table(tmp_path):
+@pytest.mark.parametrize("var, rel", [("RESULTS_CSV", "results.csv"), ("TABLE1_JSON", "report/table1.json")])
+def test_collect_stops_when_the_newer_build_computes_other_numbers(tmp_path, var, rel):
+    """The newer build only draws: where its results table or Table 1 differs from the grid's by
+    a byte, collect stops before anything across tasks is drawn, and the grid's file is kept."""
     root, results, newer, out, f, env = newer_build_layout(tmp_path)
-    env["RESULTS_CSV"] = "other numbers"
+    env[var] = "other numbers"
     p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
     assert p.returncode == 1
-    assert f"a_grid_cpu: {newer}/pgser-etl computes another results.csv than the grid's" in p.stderr
-    assert (out / "results.csv").read_text() == "results.csv"
-    assert not (root / "calls.release").exists()
-
-
-def test_collect_stops_when_the_newer_build_computes_another_table1(tmp_path):
-    root, results, newer, out, f, env = newer_build_layout(tmp_path)
-    env["TABLE1_JSON"] = "other accuracies"
-    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
-    assert p.returncode == 1
-    assert f"a_grid_cpu: {newer}/pgser-etl computes another table1.json than the grid's" in p.stderr
-    assert (out / "report" / "table1.json").read_text() == "report/table1.json"
+    name = rel.rsplit("/", 1)[-1]
+    assert f"a_grid_cpu: {newer}/pgser-etl computes another {name} than the grid's" in p.stderr
+    assert (out / rel).read_text() == rel
     assert not (root / "calls.release").exists()
 
 
