@@ -179,9 +179,9 @@ case "${1:-}" in
       if ! with_pinned "$bin/pgser-etl" pipeline status "$g" 2>/dev/null | grep -q '\] results: up to date$'; then
         echo "$name: not finished, not collected"; continue
       fi
-      mkdir -p "$results/$name"
-      cp "$src/results.csv" "$src/results.md" "$src"/curves_*.png "$src/report/fig5_q_hist.png" \
-        "$src/report/table1.json" "$src/report/table1.md" "$results/$name/"
+      # The numbers are always the grid's own files; the figures come from $drawn: the grid's
+      # out/ itself, or a copy where the newer build has drawn them again.
+      drawn=$src
       if [ "$render" != "$bin/pgser-etl" ]; then
         # The report and results steps again, on a hard-linked copy of out/ (outputs are replaced
         # by rename, so the grid's own files are never written) with their records removed so
@@ -201,7 +201,12 @@ case "${1:-}" in
           cmp -s "$tmp/out/$name/$f" "$src/$f" ||
             { echo "grids.sh: $name: $render computes another $(basename "$f") than the grid's" >&2; exit 1; }
         done
-        cp "$tmp/out/$name"/curves_*.png "$tmp/out/$name/report/fig5_q_hist.png" "$results/$name/"
+        drawn="$tmp/out/$name"
+      fi
+      mkdir -p "$results/$name"
+      cp "$src/results.csv" "$src/results.md" "$src/report/table1.json" "$src/report/table1.md" \
+        "$drawn"/curves_*.png "$drawn/report/fig5_q_hist.png" "$results/$name/"
+      if [ "$drawn" != "$src" ]; then
         rm -rf "$tmp"
         echo "$name: curves and Q histogram drawn by $render"
       fi
