@@ -7,7 +7,8 @@
 #   scripts/grids.sh pin              copy this checkout's release build, with the MuJoCo library,
 #                                     assets and ziggurat tables it reads, to $GRID_ROOT/bin-COMMIT
 #   scripts/grids.sh start [FILE...]  run the grids one after another on the pinned build, at nice 19,
-#                                     in the background (nothing happens if they are already running)
+#                                     in the background (nothing happens if they are already running);
+#                                     with no FILE, the grids whose results are not yet in results/
 #   scripts/grids.sh status           where each grid stands (pipeline status), and whether it runs
 #   scripts/grids.sh stop             stop the running grid; its stack saves where it is first
 #   scripts/grids.sh times            wall time per grid, summed over its runs in the log
@@ -15,7 +16,9 @@
 #                                     copy each finished grid's results and report to results/NAME/,
 #                                     then remake results/table2 and results/fig5 from all of them
 #                                     (figures drawn by target/release when built, else the pinned build;
-#                                     the numbers are always the grid's)
+#                                     the numbers are always the grid's). A task split over two grids,
+#                                     one per learner, joins Table 2 once both are in, and its two Q
+#                                     reports must agree (Fig. 5 draws it once)
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -24,14 +27,21 @@
 # home of the grids, was emptied between sessions twice (taking a HandBlock-Z run with it each
 # time), and the second time the checkout, with its ignored target/, was kept. The copy finds
 # its MuJoCo library, assets and tables through the environment (LD_LIBRARY_PATH, PGSER_ASSETS,
-# PGSER_ZIGGURAT), not through the paths baked into the build.
+# PGSER_ZIGGURAT), not through the paths baked into the build. On 2026-11-26 the machine came back
+# as a new checkout (a third HandBlock-Z run lost, at 30k of its last 40k stack): a grid that must
+# finish inside one session on such a machine is split in two files, one per learner.
 set -euo pipefail
+export LC_COLLATE=C  # globs list results/ in one order on every machine
 cd "$(dirname "$0")/.."
 GRID_ROOT=${GRID_ROOT:-$PWD/.grids}
 # The order of the chain started on 2026-11-26 (FetchSlide first: its data was already collected),
 # so that a plain `start` continues it.
 DEFAULT_GRIDS="pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_place_grid_cpu.toml
-  pipelines/hand_egg_rotate_grid_cpu.toml pipelines/hand_block_z_grid_cpu.toml"
+  pipelines/hand_egg_rotate_grid_cpu.toml pipelines/hand_block_z_td3_grid_cpu.toml
+  pipelines/hand_block_z_td3bc_grid_cpu.toml"
+RESULTS_DIR=${GRID_RESULTS:-results}
+
+grid_name() { sed -n 's/^name *= *"\(.*\)"/\1/p' "$1"; }
 
 pinned() {
   [ -L "$GRID_ROOT/bin" ] || { echo "grids.sh: no pinned build in $GRID_ROOT: run scripts/grids.sh pin" >&2; exit 1; }
@@ -82,7 +92,18 @@ case "${1:-}" in
     ;;
   start)
     shift
-    grids=${*:-$DEFAULT_GRIDS}
+    grids=$*
+    if [ -z "$grids" ]; then
+      # A machine that kept nothing has no out/ for the grids already collected: a plain start
+      # must not spend hours remaking them (name a file to run it again).
+      for g in $DEFAULT_GRIDS; do
+        if [ -f "$RESULTS_DIR/$(grid_name "$g")/results.csv" ]; then
+          echo "$(grid_name "$g"): already in $RESULTS_DIR/, not started"
+        else grids="$grids $g"; fi
+      done
+      [ -n "$grids" ] || { echo "grids.sh: every grid is in $RESULTS_DIR/: nothing to start"; exit 0; }
+      grids=${grids# }
+    fi
     bin=$(pinned)
     if now=$(running); then
       echo "grids.sh: grids already running:"; echo "$now"; exit 0
@@ -162,7 +183,7 @@ case "${1:-}" in
     # `pipeline status` finds its last step, results, up to date, so a grid stopped half way, or
     # one whose file changed since, is left out and says so.
     shift
-    results=${GRID_RESULTS:-results}
+    results=$RESULTS_DIR
     bin=$(pinned)
     # The training curves, the Q histogram of the report and the tables across tasks are drawn by
     # this checkout's build when there is one (the newest plots, e.g. the legend placed where it
@@ -174,7 +195,7 @@ case "${1:-}" in
     [ -x "$render" ] || render="$bin/pgser-etl"
     render=$(realpath "$render")
     for g in ${*:-$DEFAULT_GRIDS}; do
-      name=$(sed -n 's/^name *= *"\(.*\)"/\1/p' "$g")
+      name=$(grid_name "$g")
       src="$GRID_ROOT/out/$name"
       if ! with_pinned "$bin/pgser-etl" pipeline status "$g" 2>/dev/null | grep -q '\] results: up to date$'; then
         echo "$name: not finished, not collected"; continue
@@ -213,7 +234,9 @@ case "${1:-}" in
       echo "$name: collected into $results/$name"
     done
     # Fig. 5 takes each grid's own report, or, where that was lost, the report of a Q remade on
-    # the same data and recipe that RESULTS.md names (a q_remade_BUILD folder beside it).
+    # the same data and recipe that RESULTS.md names (a q_remade_BUILD folder beside it). A task
+    # split over two grids has its Q reported twice: fig5 draws it once, and refuses two reports
+    # whose numbers differ.
     reports=()
     for d in "$results"/*_grid_cpu; do
       if [ -f "$d/table1.json" ]; then reports+=("$d")
@@ -221,17 +244,31 @@ case "${1:-}" in
         for r in "$d"/q_remade_*; do if [ -f "$r/table1.json" ]; then reports+=("$r"); fi; done
       fi
     done
+    # Table 2 takes a split task once both learners are in; until then its one half is left out
+    # (table2 would refuse a task without both learners).
+    tables=()
+    for c in "$results"/*_grid_cpu/results.csv; do
+      half=$(awk -F, 'FNR == 1 { next }
+        FILENAME == ARGV[1] { mine[$1] = 1 }
+        { has[$1 "," $2] = 1 }
+        END { for (t in mine) if (!has[t ",td3"] || !has[t ",td3bc"]) print t }' "$c" "$results"/*_grid_cpu/results.csv)
+      if [ -n "$half" ]; then
+        echo "$(basename "$(dirname "$c")"): $half has one learner so far: left out of Table 2"
+      else tables+=("$c"); fi
+    done
     # The two tables across tasks read only committed CSV and JSON.
     echo "tables across tasks drawn by $render"
-    with_pinned "$render" table2 "$results"/*_grid_cpu/results.csv -o "$results/table2"
+    with_pinned "$render" table2 "${tables[@]}" -o "$results/table2"
     [ "${#reports[@]}" = 0 ] || with_pinned "$render" fig5 "${reports[@]}" -o "$results/fig5"
     ;;
   status)
     shift
     link_out
+    bin=$(pinned)
     for g in ${*:-$DEFAULT_GRIDS}; do
       echo "== $g"
-      with_pinned "$(pinned)/pgser-etl" pipeline status "$g" || true
+      [ ! -f "$RESULTS_DIR/$(grid_name "$g")/results.csv" ] || echo "(its results are in $RESULTS_DIR/$(grid_name "$g"))"
+      with_pinned "$bin/pgser-etl" pipeline status "$g" || true
     done
     running || echo "(no grid running)"
     ;;

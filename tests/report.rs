@@ -712,7 +712,19 @@ fn fig5_across_tasks(d: &Path, rep: &Path, j: &serde_json::Value) {
         assert!(err.contains(want), "{err} should say {want}");
         assert!(!out.exists());
     };
-    refused(&[rep, inputs[5].as_path()], "a second report for FetchReach");
+    // The same Q reported twice (a task split over two pipelines, one per learner; the copy
+    // records other paths) is drawn once; a second report with other numbers is refused.
+    let mut k = j.clone();
+    k["scored"] = serde_json::json!("out/elsewhere/scored.parquet");
+    let twin = d.join("twin.json");
+    std::fs::write(&twin, k.to_string()).unwrap();
+    let once = d.join("fig5_once");
+    let o = etl().arg("fig5").arg(rep).arg(&twin).arg("-o").arg(&once).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(png_size(&once.join("fig5_all.png")), (600, 450));
+    k["positives"] = serde_json::json!(j["positives"].as_u64().unwrap() + 1);
+    std::fs::write(&twin, k.to_string()).unwrap();
+    refused(&[rep, twin.as_path()], "a second report for FetchReach with other numbers");
     let mut k = j.clone();
     k["task"] = serde_json::json!("PointReach");
     let f = d.join("point.json");

@@ -98,7 +98,7 @@ pub struct QReport {
 
 /// Fig. 5's histograms: [`HIST_BINS`] densities of Q over [lo, hi] = [−1/(1−γ), 0] for the
 /// positives (own goals) and the paper's negatives (random goal swaps).
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Fig5Hist {
     pub lo: f64,
     pub hi: f64,

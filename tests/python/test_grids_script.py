@@ -194,5 +194,89 @@ def test_usage_prints_the_whole_header(tmp_path):
     assert p.returncode == 2
     lines = p.stdout.splitlines()
     assert lines[0].startswith("The Table 2 grids")
-    assert lines[-1] == "PGSER_ZIGGURAT), not through the paths baked into the build."
+    assert lines[-1] == "finish inside one session on such a machine is split in two files, one per learner."
     assert not any(line.startswith(("set ", "cd ")) for line in lines)
+
+
+def split_task_layout(tmp_path):
+    """Task T split over two grids, one per learner: the TD3 half collected in an earlier session
+    (its out/ gone with that machine), the TD3+BC half run here; and a whole task U beside them."""
+    root, results = tmp_path / "grids", tmp_path / "results"
+    fake = root / "bin-fake"
+    fake.mkdir(parents=True)
+    (fake / "pgser-etl").write_text(FAKE_ETL)
+    (fake / "pgser-etl").chmod(0o755)
+    (root / "bin").symlink_to(fake)
+    head = "task,algo,variant,seeds\n"
+    rows = lambda task, algo: "".join(f"{task},{algo},{v},5\n" for v in ["baseline", "swap", "mem"])
+    for name, text in [("t_td3_grid_cpu", head + rows("T", "td3")),
+                       ("u_grid_cpu", head + rows("U", "td3") + rows("U", "td3bc"))]:
+        (results / name).mkdir(parents=True)
+        (results / name / "results.csv").write_text(text)
+        (results / name / "table1.json").write_text(f'{{\n  "task": "{name[0].upper()}",\n  "positives": 1\n}}\n')
+        (results / name / "table1.md").write_text(f"Q report of {name[0].upper()}\n")
+    f = tmp_path / "t_td3bc_grid_cpu.toml"
+    f.write_text('name = "t_td3bc_grid_cpu"\nout = "../out/t_td3bc_grid_cpu"\n')
+    out = root / "out" / "t_td3bc_grid_cpu"
+    (out / "report").mkdir(parents=True)
+    for rel, text in [("results.csv", head + rows("T", "td3bc")), ("results.md", ""), ("curves_A.png", ""),
+                      ("report/fig5_q_hist.png", ""), ("report/table1.md", "Q report of T\n"),
+                      ("report/table1.json", '{\n  "task": "T",\n  "positives": 1\n}\n')]:
+        (out / rel).write_text(text)
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
+               GRID_RENDER_ETL=str(tmp_path / "absent"))
+    return root, results, f, out, env
+
+
+def test_collect_joins_a_split_task_to_table2_once_both_learners_are_in(tmp_path):
+    root, results, f, out, env = split_task_layout(tmp_path)
+    # The TD3+BC half still running: T's one half stays out of Table 2, U goes in.
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines() == [
+        "t_td3bc_grid_cpu: not finished, not collected",
+        "t_td3_grid_cpu: T has one learner so far: left out of Table 2",
+        f"tables across tasks drawn by {root}/bin-fake/pgser-etl",
+    ]
+    assert (root / "calls").read_text().splitlines() == [
+        f"table2 {results}/u_grid_cpu/results.csv -o {results}/table2",
+        f"fig5 {results}/t_td3_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
+    ]
+    # Finished: both halves go into Table 2 (fig5 gets both reports of T's one Q, draws it once
+    # and refuses two that differ: tests/report.rs).
+    (root / "calls").unlink()
+    f.write_text("# finished\n" + f.read_text())
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines() == [
+        f"t_td3bc_grid_cpu: collected into {results}/t_td3bc_grid_cpu",
+        f"tables across tasks drawn by {root}/bin-fake/pgser-etl",
+    ]
+    assert (root / "calls").read_text().splitlines() == [
+        f"table2 {results}/t_td3_grid_cpu/results.csv {results}/t_td3bc_grid_cpu/results.csv "
+        f"{results}/u_grid_cpu/results.csv -o {results}/table2",
+        f"fig5 {results}/t_td3_grid_cpu {results}/t_td3bc_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
+    ]
+
+
+def test_a_plain_start_leaves_out_the_grids_already_collected(tmp_path):
+    """On a machine that kept nothing, `start` must not spend hours remaking grids whose results
+    are committed; with all of them in, it starts nothing (and needs no pinned build to say so)."""
+    results = tmp_path / "results"
+    names = [line.split("/")[-1].removesuffix(".toml") for line in
+             (REPO / "scripts" / "grids.sh").read_text().split('DEFAULT_GRIDS="', 1)[1].split('"', 1)[0].split()]
+    assert len(names) >= 2
+    for name in names:
+        (results / name).mkdir(parents=True)
+        (results / name / "results.csv").write_text("x")
+    env = dict(os.environ, GRID_ROOT=str(tmp_path / "grids"), GRID_RESULTS=str(results))
+    p = subprocess.run(["bash", str(SCRIPT), "start"], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines() == [f"{n}: already in {results}/, not started" for n in names] + [
+        f"grids.sh: every grid is in {results}/: nothing to start"]
+    # One left: it is the one asked of the pinned build (none here, so that is the error).
+    (results / names[-1] / "results.csv").unlink()
+    p = subprocess.run(["bash", str(SCRIPT), "start"], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert p.returncode == 1
+    assert f"{names[-1]}: already in" not in p.stdout
+    assert "no pinned build" in p.stderr

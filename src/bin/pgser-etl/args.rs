@@ -147,7 +147,8 @@ pub enum Command {
     #[command(
         after_help = "Example:\n  pgser-etl fig5 out/fetch_*_grid_cpu/report out/hand_*_grid_cpu/report -o fig5/\n\n\
         Each input is a table1.json of `pgser-etl report` (a pipeline's report step), or the folder holding it. \
-        Panels follow the paper's task order, three to a row. Writes DIR/fig5_all.png and DIR/table1_all.md \
+        Panels follow the paper's task order, three to a row. Two reports of one task with the same numbers \
+        (a task whose grid was split in two pipelines, one per learner) are drawn once; with other numbers, refused. Writes DIR/fig5_all.png and DIR/table1_all.md \
         (each classifier's accuracy with the paper's negatives and with the controlled ones, per task)."
     )]
     Fig5 {
