@@ -80,13 +80,19 @@ esac
 """
 
 
-def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
+def pinned_fake(tmp_path):
+    """A GRID_ROOT whose pinned build is FAKE_ETL, and a results folder beside it."""
     root, results = tmp_path / "grids", tmp_path / "results"
     fake = root / "bin-fake"
     fake.mkdir(parents=True)
     (fake / "pgser-etl").write_text(FAKE_ETL)
     (fake / "pgser-etl").chmod(0o755)
     (root / "bin").symlink_to(fake)
+    return root, results
+
+
+def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
+    root, results = pinned_fake(tmp_path)
     files = []
     for name, done in [("a_grid_cpu", True), ("b_grid_cpu", False)]:
         f = tmp_path / f"{name}.toml"
@@ -110,7 +116,7 @@ def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
     assert p.stdout.splitlines() == [
         f"a_grid_cpu: collected into {results}/a_grid_cpu",
         "b_grid_cpu: not finished, not collected",
-        f"tables across tasks drawn by {fake}/pgser-etl",
+        f"tables across tasks drawn by {root}/bin-fake/pgser-etl",
     ]
     got = sorted(f.name for f in (results / "a_grid_cpu").iterdir())
     assert got == ["curves_A.png", "fig5_q_hist.png", "results.csv", "results.md", "table1.json", "table1.md"]
@@ -201,12 +207,7 @@ def test_usage_prints_the_whole_header(tmp_path):
 def split_task_layout(tmp_path):
     """Task T split over two grids, one per learner: the TD3 half collected in an earlier session
     (its out/ gone with that machine), the TD3+BC half run here; and a whole task U beside them."""
-    root, results = tmp_path / "grids", tmp_path / "results"
-    fake = root / "bin-fake"
-    fake.mkdir(parents=True)
-    (fake / "pgser-etl").write_text(FAKE_ETL)
-    (fake / "pgser-etl").chmod(0o755)
-    (root / "bin").symlink_to(fake)
+    root, results = pinned_fake(tmp_path)
     head = "task,algo,variant,seeds\n"
     rows = lambda task, algo: "".join(f"{task},{algo},{v},5\n" for v in ["baseline", "swap", "mem"])
     for name, text in [("t_td3_grid_cpu", head + rows("T", "td3")),
