@@ -17,8 +17,8 @@
 #                                     then remake results/table2 and results/fig5 from all of them
 #                                     (figures drawn by target/release when built, else the pinned build;
 #                                     the numbers are always the grid's). A task split over two grids,
-#                                     one per learner, joins Table 2 once both are in, and its two Q
-#                                     reports must agree (Fig. 5 draws it once)
+#                                     one per learner, joins Table 2 once both are in (Fig. 5 draws
+#                                     the first half's Q report, and says whether the other agrees)
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -235,14 +235,31 @@ case "${1:-}" in
     done
     # Fig. 5 takes each grid's own report, or, where that was lost, the report of a Q remade on
     # the same data and recipe that RESULTS.md names (a q_remade_BUILD folder beside it). A task
-    # split over two grids has its Q reported twice: fig5 draws it once, and refuses two reports
-    # whose numbers differ.
+    # split over two grids has two reports: of one Q when both halves ran on one machine (data,
+    # Q and scores are deterministic there), of two when they did not (the hand tasks' data
+    # differ between machines: RESULTS.md). Fig. 5 takes the first half's and says which.
     reports=()
+    declare -A report_of
     for d in "$results"/*_grid_cpu; do
-      if [ -f "$d/table1.json" ]; then reports+=("$d")
+      r=""
+      if [ -f "$d/table1.json" ]; then r=$d
       else
-        for r in "$d"/q_remade_*; do if [ -f "$r/table1.json" ]; then reports+=("$r"); fi; done
+        for q in "$d"/q_remade_*; do if [ -f "$q/table1.json" ]; then r=$q; fi; done
       fi
+      [ -n "$r" ] || continue
+      task=$(sed -n 's/^ *"task": *"\(.*\)",*$/\1/p' "$r/table1.json" | head -n 1)
+      first=""
+      [ -z "$task" ] || first=${report_of[$task]:-}
+      if [ -n "$first" ]; then
+        if cmp -s "$first/table1.md" "$r/table1.md"; then
+          echo "$(basename "$d"): the same Q report as $(basename "$first"), drawn once"
+        else
+          echo "$(basename "$d"): its Q report differs from $(basename "$first")'s (another machine's data or Q): Fig. 5 draws $(basename "$first")'s"
+        fi
+        continue
+      fi
+      [ -z "$task" ] || report_of[$task]=$r
+      reports+=("$r")
     done
     # Table 2 takes a split task once both learners are in; until then its one half is left out
     # (table2 would refuse a task without both learners).

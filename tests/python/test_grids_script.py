@@ -243,21 +243,35 @@ def test_collect_joins_a_split_task_to_table2_once_both_learners_are_in(tmp_path
         f"table2 {results}/u_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/t_td3_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
     ]
-    # Finished: both halves go into Table 2 (fig5 gets both reports of T's one Q, draws it once
-    # and refuses two that differ: tests/report.rs).
+    # Finished: both halves go into Table 2, and T's one Q is drawn once.
     (root / "calls").unlink()
     f.write_text("# finished\n" + f.read_text())
     p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert p.stdout.splitlines() == [
         f"t_td3bc_grid_cpu: collected into {results}/t_td3bc_grid_cpu",
+        "t_td3bc_grid_cpu: the same Q report as t_td3_grid_cpu, drawn once",
         f"tables across tasks drawn by {root}/bin-fake/pgser-etl",
     ]
     assert (root / "calls").read_text().splitlines() == [
         f"table2 {results}/t_td3_grid_cpu/results.csv {results}/t_td3bc_grid_cpu/results.csv "
         f"{results}/u_grid_cpu/results.csv -o {results}/table2",
-        f"fig5 {results}/t_td3_grid_cpu {results}/t_td3bc_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
+        f"fig5 {results}/t_td3_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
     ]
+
+
+def test_collect_draws_the_first_halfs_q_where_the_halves_ran_on_two_machines(tmp_path):
+    """The hand tasks' data differ between machines, so two halves run in two sessions on two
+    machines can report two Qs: both go into Table 2, Fig. 5 draws the first, and collect says so."""
+    root, results, f, out, env = split_task_layout(tmp_path)
+    f.write_text("# finished\n" + f.read_text())
+    (out / "report" / "table1.md").write_text("Q report of another Q\n")
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert ("t_td3bc_grid_cpu: its Q report differs from t_td3_grid_cpu's (another machine's data or Q): "
+            "Fig. 5 draws t_td3_grid_cpu's") in p.stdout.splitlines()
+    assert (root / "calls").read_text().splitlines()[1] == (
+        f"fig5 {results}/t_td3_grid_cpu {results}/u_grid_cpu -o {results}/fig5")
 
 
 def test_a_plain_start_leaves_out_the_grids_already_collected(tmp_path):
