@@ -18,7 +18,8 @@
 #                                     (figures drawn by target/release when built, else the pinned build;
 #                                     the numbers are always the grid's). A task split over two grids,
 #                                     one per learner, joins Table 2 once both are in (Fig. 5 draws
-#                                     the first half's Q report, and says whether the other agrees)
+#                                     the first half's Q report, and says whether the other agrees);
+#                                     data.sha256 beside the results names the pickles they came from
 #
 # Why a copy: a grid's agents must all train on one build (a rebuild between two stacks would mix
 # engines), and `cargo build` replaces target/release under a running grid. Where: $GRID_ROOT,
@@ -227,6 +228,11 @@ case "${1:-}" in
       mkdir -p "$results/$name"
       cp "$src/results.csv" "$src/results.md" "$src/report/table1.json" "$src/report/table1.md" \
         "$drawn"/curves_*.png "$drawn/report/fig5_q_hist.png" "$results/$name/"
+      # Which data the numbers came from: the sha256 of the collected pickles, so that results
+      # of one recipe run on two machines (or a rerun) can be told apart by their data.
+      if compgen -G "$src/data/*.pkl" > /dev/null; then
+        (cd "$src" && sha256sum data/*.pkl) > "$results/$name/data.sha256"
+      fi
       if [ "$drawn" != "$src" ]; then
         rm -rf "$tmp"
         echo "$name: curves and Q histogram drawn by $render"

@@ -220,9 +220,11 @@ def split_task_layout(tmp_path):
     f.write_text('name = "t_td3bc_grid_cpu"\nout = "../out/t_td3bc_grid_cpu"\n')
     out = root / "out" / "t_td3bc_grid_cpu"
     (out / "report").mkdir(parents=True)
+    (out / "data").mkdir()
     for rel, text in [("results.csv", head + rows("T", "td3bc")), ("results.md", ""), ("curves_A.png", ""),
                       ("report/fig5_q_hist.png", ""), ("report/table1.md", "Q report of T\n"),
-                      ("report/table1.json", '{\n  "task": "T",\n  "positives": 1\n}\n')]:
+                      ("report/table1.json", '{\n  "task": "T",\n  "positives": 1\n}\n'),
+                      ("data/expert.pkl", "e"), ("data/random.pkl", "r")]:
         (out / rel).write_text(text)
     env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
                GRID_RENDER_ETL=str(tmp_path / "absent"))
@@ -257,6 +259,11 @@ def test_collect_joins_a_split_task_to_table2_once_both_learners_are_in(tmp_path
         f"table2 {results}/t_td3_grid_cpu/results.csv {results}/t_td3bc_grid_cpu/results.csv "
         f"{results}/u_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/t_td3_grid_cpu {results}/u_grid_cpu -o {results}/fig5",
+    ]
+    # The pickles the numbers came from, by sha256 (of "e" and "r").
+    assert (results / "t_td3bc_grid_cpu" / "data.sha256").read_text().splitlines() == [
+        "3f79bb7b435b05321651daefd374cdc681dc06faa65e374e38337b88ca046dea  data/expert.pkl",
+        "454349e422f05297191ead13e21d3db520e5abef52055e4964b82fb213f593a1  data/random.pkl",
     ]
 
 
