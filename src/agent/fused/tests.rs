@@ -64,11 +64,15 @@ fn the_fused_engine_trains_a_stack_as_burn_does() {
     // differently (by ~1e-7), and once a ReLU's input on one row lies within that of zero, the
     // two take different sides of the kink and part ways by a row's share of a gradient, which
     // Adam then carries. burn against itself with one weight nudged by one ulp parts the same
-    // way (measured: at lr 1e-3, TD3 by 5e-4 within 200 updates). At lr 3e-4 TD3+BC and TD3 stay
-    // within 2.4e-6 for 200 updates; DDPG, whose actor moves every update, meets such a kink at
-    // update 59 (the losses still agree to 1e-7 there), so it is held to 50.
+    // way (measured: at lr 1e-3, TD3 by 5e-4 within 200 updates). Where the kinks fall depends
+    // on the CPU as well, since burn's matrix products round by the vector units they find: at
+    // lr 3e-4 TD3+BC stays within 2.4e-6 for 200 updates on both machines measured; DDPG, whose
+    // actor moves every update, meets a kink at update 59 on a 2-core AMD EPYC without AVX-512
+    // (the losses still agree to 1e-7 there), and TD3 between updates 61 and 70 on a Zen 4 with
+    // AVX-512 (3.3e-7 before, 1.6e-5 after; it had stayed within 2.4e-6 for 200 on the first),
+    // so both are held to 50.
     let task = Task::known("FetchPush").unwrap();
-    for (algo, updates) in [(Algo::Td3bc, 200), (Algo::Td3, 200), (Algo::Ddpg, 50)] {
+    for (algo, updates) in [(Algo::Td3bc, 200), (Algo::Td3, 50), (Algo::Ddpg, 50)] {
         let cfg = AgentConfig { algo, hidden: 64, layers: 2, lr: Some(3e-4), ..AgentConfig::default() };
         let n = 520;
         assert_eq!(parts(n), 2);
