@@ -19,7 +19,7 @@ ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
 CARGO ?= cargo
 
-.PHONY: all build python test test-example test-wgpu check-wgpu vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
+.PHONY: all build python test test-example test-wgpu check-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
@@ -93,7 +93,7 @@ test-example: python bench-venv
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-test: deps venv check-wgpu slurm-deps strace-deps
+test: deps venv check-gpu slurm-deps strace-deps
 	$(CARGO) test --release $(FEATURES)
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
@@ -101,7 +101,7 @@ test: deps venv check-wgpu slurm-deps strace-deps
 	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
 	  echo "make test: tests/slurm.rs NOT run (each test printed SKIPPED): no Slurm here (slurm-wlm, munge)"
-	@echo "make test: tests/wgpu.rs (the GPU backend against the CPU's) NOT run: it needs a release build with --features wgpu, 16+ more minutes on 2 cores; the wgpu code was only compiled (check-wgpu). Run it with: make test-wgpu"
+	@echo "make test: tests/wgpu.rs (the GPU backend against the CPU's) NOT run: it needs a release build with --features wgpu, 16+ more minutes on 2 cores; the wgpu and cuda code was only compiled (check-gpu). Run it with: make test-wgpu; on an NVIDIA GPU machine: make gpu-bundle, then its run.sh (docs/gpu.md)"
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
 	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release $(FEATURES) --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
@@ -143,10 +143,56 @@ vulkan-deps:
 	      mesa-vulkan-drivers libvulkan1 >/dev/null; }; } || echo "make vulkan-deps: could not install mesa-vulkan-drivers"; \
 	else echo "make vulkan-deps: no Vulkan driver, and not root with apt-get: wgpu will use what it finds (OpenGL) or fail"; fi
 
-# The GPU build (`--features wgpu`) must keep compiling; checked, not built (a release build of
-# wgpu takes 16+ minutes on 2 cores, so its numbers are not run in the suite; see BENCHMARKS.md).
+# The GPU backends (`--features wgpu`, `--features cuda`) must keep compiling; checked, not built
+# (a release build of them takes 30+ minutes more on 2 cores; make build-cuda, BENCHMARKS.md).
+# check-gpu checks both at once, which costs little more than wgpu alone: the CUDA side adds
+# cubecl-cuda, cudarc and cubecl-llvm's C++ shims (against the LLVM that llvm-deps installs).
 check-wgpu:
 	$(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
+check-gpu: llvm-deps
+	$(CUDA_ENV) $(CARGO) check --release $(FEATURES) --features wgpu,cuda --lib --bins
+
+# burn's CUDA backend (`--features cuda`, `--device cuda`). cubecl-cuda always compiles
+# cubecl-llvm, whose build-dependency tracel-llvm-bundler downloads an LLVM 23.1 bundle from
+# GitHub at build time, unless the file .tracel-llvm-installed marks one as installed in
+# $$XDG_DATA_HOME/tracel/tracel-llvm-23.1.0-4. llvm-deps installs one there from the package
+# registry instead: the mlc-llvm-static wheels (LLVM 23.1 static libraries with NVPTX, headers,
+# and an llvm-config that takes --link-static), unpacked under .deps/llvm; CUDA_ENV points the
+# build's XDG_DATA_HOME at .deps/xdg. LLVM 22 or older does not fit (llvm-sys 231's enums
+# differ). No CUDA toolkit is needed to build: cudarc loads the driver at run time, and
+# CUDARC_CUDA_VERSION names the API it binds (13.0: drivers 580 and newer). docs/gpu.md.
+LLVM_WHEELS := 23.1.1.post0
+LLVM_HOME := $(DEPS)/llvm
+LLVM_XDG := $(DEPS)/xdg
+LLVM_STAMP := $(LLVM_XDG)/tracel/tracel-llvm-23.1.0-4/.tracel-llvm-installed
+CUDA_ENV = XDG_DATA_HOME=$(CURDIR)/$(LLVM_XDG) CUDARC_CUDA_VERSION=13000
+
+llvm-deps: $(LLVM_STAMP)
+# Unpacked beside its place and moved there, so an interrupted run leaves no partial tree;
+# zipfile drops the exec bits, which llvm-config and its neighbours get back.
+$(LLVM_STAMP):
+	@mkdir -p $(DEPS)/wheels
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: -d $(DEPS)/wheels \
+	  mlc-llvm-static==$(LLVM_WHEELS) mlc-llvm-static-extra-targets==$(LLVM_WHEELS)
+	$(PYTHON) -c "import zipfile,glob,shutil,os; t='$(LLVM_HOME).tmp'; shutil.rmtree(t, ignore_errors=True); \
+	  [zipfile.ZipFile(w).extractall(t) for w in sorted(glob.glob('$(DEPS)/wheels/mlc_llvm_static*-$(LLVM_WHEELS)-*.whl'))]; \
+	  b=t+'/mlc_llvm_static/static/bin'; [os.chmod(os.path.join(b,f), 0o755) for f in os.listdir(b)]; \
+	  shutil.rmtree('$(LLVM_HOME)', ignore_errors=True); os.rename(t, '$(LLVM_HOME)')"
+	@mkdir -p $(LLVM_XDG)/tracel
+	ln -sfn $(CURDIR)/$(LLVM_HOME)/mlc_llvm_static/static $(LLVM_XDG)/tracel/tracel-llvm-23.1.0-4
+	touch $@
+
+
+# The GPU build: pgser-train and pgser-etl with both GPU backends, in target-gpu/ (the default
+# build's binaries stay CPU-only). No HDF5: GPU machines need not have the library.
+build-cuda: deps llvm-deps
+	$(CUDA_ENV) CARGO_TARGET_DIR=target-gpu $(CARGO) build --release --no-default-features --features cuda,wgpu
+
+# One folder (target-gpu/bundle/, under 64 MiB with the repo) that measures pgser on a GPU machine
+# in one run: correctness of cuda and wgpu against the CPU, and speed beside JAX and PyTorch.
+# scripts/gpu_bundle.sh says what is in it; docs/gpu.md how to run it.
+gpu-bundle: build-cuda
+	scripts/gpu_bundle.sh
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and

@@ -423,7 +423,9 @@ fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
 /// Where the networks run, and on which engine.
 /// - `cpu`: the hand-written update (`fused/`), pgser's fastest on a CPU (BENCHMARKS.md);
 /// - `cpu-burn`: burn's flex backend, the reference the `cpu` engine is tested against;
-/// - `wgpu` (Vulkan, Metal, DX12): burn on a GPU, when pgser is built with `--features wgpu`.
+/// - `wgpu` (Vulkan, Metal, DX12): burn on a GPU, when pgser is built with `--features wgpu`;
+/// - `cuda`: burn on an NVIDIA GPU through CUDA, when pgser is built with `--features cuda`
+///   (`make build-cuda`: its LLVM comes from the package registry, docs/gpu.md).
 ///
 /// Everything but training (evaluation, scoring, reports) runs the same on `cpu` and `cpu-burn`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
@@ -432,6 +434,7 @@ pub enum Backend {
     Cpu,
     CpuBurn,
     Wgpu,
+    Cuda,
 }
 
 impl Backend {
@@ -440,6 +443,12 @@ impl Backend {
             Backend::Cpu | Backend::CpuBurn => Ok(Device::flex()),
             #[cfg(feature = "wgpu")]
             Backend::Wgpu => Ok(wgpu_device()),
+            #[cfg(feature = "cuda")]
+            Backend::Cuda => cuda_device(),
+            #[allow(unreachable_patterns)]
+            Backend::Cuda => anyhow::bail!(
+                "--device cuda: this pgser was built without that backend (rebuild with `make build-cuda`, which installs the LLVM it needs; docs/gpu.md)"
+            ),
             #[allow(unreachable_patterns)]
             other => anyhow::bail!(
                 "--device {}: this pgser was built without that backend (rebuild with `cargo build --release --features {}`)",
@@ -454,6 +463,7 @@ impl Backend {
             Backend::Cpu => "cpu",
             Backend::CpuBurn => "cpu-burn",
             Backend::Wgpu => "wgpu",
+            Backend::Cuda => "cuda",
         }
     }
 
@@ -461,6 +471,30 @@ impl Backend {
     pub fn fused(self) -> bool {
         self == Backend::Cpu
     }
+}
+
+/// CUDA device 0, after checking that the driver's library loads. Why check first: cudarc opens
+/// `libcuda.so` in burn's worker thread and panics there when it is missing, and the caller then
+/// dies on a closed channel with no word about CUDA; a machine without the NVIDIA driver must get
+/// one line instead. The device's name is logged once, as wgpu's adapter is.
+#[cfg(feature = "cuda")]
+fn cuda_device() -> anyhow::Result<Device> {
+    static LOGGED: std::sync::Once = std::sync::Once::new();
+    // SAFETY: dlopen of a shared library by name, flags from libc; the handle is closed at once.
+    let handle = unsafe { libc::dlopen(c"libcuda.so.1".as_ptr(), libc::RTLD_NOW | libc::RTLD_LOCAL) };
+    if handle.is_null() {
+        anyhow::bail!(
+            "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load): use --device cpu, or run on a machine with an NVIDIA GPU and its driver"
+        );
+    }
+    // SAFETY: the handle came from the dlopen above and is not used after.
+    unsafe { libc::dlclose(handle) };
+    let device = Device::cuda(0);
+    LOGGED.call_once(|| match device.identity() {
+        Some(id) => eprintln!("--device cuda: running on {}", id.name),
+        None => eprintln!("--device cuda: running on CUDA device 0"),
+    });
+    Ok(device)
 }
 
 /// The adapter wgpu picks by its own heuristics (a discrete GPU first). Which one it picked is
