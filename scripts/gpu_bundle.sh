@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# `make gpu-bundle`: target-gpu/bundle/, one folder that measures pgser on a GPU machine in one
+# run (its run.sh is scripts/gpu_run.sh; docs/gpu.md). Our GPU machines start bare, reach no
+# package registry and receive at most 64 MiB of files per run, so the folder holds everything
+# and, with the repo's own files (which travel with every run), stays under 64 MiB (checked here):
+#   bin/    pgser-train from `make build-cuda` (cuda + wgpu), stripped, xz. Not pgser-etl: with
+#           polars it is 48 MB under xz against pgser-train's 33, and the two do not fit together
+#           (measured 2026-11-27); the device check of `score` is the critic's Q logged in training
+#           (run.sh), and BUNDLE_ETL=1 adds pgser-etl for a machine that can receive it.
+#   lib/    MuJoCo 3.17.0's library, xz (the binaries link it)
+#   debs/   the Vulkan loader and libglvnd (Debian packages), for wgpu
+#   data/   FetchReach tables and a Q, made here on the CPU by the same binaries
+#   bench/  bench_grid.py and the JAX / PyTorch peers it runs, gpu_compare.py
+#   run.sh, VERSION
+# Built beside its place and moved there, so an interrupted build leaves the previous bundle.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rel=target-gpu/release
+dest=target-gpu/bundle
+tmp=$dest.tmp
+bins=(pgser-train)
+[ "${BUNDLE_ETL:-0}" = 1 ] && bins+=(pgser-etl)
+for x in pgser-train pgser-etl; do
+  [ -x "$rel/$x" ] || { echo "gpu-bundle: $rel/$x is missing: run make build-cuda first" >&2; exit 1; }
+done
+rm -rf "$tmp"
+mkdir -p "$tmp"/{bin,lib,debs,data,bench}
+
+for x in "${bins[@]}"; do
+  strip -o "$tmp/bin/$x" "$rel/$x"
+  xz -6 -T0 "$tmp/bin/$x"
+done
+xz -6 -c .deps/mujoco/libmujoco.so.3.17.0 >"$tmp/lib/libmujoco.so.3.17.0.xz"
+
+# Debian's Vulkan loader (libvulkan1) and GL dispatch libraries (libglvnd and the rest) for amd64,
+# whatever this machine's own architecture and package lists. NVIDIA's Vulkan driver lives in
+# libGLX_nvidia, which needs libglvnd: with the loader alone, wgpu found no adapter on an H200
+# (2026-11-27), and with these it ran on the GPU.
+lists=$(mktemp -d)
+mkdir -p "$lists/partial"
+apt=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists="$lists")
+apt-get "${apt[@]}" update >/dev/null
+(cd "$tmp/debs" && apt-get "${apt[@]}" download libvulkan1 libglvnd0 libglx0 libegl1 libgl1 libopengl0 libgles2 2>&1 | grep -v '^W: Download is performed unsandboxed' || true)
+rm -rf "$lists"
+for p in libvulkan1 libglvnd0 libglx0 libegl1 libgl1 libopengl0 libgles2; do
+  ls "$tmp/debs/${p}"_*.deb >/dev/null 2>&1 || { echo "gpu-bundle: could not download $p" >&2; exit 1; }
+done
+
+# The tables: the committed FetchReach sample (50 expert + 200 random episodes), a Q trained 200
+# updates on it, and its scored swaps (K = 4, with the original rows: what -mem trains on).
+d=$tmp/data
+"$rel/pgser-etl" convert data/fetch_reach_expert_50.pkl data/fetch_reach_random_200.pkl -o "$d/reach.parquet"
+"$rel/pgser-train" --data "$d/reach.parquet" -o "$d/q.ckpt" --updates 200 --batch-size 256 \
+  --eval-episodes 0 --device cpu >/dev/null
+rm -f "$d"/q.ckpt.* "$d"/q.metrics* 2>/dev/null || true
+"$rel/pgser-etl" score --q "$d/q.ckpt" --data "$d/reach.parquet" -o "$d/scored.parquet" --swaps 4 --include-original
+
+cp bench/bench_grid.py bench/train_peer.py bench/train_peer_stacked.py bench/train_peer_jax.py \
+  bench/train_flops.py bench/peer_python.py bench/sgemm_peak.py bench/gpu_compare.py "$tmp/bench/"
+cp scripts/gpu_run.sh "$tmp/run.sh"
+chmod +x "$tmp/run.sh"
+echo "pgser $(git describe --always --dirty 2>/dev/null || echo unknown), bundled $(date -u +%FT%TZ)" >"$tmp/VERSION"
+
+size=$(du -sb "$tmp" | cut -f1)
+repo=$(git ls-files -z | xargs -0 du -cb 2>/dev/null | tail -1 | cut -f1)
+if [ $((size + repo)) -gt $((63 * 1024 * 1024)) ]; then
+  du -ab "$tmp" | sort -n | tail -5 >&2
+  echo "gpu-bundle: $((size / 1024 / 1024)) MiB, and the repo $((repo / 1024 / 1024)) MiB: over the 64 MiB a GPU run can receive" >&2
+  exit 1
+fi
+rm -rf "$dest"
+mv "$tmp" "$dest"
+echo "gpu-bundle: $dest, $((size / 1024 / 1024)) MiB (+ $((repo / 1024 / 1024)) MiB of repo) ($(cat "$dest/VERSION")); on a GPU machine: $dest/run.sh OUT_DIR"
