@@ -94,6 +94,9 @@ def test_ctrl_c_interrupts_a_long_score_and_leaves_no_file(tables, tmp_path):
     out.parent.mkdir()
     script = textwrap.dedent(f"""
         import os, signal, threading, time, pgser
+        # Ctrl-C's handler, whatever this process inherited: a shell's background job (`make
+        # test &`) starts with SIGINT ignored, and Python then leaves it ignored.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
         t0 = time.time()
         try:
