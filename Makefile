@@ -144,9 +144,9 @@ vulkan-deps:
 	else echo "make vulkan-deps: no Vulkan driver, and not root with apt-get: wgpu will use what it finds (OpenGL) or fail"; fi
 
 # The GPU backends (`--features wgpu`, `--features cuda`) must keep compiling; checked, not built
-# (a release build of them takes 30+ minutes more on 2 cores; make build-cuda, BENCHMARKS.md).
-# check-gpu checks both at once, which costs little more than wgpu alone: the CUDA side adds
-# cubecl-cuda, cudarc and cubecl-llvm's C++ shims (against the LLVM that llvm-deps installs).
+# (a release build with them is a second whole build: make build-cuda took 33 min on 2 cores).
+# check-gpu checks both at once; over check-wgpu's artifacts it took 1 min 59 s here: the CUDA
+# side adds cubecl-cuda, cudarc and cubecl-llvm's C++ shims (against llvm-deps' LLVM).
 check-wgpu:
 	$(CARGO) check --release $(FEATURES) --features wgpu --lib --bins
 check-gpu: llvm-deps
@@ -181,7 +181,6 @@ $(LLVM_STAMP):
 	@mkdir -p $(LLVM_XDG)/tracel
 	ln -sfn $(CURDIR)/$(LLVM_HOME)/mlc_llvm_static/static $(LLVM_XDG)/tracel/tracel-llvm-23.1.0-4
 	touch $@
-
 
 # The GPU build: pgser-train and pgser-etl with both GPU backends, in target-gpu/ (the default
 # build's binaries stay CPU-only). No HDF5: GPU machines need not have the library.
