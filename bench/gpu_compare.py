@@ -64,52 +64,64 @@ def load_file(path: str) -> dict:
     return out
 
 
-def weights(dev_dir: Path, cpu_dir: Path, tol: float) -> dict:
-    ckpts = sorted(p.name for p in cpu_dir.glob("s*.ckpt"))
-    if not ckpts:
-        return {"ok": False, "why": f"no s*.ckpt in {cpu_dir}"}
-    out = {"ok": True, "tol": tol, "worst": 0.0, "where": None, "tensors": 0}
-    for name in ckpts:
-        if not (dev_dir / name).exists():
-            return {"ok": False, "why": f"{dev_dir / name} missing"}
-        a, c = load_file(str(dev_dir / name)), load_file(str(cpu_dir / name))
-        if sorted(a) != sorted(c):
-            return {"ok": False, "why": f"{name}: tensor names differ"}
-        for k in sorted(c):
-            w, i, x, y, finite = worst(a[k], c[k])
-            out["tensors"] += 1
+class Mismatch(Exception):
+    """A device's run that cannot be compared value by value (a file missing, other names)."""
+
+
+def compare(pairs, tol: float, count: str, empty_why: str) -> dict:
+    """The worst scaled difference over `pairs`, each (label, indexed, device values, cpu values),
+    as a figure: where it is (label, with the index when `indexed`), how many pairs were read
+    (under `count`), and whether it is within `tol`; or why there is no figure."""
+    out = {"ok": True, "tol": tol, "worst": 0.0, "where": None, count: 0}
+    try:
+        for label, indexed, a, c in pairs:
+            w, i, x, y, finite = worst(a, c)
+            out[count] += 1
             if not finite:
-                return {"ok": False, "why": f"{name} {k}: not finite"}
+                return {"ok": False, "why": f"{label}: not finite"}
             if w > out["worst"]:
-                out.update(worst=w, where=f"{name} {k}[{i}]: {x!r} vs cpu {y!r}")
+                out.update(worst=w, where=f"{label}{f'[{i}]' if indexed else ''}: {x!r} vs cpu {y!r}")
+    except Mismatch as e:
+        return {"ok": False, "why": str(e)}
+    if out[count] == 0:
+        return {"ok": False, "why": empty_why}
     out["ok"] = out["worst"] <= tol
     return out
+
+
+def pair_files(dev_dir: Path, cpu_dir: Path, pattern: str):
+    """(name, device file, cpu file) for each of the CPU run's files matching `pattern`."""
+    for name in sorted(p.name for p in cpu_dir.glob(pattern)):
+        if not (dev_dir / name).exists():
+            raise Mismatch(f"{dev_dir / name} missing")
+        yield name, dev_dir / name, cpu_dir / name
+
+
+def weights(dev_dir: Path, cpu_dir: Path, tol: float) -> dict:
+    def pairs():
+        for name, dev, cpu in pair_files(dev_dir, cpu_dir, "s*.ckpt"):
+            a, c = load_file(str(dev)), load_file(str(cpu))
+            if sorted(a) != sorted(c):
+                raise Mismatch(f"{name}: tensor names differ")
+            for k in sorted(c):
+                yield f"{name} {k}", True, a[k], c[k]
+
+    return compare(pairs(), tol, "tensors", f"no s*.ckpt in {cpu_dir}")
 
 
 def metrics(dev_dir: Path, cpu_dir: Path, tol: float) -> dict:
-    files = sorted(p.name for p in cpu_dir.glob("s*.ckpt.metrics.jsonl"))
-    out = {"ok": True, "tol": tol, "worst": 0.0, "where": None, "values": 0}
-    for name in files:
-        if not (dev_dir / name).exists():
-            return {"ok": False, "why": f"{dev_dir / name} missing"}
-        dev = [json.loads(x) for x in (dev_dir / name).read_text().splitlines() if x.strip()]
-        cpu = [json.loads(x) for x in (cpu_dir / name).read_text().splitlines() if x.strip()]
-        if [r.get("updates") for r in dev] != [r.get("updates") for r in cpu]:
-            return {"ok": False, "why": f"{name}: logged at other updates"}
-        for d, c in zip(dev, cpu):
-            for k, v in c.items():
-                if k == "updates" or not isinstance(v, (int, float)):
-                    continue
-                w, _, x, y, finite = worst([d.get(k, float("nan"))], [v])
-                out["values"] += 1
-                if not finite:
-                    return {"ok": False, "why": f"{name} update {c['updates']} {k}: not finite"}
-                if w > out["worst"]:
-                    out.update(worst=w, where=f"{name} update {c['updates']} {k}: {x!r} vs cpu {y!r}")
-    if out["values"] == 0:
-        return {"ok": False, "why": f"no logged values in {cpu_dir}"}
-    out["ok"] = out["worst"] <= tol
-    return out
+    def pairs():
+        for name, dev_file, cpu_file in pair_files(dev_dir, cpu_dir, "s*.ckpt.metrics.jsonl"):
+            dev = [json.loads(x) for x in dev_file.read_text().splitlines() if x.strip()]
+            cpu = [json.loads(x) for x in cpu_file.read_text().splitlines() if x.strip()]
+            if [r.get("updates") for r in dev] != [r.get("updates") for r in cpu]:
+                raise Mismatch(f"{name}: logged at other updates")
+            for d, c in zip(dev, cpu):
+                for k, v in c.items():
+                    if k != "updates" and isinstance(v, (int, float)):
+                        yield f"{name} update {c['updates']} {k}", False, [d.get(k, float("nan"))], [v]
+
+    return compare(pairs(), tol, "values", f"no logged values in {cpu_dir}")
 
 
 def scores(dev_file: Path, cpu_file: Path, tol: float) -> dict:
@@ -135,22 +147,19 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, required=True)
     a = ap.parse_args(argv)
     doc = {}
-    for name, train_dir, score_file in a.backend:
-        r = {}
+
+    def figure(f, *args):
         try:
-            r["weights"] = weights(Path(train_dir), a.cpu_train, a.tol)
+            return f(*args)
         except Exception as e:  # a missing or unreadable run is a figure too
-            r["weights"] = {"ok": False, "why": f"{type(e).__name__}: {e}"}
-        try:
-            r["metrics"] = metrics(Path(train_dir), a.cpu_train, a.tol)
-        except Exception as e:
-            r["metrics"] = {"ok": False, "why": f"{type(e).__name__}: {e}"}
+            return {"ok": False, "why": f"{type(e).__name__}: {e}"}
+
+    for name, train_dir, score_file in a.backend:
+        r = {"weights": figure(weights, Path(train_dir), a.cpu_train, a.tol),
+             "metrics": figure(metrics, Path(train_dir), a.cpu_train, a.tol)}
         if score_file != "-":
-            try:
-                r["q"] = (scores(Path(score_file), a.cpu_score, a.tol) if a.cpu_score and Path(score_file).exists()
-                          else {"ok": False, "why": f"{score_file} missing"})
-            except Exception as e:
-                r["q"] = {"ok": False, "why": f"{type(e).__name__}: {e}"}
+            r["q"] = (figure(scores, Path(score_file), a.cpu_score, a.tol) if a.cpu_score and Path(score_file).exists()
+                      else {"ok": False, "why": f"{score_file} missing"})
         doc[name] = r
         for what in r:
             v = r[what]

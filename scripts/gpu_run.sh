@@ -93,31 +93,33 @@ fi
 say "GPU: $gpu; libdevice from ${CUDA_PATH:-/usr/local/cuda (default)}"
 
 # ---- 2. correctness: cuda and wgpu against cpu ----------------------------------------------------
-declare -A adapter
+# The device a pgser run names in its log ("--device cuda: running on NVIDIA H200"), if any.
+running_on() { grep -m1 -- ": running on" "$1" | sed 's/.*running on //'; }
+# One command of the check: under a time limit, its output in logs/NAME.out and .log, a line in
+# run.log (with the device it names, if any), and its last lines there when it fails.
+step() {
+  local name=$1 t0=$SECONDS rc on
+  shift
+  timeout 240 "$@" >"$logs/$name.out" 2>"$logs/$name.log"
+  rc=$?
+  on=$(running_on "$logs/$name.log")
+  say "${name/-/ --device }: rc $rc, $((SECONDS - t0)) s${on:+, on $on}"
+  [ $rc -eq 0 ] || tail -3 "$logs/$name.log" | sed 's/^/    /' | tee -a "$out/run.log" >&2
+}
 for dev in cpu cuda wgpu; do
-  t0=$SECONDS
-  timeout 240 "$train" --data "$data/scored.parquet" -o "$work/train-$dev" --seeds 0,1,2 --updates 50 \
-    --batch-size 256 --eval-episodes 0 --log-every 10 --device "$dev" >"$logs/train-$dev.out" 2>"$logs/train-$dev.log"
-  rc=$?
-  adapter[$dev]=$(grep -m1 -- "--device $dev: running on" "$logs/train-$dev.log" | sed 's/.*running on //')
-  say "train --device $dev: rc $rc, $((SECONDS - t0)) s${adapter[$dev]:+, on ${adapter[$dev]}}"
-  [ $rc -eq 0 ] || tail -3 "$logs/train-$dev.log" | sed 's/^/    /' | tee -a "$out/run.log" >&2
-  [ -x "$etl" ] || continue
-  t0=$SECONDS
-  timeout 240 "$etl" score --q "$data/q.ckpt" --data "$data/reach.parquet" -o "$work/score-$dev.parquet" \
-    --swaps 2 --device "$dev" >"$logs/score-$dev.out" 2>"$logs/score-$dev.log"
-  rc=$?
-  say "score --device $dev: rc $rc, $((SECONDS - t0)) s"
-  [ $rc -eq 0 ] || tail -3 "$logs/score-$dev.log" | sed 's/^/    /' | tee -a "$out/run.log" >&2
+  step "train-$dev" "$train" --data "$data/scored.parquet" -o "$work/train-$dev" --seeds 0,1,2 --updates 50 \
+    --batch-size 256 --eval-episodes 0 --log-every 10 --device "$dev"
+  [ -x "$etl" ] && step "score-$dev" "$etl" score --q "$data/q.ckpt" --data "$data/reach.parquet" \
+    -o "$work/score-$dev.parquet" --swaps 2 --device "$dev"
 done
-python3 - "$work/machine.json" "$gpu" "${adapter[cuda]:-}" "${adapter[wgpu]:-}" <<'EOF'
+python3 - "$work/machine.json" "$gpu" "$(running_on "$logs/train-cuda.log")" "$(running_on "$logs/train-wgpu.log")" <<'EOF'
 import json, sys
 json.dump({"gpu": sys.argv[2], "cuda_device": sys.argv[3], "wgpu_adapter": sys.argv[4]}, open(sys.argv[1], "w"), indent=1)
 EOF
 # wgpu is timed only on the GPU itself: where it opened a software adapter (or none), its
 # figures would be the CPU's under a GPU's name.
 wgpu_on_gpu=1
-case "${adapter[wgpu]:-}" in
+case "$(running_on "$logs/train-wgpu.log")" in
   "") wgpu_on_gpu=0; say "wgpu opened no adapter: it is not timed";;
   *"no GPU"*) wgpu_on_gpu=0; say "wgpu opened a software adapter, not the GPU: it is not timed";;
 esac

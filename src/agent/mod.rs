@@ -446,15 +446,21 @@ impl Backend {
             #[cfg(feature = "cuda")]
             Backend::Cuda => cuda_device(),
             #[allow(unreachable_patterns)]
-            Backend::Cuda => anyhow::bail!(
-                "--device cuda: this pgser was built without that backend (rebuild with `make build-cuda`, which installs the LLVM it needs; docs/gpu.md)"
-            ),
-            #[allow(unreachable_patterns)]
             other => anyhow::bail!(
-                "--device {}: this pgser was built without that backend (rebuild with `cargo build --release --features {}`)",
+                "--device {}: this pgser was built without that backend (rebuild with {})",
                 other.name(),
-                other.name()
+                other.build_command()
             ),
+        }
+    }
+
+    /// How to get a build with this backend: a cargo feature, or for `cuda` the make target that
+    /// first installs the LLVM its build script would otherwise download (docs/gpu.md).
+    fn build_command(self) -> &'static str {
+        match self {
+            Backend::Cpu | Backend::CpuBurn => "`cargo build --release`",
+            Backend::Wgpu => "`cargo build --release --features wgpu`",
+            Backend::Cuda => "`make build-cuda`, which installs the LLVM it needs; docs/gpu.md",
         }
     }
 
