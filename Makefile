@@ -17,12 +17,14 @@ ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 # tasks' resets draw numpy's normals to the bit (scripts/numpy_ziggurat.py says why).
 ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
+NVRTC_VERSION := 13.0.88
+NVRTC_LIB := $(DEPS)/nvrtc/nvidia/cu13/lib/libnvrtc.so.13
 CARGO ?= cargo
 
 .PHONY: all build python test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
-deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) $(NVRTC_LIB) hdf5-deps
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -49,6 +51,17 @@ $(ZIGGURAT): scripts/numpy_ziggurat.py
 	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: numpy==$(NUMPY_WHEEL_VERSION) -d $(DEPS)/wheels
 	$(PYTHON) scripts/numpy_ziggurat.py $$(ls $(DEPS)/wheels/numpy-$(NUMPY_WHEEL_VERSION)-*.whl | head -1) $@.tmp
 	mv $@.tmp $@
+
+# NVRTC 13.0 (the nvidia-cuda-nvrtc wheel's two libraries and its licence), with which `make test`
+# compiles the CUDA engine's kernels for sm_90 on a machine without a GPU
+# (src/agent/cuda/nvrtc.rs). Pinned: NVRTC 13.5's PTX does not load on the GPU machines' driver 580.
+$(NVRTC_LIB):
+	@mkdir -p $(DEPS)/wheels
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: nvidia-cuda-nvrtc==$(NVRTC_VERSION) -d $(DEPS)/wheels
+	$(PYTHON) -c "import zipfile,glob,shutil,os; t='$(DEPS)/nvrtc.tmp'; shutil.rmtree(t, ignore_errors=True); \
+	  z=zipfile.ZipFile(glob.glob('$(DEPS)/wheels/nvidia_cuda_nvrtc-$(NVRTC_VERSION)-*.whl')[0]); \
+	  z.extractall(t, [n for n in z.namelist() if n.endswith(('lib/libnvrtc.so.13', 'lib/libnvrtc-builtins.so.13.0', 'License.txt'))]); \
+	  shutil.rmtree('$(DEPS)/nvrtc', ignore_errors=True); os.rename(t, '$(DEPS)/nvrtc')"
 
 venv: $(VENV)/.stamp
 $(VENV)/.stamp: tests/requirements.txt
@@ -94,7 +107,7 @@ test-example: python bench-venv
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
 test: deps venv check-gpu slurm-deps strace-deps
-	$(CARGO) test --release $(FEATURES)
+	PGSER_REQUIRE_NVRTC=1 $(CARGO) test --release $(FEATURES)
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
 	@pkg-config --exists hdf5 2>/dev/null || \

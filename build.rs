@@ -34,4 +34,23 @@ fn main() {
     // numpy's ziggurat tables for the hand tasks' normals (`pgser::nprandom::ziggurat`), same rule.
     let zig = std::path::Path::new(&root).join(".deps/numpy_ziggurat.bin");
     println!("cargo::rustc-env=PGSER_ZIGGURAT={}", zig.display());
+    // Where `make` unpacks NVRTC (the nvidia-cuda-nvrtc wheel), for the CUDA engine's kernel
+    // compiler when the library is not on the loader's path (src/agent/cuda/nvrtc.rs).
+    let nvrtc = std::path::Path::new(&root).join(".deps/nvrtc/nvidia/cu13/lib");
+    println!("cargo::rustc-env=PGSER_NVRTC_LIBS={}", nvrtc.display());
+
+    // The CUDA engine's kernels as C++ for the host (src/agent/cuda/shim.h): its tests run the
+    // whole engine on this CPU. No FMA contraction: the kernels must round as the CPU engine does.
+    for f in ["kernels.cu", "shim.h", "shim.cpp"] {
+        println!("cargo::rerun-if-changed=src/agent/cuda/{f}");
+    }
+    cc::Build::new()
+        .cpp(true)
+        .file("src/agent/cuda/shim.cpp")
+        .flag("-std=c++17")
+        .flag("-ffp-contract=off")
+        .flag("-fno-fast-math")
+        .opt_level(2)
+        .warnings(true)
+        .compile("pgser_cuda_shim");
 }

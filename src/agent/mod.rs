@@ -16,6 +16,7 @@
 
 mod adam;
 pub mod checkpoint;
+pub mod cuda;
 mod fused;
 mod host;
 mod shards;

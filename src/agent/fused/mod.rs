@@ -39,7 +39,8 @@ mod net;
 #[cfg(test)]
 mod tests;
 
-use net::{MAX_PARTS, Shape, adam, backward, forward, unflatten};
+pub(in crate::agent) use net::Shape;
+use net::{MAX_PARTS, adam, backward, forward, unflatten};
 pub use net::{Net, flatten};
 
 /// The parts a batch of `n` rows is cut into: about 256 rows each (a product of that height still

@@ -19,14 +19,14 @@ const ADAM_CHUNK: usize = 16 * 1024;
 /// Layer sizes of one network and where each layer's weight `[in, out]` and bias `[out]` sit in
 /// its flat parameter buffer (in `Member` order: w0, b0, w1, b1, ...).
 #[derive(Debug, Clone)]
-pub(super) struct Shape {
-    pub(super) sizes: Vec<usize>,
+pub(in crate::agent) struct Shape {
+    pub(in crate::agent) sizes: Vec<usize>,
     offsets: Vec<usize>,
-    pub(super) len: usize,
+    pub(in crate::agent) len: usize,
 }
 
 impl Shape {
-    pub(super) fn new(sizes: &[usize]) -> Shape {
+    pub(in crate::agent) fn new(sizes: &[usize]) -> Shape {
         let mut offsets = Vec::new();
         let mut len = 0;
         for io in sizes.windows(2) {
@@ -36,21 +36,21 @@ impl Shape {
         Shape { sizes: sizes.to_vec(), offsets, len }
     }
 
-    pub(super) fn layers(&self) -> usize {
+    pub(in crate::agent) fn layers(&self) -> usize {
         self.sizes.len() - 1
     }
 
-    pub(super) fn weight(&self, l: usize) -> std::ops::Range<usize> {
+    pub(in crate::agent) fn weight(&self, l: usize) -> std::ops::Range<usize> {
         let o = self.offsets[l];
         o..o + self.sizes[l] * self.sizes[l + 1]
     }
 
-    pub(super) fn bias(&self, l: usize) -> std::ops::Range<usize> {
+    pub(in crate::agent) fn bias(&self, l: usize) -> std::ops::Range<usize> {
         let e = self.weight(l).end;
         e..e + self.sizes[l + 1]
     }
 
-    pub(super) fn widest(&self) -> usize {
+    pub(in crate::agent) fn widest(&self) -> usize {
         *self.sizes.iter().max().expect("a network has layers")
     }
 }

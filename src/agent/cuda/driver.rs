@@ -1,0 +1,173 @@
+//! The engine's device: an NVIDIA GPU through cudarc (the driver API, cuBLAS and NVRTC, all
+//! loaded at run time, so a build needs no CUDA). One stream; every call is queued on it.
+
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use cudarc::cublas::{CudaBlas, sys as blas};
+use cudarc::driver::{CudaContext, CudaFunction, CudaStream, LaunchConfig, PushKernelArg, result};
+use cudarc::nvrtc::Ptx;
+
+use super::{Arg, Gemm, Gpu, Ptr, nvrtc};
+
+/// Floats in products: FP32 (cuBLAS's default math), or TF32 tensor cores (opt-in).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Precision {
+    F32,
+    Tf32,
+}
+
+pub struct CudaGpu {
+    ctx: Arc<CudaContext>,
+    stream: Arc<CudaStream>,
+    blas: CudaBlas,
+    functions: Vec<(&'static str, CudaFunction)>,
+    allocs: Vec<Ptr>,
+    /// The device's name and compute capability, for logs.
+    pub name: String,
+}
+
+// SAFETY: cudarc's handles are thread-safe to move; the engine uses this value from one thread
+// at a time (behind its Mutex).
+unsafe impl Send for CudaGpu {}
+
+impl Drop for CudaGpu {
+    fn drop(&mut self) {
+        let _ = self.stream.synchronize();
+        for &p in &self.allocs {
+            // SAFETY: allocated by malloc_sync below, freed once, after the stream is idle.
+            let _ = unsafe { result::free_sync(p) };
+        }
+    }
+}
+
+/// Whether the NVIDIA driver's library loads at all (without it cudarc's calls panic).
+pub fn driver_present() -> bool {
+    // SAFETY: only tries to open the library by its candidate names.
+    unsafe { cudarc::driver::sys::is_culib_present() }
+}
+
+/// CUDA device `ordinal` with the engine's kernels loaded, or a one-line reason why not.
+pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
+    if !driver_present() {
+        bail!(
+            "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load): use --device cpu, or run on a machine with an NVIDIA GPU and its driver"
+        );
+    }
+    nvrtc::preload(&["libcublasLt.so.13", "libcublas.so.13"]);
+    // SAFETY: only tries to open the library by its candidate names.
+    if !unsafe { blas::is_culib_present() } {
+        bail!(
+            "--device cuda: cuBLAS (libcublas.so.13) not found: pip install nvidia-cublas (CUDA 13), or set PGSER_CUDA_LIBS to the folder holding it"
+        );
+    }
+    let ctx = CudaContext::new(ordinal).context("--device cuda: opening the GPU")?;
+    // The engine tracks its own order (one stream); cudarc's events would only add work, and
+    // get in the way of graph capture.
+    // SAFETY: no CudaSlice is shared between streams here.
+    unsafe { ctx.disable_event_tracking() };
+    let (major, minor) = ctx.compute_capability()?;
+    let name = format!("{} (sm_{major}{minor})", ctx.name()?);
+    let cubin = nvrtc::cubin_for(&format!("sm_{major}{minor}")).context("--device cuda: compiling the kernels")?;
+    let module = ctx.load_module(Ptx::from_binary(cubin)).context("--device cuda: loading the kernels")?;
+    let functions = nvrtc::KERNELS
+        .iter()
+        .map(|&k| Ok((k, module.load_function(k).with_context(|| format!("kernel {k}"))?)))
+        .collect::<Result<Vec<_>>>()?;
+    let stream = ctx.new_stream()?;
+    let blas = CudaBlas::new(stream.clone()).context("--device cuda: cuBLAS")?;
+    let mode = match precision {
+        Precision::F32 => blas::cublasMath_t::CUBLAS_DEFAULT_MATH,
+        Precision::Tf32 => blas::cublasMath_t::CUBLAS_TF32_TENSOR_OP_MATH,
+    };
+    // SAFETY: a live handle.
+    unsafe { blas::cublasSetMathMode(*blas.handle(), mode) }.result().context("cublasSetMathMode")?;
+    Ok(CudaGpu { ctx, stream, blas, functions, allocs: Vec::new(), name })
+}
+
+impl Gpu for CudaGpu {
+    fn alloc(&mut self, bytes: usize) -> Result<Ptr> {
+        self.ctx.bind_to_thread()?;
+        // SAFETY: a plain allocation, zeroed before use; freed on drop.
+        let p = unsafe { result::malloc_sync(bytes.max(1).next_multiple_of(256)) }.context("cuMemAlloc")?;
+        unsafe { result::memset_d8_sync(p, 0, bytes.max(1)) }.context("cuMemset")?;
+        self.allocs.push(p);
+        Ok(p)
+    }
+
+    fn free(&mut self, ptr: Ptr) -> Result<()> {
+        let i = self.allocs.iter().position(|&p| p == ptr).context("free of memory this device did not allocate")?;
+        self.allocs.swap_remove(i);
+        self.stream.synchronize()?;
+        // SAFETY: allocated by malloc_sync, no longer in `allocs`, and the stream is idle.
+        unsafe { result::free_sync(ptr) }.context("cuMemFree")?;
+        Ok(())
+    }
+
+    fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()> {
+        // SAFETY: `dst` is one of our allocations, sized by the engine for `src`; a synchronous
+        // copy from pageable memory returns once `src` may be reused.
+        unsafe { result::memcpy_htod_async(dst, src, self.stream.cu_stream()) }.context("upload")?;
+        Ok(())
+    }
+
+    fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()> {
+        // SAFETY: as upload; the stream is synchronized before `dst` is read.
+        unsafe { result::memcpy_dtoh_async(dst, src, self.stream.cu_stream()) }.context("download")?;
+        self.stream.synchronize().context("download")?;
+        Ok(())
+    }
+
+    fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()> {
+        let f = &self.functions.iter().find(|(k, _)| *k == name).with_context(|| format!("no kernel {name}"))?.1;
+        let block = 256u32;
+        let grid = items.div_ceil(block as usize).clamp(1, 65_535) as u32;
+        let mut b = self.stream.launch_builder(f);
+        for a in args {
+            match a {
+                Arg::P(v) => b.arg(v),
+                Arg::I(v) => b.arg(v),
+                Arg::L(v) => b.arg(v),
+                Arg::F(v) => b.arg(v),
+            };
+        }
+        let cfg = LaunchConfig { grid_dim: (grid, 1, 1), block_dim: (block, 1, 1), shared_mem_bytes: 0 };
+        // SAFETY: the arguments are typed as the kernel declares them (the engine's contract).
+        unsafe { b.launch(cfg) }.with_context(|| format!("launching {name}"))?;
+        Ok(())
+    }
+
+    /// Row-major C = A·B is column-major Cᵀ = Bᵀ·Aᵀ: cuBLAS gets B first, and a row-major
+    /// operand is the column-major transpose of itself with the same leading dimension.
+    fn gemm(&mut self, g: &Gemm) -> Result<()> {
+        let op = |t: bool| if t { blas::cublasOperation_t::CUBLAS_OP_T } else { blas::cublasOperation_t::CUBLAS_OP_N };
+        let (alpha, beta) = (1.0f32, 0.0f32);
+        // SAFETY: every operand lies inside the engine's allocations (the host shim checks the
+        // same calls); the handle's stream is ours.
+        unsafe {
+            blas::cublasSgemmStridedBatched(
+                *self.blas.handle(),
+                op(g.b.trans),
+                op(g.a.trans),
+                g.n as i32,
+                g.m as i32,
+                g.k as i32,
+                &alpha,
+                g.b.ptr as *const f32,
+                g.b.ld as i32,
+                g.b.stride as i64,
+                g.a.ptr as *const f32,
+                g.a.ld as i32,
+                g.a.stride as i64,
+                &beta,
+                g.c.ptr as *mut f32,
+                g.c.ld as i32,
+                g.c.stride as i64,
+                g.batch as i32,
+            )
+        }
+        .result()
+        .context("cublasSgemmStridedBatched")?;
+        Ok(())
+    }
+}

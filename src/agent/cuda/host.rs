@@ -1,0 +1,157 @@
+//! The engine on the host, for the tests: `kernels.cu` compiled as C++ through `shim.h` (build.rs),
+//! each kernel launched by name as `driver.rs` launches it on the GPU, and the CPU engine's own
+//! `gemm` calls standing in for cuBLAS (part by part where the CPU engine multiplies part by part),
+//! so that the engine here computes the CPU engine's bits. Every product's operands are checked
+//! to lie inside one allocation, so an engine that addresses past a buffer fails here loudly
+//! rather than reading a neighbour on the GPU.
+
+use std::alloc::Layout;
+use std::ffi::{CString, c_char, c_void};
+
+use anyhow::{Result, bail};
+
+use super::{Arg, Gemm, Gpu, Mat, Ptr, arg_pointers};
+
+unsafe extern "C" {
+    fn pgser_shim_launch(name: *const c_char, grid: u32, block: u32, args: *mut *mut c_void) -> i32;
+}
+
+/// Host memory posing as a device's.
+#[derive(Default)]
+pub struct HostGpu {
+    allocs: Vec<(Ptr, Layout)>,
+}
+
+// SAFETY: the allocations are owned by this value alone and only touched through `&mut self`.
+unsafe impl Send for HostGpu {}
+
+impl Drop for HostGpu {
+    fn drop(&mut self) {
+        for &(ptr, layout) in &self.allocs {
+            // SAFETY: allocated below with this layout, freed once.
+            unsafe { std::alloc::dealloc(ptr as *mut u8, layout) };
+        }
+    }
+}
+
+impl HostGpu {
+    /// Fails unless `[ptr, ptr + bytes)` lies inside one allocation.
+    fn check(&self, ptr: Ptr, bytes: usize, what: &str) -> Result<()> {
+        let inside = self.allocs.iter().any(|&(base, l)| ptr >= base && ptr + bytes as u64 <= base + l.size() as u64);
+        if !inside {
+            bail!("host shim: {what} [{ptr:#x}, +{bytes}) is outside every allocation");
+        }
+        Ok(())
+    }
+
+    /// The bytes an operand of `rows × cols` (as read, after its transpose) spans.
+    fn span(m: &Mat, rows: usize, cols: usize) -> usize {
+        if rows == 0 || cols == 0 {
+            return 0;
+        }
+        let (rs, cs) = if m.trans { (1, m.ld) } else { (m.ld, 1) };
+        4 * ((rows - 1) * rs + (cols - 1) * cs + 1)
+    }
+}
+
+impl Gpu for HostGpu {
+    fn alloc(&mut self, bytes: usize) -> Result<Ptr> {
+        let layout = Layout::from_size_align(bytes.max(1), 256)?;
+        // SAFETY: a non-zero size.
+        let ptr = unsafe { std::alloc::alloc_zeroed(layout) };
+        if ptr.is_null() {
+            bail!("host shim: out of memory for {bytes} bytes");
+        }
+        self.allocs.push((ptr as Ptr, layout));
+        Ok(ptr as Ptr)
+    }
+
+    fn free(&mut self, ptr: Ptr) -> Result<()> {
+        let Some(i) = self.allocs.iter().position(|&(p, _)| p == ptr) else {
+            bail!("host shim: free of {ptr:#x}, which is no allocation");
+        };
+        let (p, layout) = self.allocs.swap_remove(i);
+        // SAFETY: allocated in `alloc` with this layout, and now forgotten by `allocs`.
+        unsafe { std::alloc::dealloc(p as *mut u8, layout) };
+        Ok(())
+    }
+
+    fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()> {
+        self.check(dst, src.len(), "upload")?;
+        // SAFETY: checked to lie inside one of our allocations, which `src` cannot overlap.
+        unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), dst as *mut u8, src.len()) };
+        Ok(())
+    }
+
+    fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()> {
+        self.check(src, dst.len(), "download")?;
+        // SAFETY: as upload.
+        unsafe { std::ptr::copy_nonoverlapping(src as *const u8, dst.as_mut_ptr(), dst.len()) };
+        Ok(())
+    }
+
+    fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()> {
+        // An odd grid of a few small blocks: every grid-stride loop wraps several times, so an
+        // index that assumed one thread per item would show.
+        let (block, grid) = (7u32, items.div_ceil(7).clamp(1, 3) as u32);
+        let mut ptrs = arg_pointers(args);
+        let c = CString::new(name)?;
+        // SAFETY: the arguments are typed as the kernel declares them (the engine's contract);
+        // `ptrs` points into `args`, alive for the call.
+        let rc = unsafe { pgser_shim_launch(c.as_ptr(), grid, block, ptrs.as_mut_ptr()) };
+        if rc != 0 {
+            bail!("host shim: no kernel named {name}");
+        }
+        Ok(())
+    }
+
+    fn gemm(&mut self, g: &Gemm) -> Result<()> {
+        for b in 0..g.batch {
+            let item = |m: &Mat| Mat { ptr: m.ptr + 4 * (b * m.stride) as u64, ..*m };
+            let (a, bm, c) = (item(&g.a), item(&g.b), item(&g.c));
+            self.check(a.ptr, Self::span(&a, g.m, g.k), "gemm A")?;
+            self.check(bm.ptr, Self::span(&bm, g.k, g.n), "gemm B")?;
+            self.check(c.ptr, Self::span(&c, g.m, g.n), "gemm C")?;
+            let p = g.parts.unwrap_or(1);
+            assert!(p == 1 || !a.trans, "rows cut into parts must be A's rows");
+            for q in 0..p {
+                let (start, end) = (g.m * q / p, g.m * (q + 1) / p);
+                let a = Mat { ptr: a.ptr + 4 * (start * a.ld) as u64, ..a };
+                let c = Mat { ptr: c.ptr + 4 * (start * c.ld) as u64, ..c };
+                matmul(end - start, g.n, g.k, &c, &a, &bm);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `fused/net.rs::matmul`'s call, on raw pointers: dst (row stride `c.ld`) = A·B.
+fn matmul(m: usize, n: usize, k: usize, c: &Mat, a: &Mat, b: &Mat) {
+    let strides = |x: &Mat| if x.trans { (1isize, x.ld as isize) } else { (x.ld as isize, 1isize) };
+    let ((a_rs, a_cs), (b_rs, b_cs)) = (strides(a), strides(b));
+    // SAFETY: the caller checked every operand against its allocation; C overlaps neither input
+    // (the engine never multiplies in place).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.ptr as *mut f32,
+            1,
+            c.ld as isize,
+            false,
+            a.ptr as *const f32,
+            a_cs,
+            a_rs,
+            b.ptr as *const f32,
+            b_cs,
+            b_rs,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}

@@ -1,0 +1,885 @@
+//! The TD3 / TD3+BC / DDPG update of a stack of agents on an NVIDIA GPU, written out by hand:
+//! every layer of every agent one strided-batched SGEMM (cuBLAS), the elementwise work and the
+//! reductions in the kernels of `kernels.cu` (compiled at start by NVRTC), all state and scratch
+//! in device buffers allocated once. `--device cuda`.
+//!
+//! Why by hand: burn's CUDA backend spent 10–22 ms on every update whatever the stack's size
+//! (BENCHMARKS.md): the cost was per update, not arithmetic. Here an update is a fixed list of
+//! about 40 launches and one upload of the batch.
+//!
+//! **The same update as the CPU engine, to the bit where the products are.** This is `fused/`'s
+//! update (its doc comment has the derivation: the backward pass, the critics' and the actor's
+//! losses, λ, Adam and Polyak), with the same layout (each network flat in `Shape` order), the
+//! same parts (a batch of n rows cut into `fused::parts(n)` parts; each part's weight gradient is
+//! its own product, and Adam adds the parts in part order) and every sum in the same order, one
+//! thread per sum (kernels.cu's header). Only the products differ: cuBLAS rounds its dot products
+//! in its own order. On the host (`host.rs`: the same kernel source compiled as C++, and the CPU
+//! engine's own `gemm` calls for cuBLAS) the engine is therefore the CPU engine's bits, which the
+//! tests check over hundreds of updates: that tests every index and every formula of the kernels
+//! and of the launch sequence below, on a machine without a GPU.
+//!
+//! **Layout.** A agents, K critics each (TD3: 2, DDPG: 1), batches of n rows, p parts:
+//! - the actors' parameters `[A, len_a]`, the critics' `[A·K, len_c]` (agent a's critic k is member
+//!   a·K + k), each with its Adam moments and target copy;
+//! - the critics' inputs `sa`, `next_sa`: `[A·K, n, W]` (W = obs + goal + action), each critic with
+//!   its own copy of its agent's rows, so that every layer of every critic is one batched product;
+//! - each layer's output `[members, n, d]`, the backward pass's two gradient buffers
+//!   `[A·K, n, widest]`, the weight gradients `[members, p, len]`, the sums `[A, p, 6]` (f64).
+//!
+//! **Where it runs** is the `Gpu` trait: `driver.rs` (cudarc: cuBLAS, NVRTC, the driver) or
+//! `host.rs` (the shim). The engine never waits for the device inside an update; the trainer's
+//! logging steps read the sums back (`Engine::update`'s `stats`).
+
+mod driver;
+#[cfg(test)]
+mod host;
+pub mod nvrtc;
+#[cfg(test)]
+mod tests;
+
+use std::ffi::c_void;
+use std::sync::Mutex;
+
+use anyhow::{Context, Result};
+
+use super::fused::{Net, Nets, Shape, parts};
+use super::{AgentConfig, Algo, Batch, Normalizer};
+use crate::nprandom::NpRandom;
+
+pub use driver::{CudaGpu, open as open_cuda};
+
+/// A device address (a host address on the shim).
+pub type Ptr = u64;
+
+/// `ptr` advanced by `elems` elements of 4 bytes (f32).
+fn at(ptr: Ptr, elems: usize) -> Ptr {
+    ptr + 4 * elems as u64
+}
+
+/// One operand of a product: a row-major matrix at `ptr` with row stride `ld`, read transposed
+/// when `trans`; batch item b's matrix starts `stride` elements after item b − 1's.
+#[derive(Debug, Clone, Copy)]
+pub struct Mat {
+    pub ptr: Ptr,
+    pub ld: usize,
+    pub trans: bool,
+    pub stride: usize,
+}
+
+/// C = A·B for each of `batch` items (row-major, `m × n`, inner dimension `k`), C dense with row
+/// stride `c.ld`. `parts`: the rows of A and C are a batch of n rows cut into parts, which the
+/// shim multiplies part by part as the CPU engine does (so that its bits are the CPU engine's);
+/// cuBLAS ignores it.
+#[derive(Debug, Clone, Copy)]
+pub struct Gemm {
+    pub m: usize,
+    pub n: usize,
+    pub k: usize,
+    pub a: Mat,
+    pub b: Mat,
+    pub c: Mat,
+    pub batch: usize,
+    pub parts: Option<usize>,
+}
+
+/// One kernel argument, typed as the kernel declares it.
+#[derive(Debug, Clone, Copy)]
+pub enum Arg {
+    /// `float*` / `double*` (0: null).
+    P(Ptr),
+    /// `int`.
+    I(i32),
+    /// `long long`.
+    L(i64),
+    /// `float`.
+    F(f32),
+}
+
+/// What the engine needs of a device: memory, the kernels of `kernels.cu` by name, and batched
+/// products. Calls are queued in order on one stream; `download` waits for what came before.
+pub trait Gpu: Send {
+    /// `bytes` of zeroed device memory, 256-byte aligned, owned by the device until it is dropped.
+    fn alloc(&mut self, bytes: usize) -> Result<Ptr>;
+    fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()>;
+    fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()>;
+    /// Returns memory from `alloc` (after the work queued before has finished with it).
+    fn free(&mut self, ptr: Ptr) -> Result<()>;
+    /// Runs kernel `name` over `items` independent items (a grid-stride loop: any grid is right).
+    fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()>;
+    fn gemm(&mut self, g: &Gemm) -> Result<()>;
+}
+
+/// The kernel arguments as CUDA takes them: one pointer to each argument's value.
+pub fn arg_pointers(args: &[Arg]) -> Vec<*mut c_void> {
+    args.iter()
+        .map(|a| match a {
+            Arg::P(v) => v as *const u64 as *mut c_void,
+            Arg::I(v) => v as *const i32 as *mut c_void,
+            Arg::L(v) => v as *const i64 as *mut c_void,
+            Arg::F(v) => v as *const f32 as *mut c_void,
+        })
+        .collect()
+}
+
+fn f32_bytes(v: &[f32]) -> &[u8] {
+    // SAFETY: f32 has no padding and every byte pattern is a valid u8.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), std::mem::size_of_val(v)) }
+}
+
+fn download_f32(gpu: &mut dyn Gpu, src: Ptr, len: usize) -> Result<Vec<f32>> {
+    let mut out = vec![0.0f32; len];
+    // SAFETY: as f32_bytes, mutably; the vector outlives the slice.
+    let bytes = unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<u8>(), 4 * len) };
+    gpu.download(src, bytes)?;
+    Ok(out)
+}
+
+/// Adam's constants, as `fused/net.rs` has them.
+const BETA1: f64 = 0.9;
+const BETA2: f64 = 0.999;
+const EPS: f64 = 1e-8;
+/// Per-(agent, part) sums (kernels.cu's PGSER_SUMS, in its order).
+const SUMS: usize = 6;
+/// Adam's per-update constants of one network kind (kernels.cu's PGSER_STEP_SIZE …).
+const CONSTS: usize = 5;
+
+/// One stack of networks on the device: parameters, Adam moments and targets, `[members, len]`.
+struct NetBufs {
+    p: Ptr,
+    m: Ptr,
+    v: Ptr,
+    target: Ptr,
+}
+
+/// A view of `items` networks of one shape for a product: member b's parameters at
+/// `params + b·member_stride` (the critic 1 of each agent: the critics' buffer, stride K·len).
+#[derive(Clone, Copy)]
+struct View {
+    params: Ptr,
+    member_stride: usize,
+    items: usize,
+}
+
+/// The scratch of updates with batches of `n` rows.
+struct Scratch {
+    n: usize,
+    /// One upload per update: Adam's constants (actor, then critics), then the batch:
+    /// obs, goal, next_obs, action, reward, weight, noise, each `[A, n, ·]`.
+    staging: Ptr,
+    staging_len: usize,
+    sa: Ptr,
+    next_sa: Ptr,
+    spi: Ptr,
+    y: Ptr,
+    actor_out: Vec<Ptr>,
+    critic_out: Vec<Ptr>,
+    q1_out: Vec<Ptr>,
+    g: Ptr,
+    tmp: Ptr,
+    dpi: Ptr,
+    lambda: Ptr,
+    actor_grad: Ptr,
+    critic_grad: Ptr,
+    sums: Ptr,
+    /// The host side of `staging`.
+    host: Vec<f32>,
+}
+
+/// Offsets (in f32) of the batch's arrays inside the staging block.
+struct Staged {
+    obs: usize,
+    goal: usize,
+    next_obs: usize,
+    action: usize,
+    reward: usize,
+    weight: usize,
+    noise: usize,
+    len: usize,
+}
+
+impl Staged {
+    fn new(a: usize, n: usize, od: usize, gd: usize, act: usize) -> Staged {
+        let mut at = 2 * CONSTS;
+        let mut take = |d: usize| {
+            let o = at;
+            at += a * n * d;
+            o
+        };
+        let (obs, goal, next_obs, action) = (take(od), take(gd), take(od), take(act));
+        let (reward, weight, noise) = (take(1), take(1), take(act));
+        Staged { obs, goal, next_obs, action, reward, weight, noise, len: at }
+    }
+}
+
+/// Per agent: (critic loss, mean Q₁ over the batch, actor loss if the actor moved), as the CPU
+/// engine's `fused::Stats`.
+pub type Stats = Vec<(f32, f32, Option<f32>)>;
+
+/// The stack's training state on a device, and the scratch of its update.
+pub struct Engine<G: Gpu> {
+    gpu: Mutex<G>,
+    actor: Shape,
+    critic: Shape,
+    agents: usize,
+    k: usize,
+    obs_dim: usize,
+    goal_dim: usize,
+    actor_net: NetBufs,
+    critic_net: NetBufs,
+    pub actor_step: u64,
+    pub critic_step: u64,
+    /// The normalizers on the device (means and stds `[A, obs + goal]`, clips `[A]`) and the
+    /// host copy they were uploaded from.
+    norm_mean: Ptr,
+    norm_std: Ptr,
+    norm_clip: Ptr,
+    norms: Vec<Normalizer>,
+    scratch: Option<Scratch>,
+}
+
+impl<G: Gpu> Engine<G> {
+    /// A stack on `gpu` from its state on the host (as `Fused::new` takes it) and its agents'
+    /// normalizers.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        mut gpu: G,
+        actor_sizes: &[usize],
+        critic_sizes: &[usize],
+        obs_dim: usize,
+        nets: &[Nets],
+        norms: &[Normalizer],
+        actor_step: u64,
+        critic_step: u64,
+    ) -> Result<Engine<G>> {
+        let (actor, critic) = (Shape::new(actor_sizes), Shape::new(critic_sizes));
+        let (agents, k) = (nets.len(), nets[0].critics.len());
+        let sg = actor_sizes[0];
+        let mut upload_net = |len: usize, members: Vec<&Net>| -> Result<NetBufs> {
+            let mut buf = |pick: fn(&Net) -> &Vec<f32>| -> Result<Ptr> {
+                let ptr = gpu.alloc(4 * len * members.len())?;
+                let host: Vec<f32> = members.iter().flat_map(|n| pick(n).iter().copied()).collect();
+                gpu.upload(ptr, f32_bytes(&host))?;
+                Ok(ptr)
+            };
+            Ok(NetBufs { p: buf(|n| &n.p)?, m: buf(|n| &n.m)?, v: buf(|n| &n.v)?, target: buf(|n| &n.target)? })
+        };
+        let actor_net = upload_net(actor.len, nets.iter().map(|n| &n.actor).collect())?;
+        let critic_net = upload_net(critic.len, nets.iter().flat_map(|n| n.critics.iter()).collect())?;
+        let norm_mean = gpu.alloc(4 * agents * sg)?;
+        let norm_std = gpu.alloc(4 * agents * sg)?;
+        let norm_clip = gpu.alloc(4 * agents)?;
+        let mut engine = Engine {
+            gpu: Mutex::new(gpu),
+            actor,
+            critic,
+            agents,
+            k,
+            obs_dim,
+            goal_dim: sg - obs_dim,
+            actor_net,
+            critic_net,
+            actor_step,
+            critic_step,
+            norm_mean,
+            norm_std,
+            norm_clip,
+            norms: Vec::new(),
+            scratch: None,
+        };
+        engine.set_norms(norms)?;
+        Ok(engine)
+    }
+
+    fn act_dim(&self) -> usize {
+        *self.actor.sizes.last().expect("sizes")
+    }
+
+    /// The networks, targets and Adam moments on the host, in `Fused`'s form.
+    pub fn nets(&self) -> Result<Vec<Nets>> {
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        let (la, lc, k) = (self.actor.len, self.critic.len, self.k);
+        let mut get = |b: &NetBufs, members: usize, len: usize| -> Result<Vec<Net>> {
+            let (p, m, v, t) = (
+                download_f32(gpu, b.p, members * len)?,
+                download_f32(gpu, b.m, members * len)?,
+                download_f32(gpu, b.v, members * len)?,
+                download_f32(gpu, b.target, members * len)?,
+            );
+            let cut = |x: &[f32], j: usize| x[j * len..(j + 1) * len].to_vec();
+            Ok((0..members)
+                .map(|j| Net { p: cut(&p, j), m: cut(&m, j), v: cut(&v, j), target: cut(&t, j) })
+                .collect())
+        };
+        let actors = get(&self.actor_net, self.agents, la)?;
+        let mut critics = get(&self.critic_net, self.agents * k, lc)?.into_iter();
+        Ok(actors
+            .into_iter()
+            .map(|actor| Nets { actor, critics: critics.by_ref().take(k).collect() })
+            .collect())
+    }
+
+    /// Uploads the normalizers when they differ from the ones on the device.
+    fn set_norms(&mut self, norms: &[Normalizer]) -> Result<()> {
+        if self.norms == norms {
+            return Ok(());
+        }
+        let mean: Vec<f32> = norms.iter().flat_map(|n| n.obs_mean.iter().chain(&n.goal_mean).copied()).collect();
+        let std: Vec<f32> = norms.iter().flat_map(|n| n.obs_std.iter().chain(&n.goal_std).copied()).collect();
+        let clip: Vec<f32> = norms.iter().map(|n| n.clip).collect();
+        let gpu = self.gpu.get_mut().expect("the device lock");
+        gpu.upload(self.norm_mean, f32_bytes(&mean))?;
+        gpu.upload(self.norm_std, f32_bytes(&std))?;
+        gpu.upload(self.norm_clip, f32_bytes(&clip))?;
+        self.norms = norms.to_vec();
+        Ok(())
+    }
+
+    /// Scratch for batches of `n` rows (once; again only if the batch size changes).
+    fn size_scratch(&mut self, n: usize) -> Result<()> {
+        if self.scratch.as_ref().is_some_and(|s| s.n == n) {
+            return Ok(());
+        }
+        let (a, k, p, act) = (self.agents, self.k, parts(n), self.act_dim());
+        let w = self.critic.sizes[0];
+        let widest = self.actor.widest().max(self.critic.widest());
+        let staged = Staged::new(a, n, self.obs_dim, self.goal_dim, act);
+        let gpu = self.gpu.get_mut().expect("the device lock");
+        let mut f32s = |len: usize| gpu.alloc(4 * len.max(1));
+        let outs = |f32s: &mut dyn FnMut(usize) -> Result<Ptr>, s: &Shape, members: usize| -> Result<Vec<Ptr>> {
+            s.sizes[1..].iter().map(|&d| f32s(members * n * d)).collect()
+        };
+        let scratch = Scratch {
+            n,
+            staging: f32s(staged.len)?,
+            staging_len: staged.len,
+            sa: f32s(a * k * n * w)?,
+            next_sa: f32s(a * k * n * w)?,
+            spi: f32s(a * n * w)?,
+            y: f32s(a * n)?,
+            actor_out: outs(&mut f32s, &self.actor, a)?,
+            critic_out: outs(&mut f32s, &self.critic, a * k)?,
+            q1_out: outs(&mut f32s, &self.critic, a)?,
+            g: f32s(a * k * n * widest)?,
+            tmp: f32s(a * k * n * widest)?,
+            dpi: f32s(a * n * act)?,
+            lambda: f32s(a)?,
+            actor_grad: f32s(a * p * self.actor.len)?,
+            critic_grad: f32s(a * k * p * self.critic.len)?,
+            sums: f32s(2 * a * p * SUMS)?, // f64
+            host: vec![0.0; staged.len],
+        };
+        self.scratch = Some(scratch);
+        Ok(())
+    }
+
+    /// One update of every agent, agent i on `batches[i]`, with its normalizer and noise stream;
+    /// `updates` is the count after this update (it decides the delayed actor and targets). With
+    /// `stats`, waits for the update and returns its losses (the trainer asks on logging steps).
+    pub fn update(
+        &mut self,
+        c: &AgentConfig,
+        batches: &[Batch],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        stats: bool,
+    ) -> Result<Option<Stats>> {
+        let (a, n, k, act) = (self.agents, batches[0].n, self.k, self.act_dim());
+        let ddpg = c.algo == Algo::Ddpg;
+        let p = parts(n);
+        self.set_norms(norms)?;
+        self.size_scratch(n)?;
+        let delayed = updates.is_multiple_of(c.policy_delay);
+        let actor_moves = ddpg || delayed;
+        let lr = c.lr();
+        let tau = delayed.then_some(c.tau);
+        let critic_step = self.critic_step + 1;
+        let actor_step = self.actor_step + u64::from(actor_moves);
+
+        // The host's part: Adam's constants and the batch (and TD3's target noise, drawn from
+        // each agent's stream in the CPU engine's order), in one upload.
+        let (od, gd) = (self.obs_dim, self.goal_dim);
+        let staged = Staged::new(a, n, od, gd, act);
+        let s = self.scratch.as_mut().expect("sized");
+        debug_assert_eq!(s.staging_len, staged.len);
+        adam_consts(&mut s.host[..CONSTS], lr, actor_step, tau);
+        adam_consts(&mut s.host[CONSTS..2 * CONSTS], lr, critic_step, tau);
+        for (i, b) in batches.iter().enumerate() {
+            let host = &mut s.host;
+            let span = |off: usize, d: usize| off + i * n * d..off + (i + 1) * n * d;
+            host[span(staged.obs, od)].copy_from_slice(&b.obs);
+            host[span(staged.goal, gd)].copy_from_slice(&b.goal);
+            host[span(staged.next_obs, od)].copy_from_slice(&b.next_obs);
+            host[span(staged.action, act)].copy_from_slice(&b.action);
+            host[span(staged.reward, 1)].copy_from_slice(&b.reward);
+            if b.weight.is_empty() {
+                host[span(staged.weight, 1)].fill(1.0);
+            } else {
+                host[span(staged.weight, 1)].copy_from_slice(&b.weight);
+            }
+            let noise = &mut host[span(staged.noise, act)];
+            if !ddpg {
+                for x in noise.iter_mut() {
+                    *x = (noise_rngs[i].standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32;
+                }
+            }
+        }
+        let s = self.scratch.as_ref().expect("sized");
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        gpu.upload(s.staging, f32_bytes(&s.host))?;
+        let batch = |off: usize| at(s.staging, off);
+        let (consts_actor, consts_critic) = (s.staging, at(s.staging, CONSTS));
+        let (actor, critic) = (&self.actor, &self.critic);
+        let w = critic.sizes[0];
+        let (ai, ki, ni) = (a as i32, k as i32, n as i32);
+        let actors = |params: Ptr| View { params, member_stride: actor.len, items: a };
+        let critics = |params: Ptr| View { params, member_stride: critic.len, items: a * k };
+        let sa_rows = Mat { ptr: s.sa, ld: w, trans: false, stride: n * w };
+        // The actor reads its agent's first critic copy of sa: member a·K.
+        let actor_in = |ptr: Ptr| Mat { ptr, ld: w, trans: false, stride: k * n * w };
+
+        // 1. Inputs; the TD target from the target networks; the critics' gradients.
+        let src = (batch(staged.obs), batch(staged.goal), batch(staged.next_obs), batch(staged.action));
+        inputs(gpu, a, k, n, (od, gd, act), src, self.norm_bufs(), (s.sa, s.next_sa))?;
+        forward(gpu, actor, actors(self.actor_net.target), actor_in(s.next_sa), &s.actor_out, n, p)?;
+        gpu.launch(
+            "pgser_target_action",
+            a * k * n * act,
+            &[
+                Arg::I(ai),
+                Arg::I(ki),
+                Arg::I(ni),
+                Arg::I(act as i32),
+                Arg::I(w as i32),
+                Arg::P(*s.actor_out.last().expect("layers")),
+                Arg::P(batch(staged.noise)),
+                Arg::P(s.next_sa),
+                Arg::I(ddpg as i32),
+            ],
+        )?;
+        let next_rows = Mat { ptr: s.next_sa, ..sa_rows };
+        forward(gpu, critic, critics(self.critic_net.target), next_rows, &s.critic_out, n, p)?;
+        let (lo, hi) = c.target_range();
+        let q_top = *s.critic_out.last().expect("layers");
+        gpu.launch(
+            "pgser_td_target",
+            a * n,
+            &[
+                Arg::I(ai),
+                Arg::I(ki),
+                Arg::I(ni),
+                Arg::P(q_top),
+                Arg::P(batch(staged.reward)),
+                Arg::F(c.gamma as f32),
+                Arg::F(lo as f32),
+                Arg::F(hi as f32),
+                Arg::P(s.y),
+            ],
+        )?;
+        forward(gpu, critic, critics(self.critic_net.p), sa_rows, &s.critic_out, n, p)?;
+        let qyw = [Arg::P(q_top), Arg::P(s.y), Arg::P(batch(staged.weight))];
+        gpu.launch(
+            "pgser_critic_grad",
+            a * k * n,
+            &[&[Arg::I(ai), Arg::I(ki), Arg::I(ni)][..], &qyw, &[Arg::F(2.0 / n as f32), Arg::P(s.g)]].concat(),
+        )?;
+        gpu.launch(
+            "pgser_critic_sums",
+            a * p,
+            &[&[Arg::I(ai), Arg::I(ki), Arg::I(ni), Arg::I(p as i32)][..], &qyw, &[Arg::P(s.sums)]].concat(),
+        )?;
+        let grads = Some(s.critic_grad);
+        backward(gpu, critic, critics(self.critic_net.p), sa_rows, &s.critic_out, (s.g, s.tmp), grads, None, n, p)?;
+        // TD3 trains the actor on the critic after its step; DDPG (HER's order) on the one before.
+        if !ddpg {
+            adam(gpu, &self.critic_net, a * k, critic.len, p, s.critic_grad, consts_critic)?;
+        }
+
+        // 2. The actor: π(s, g), Q₁(s, g, π) and ∂(−Q₁/n)/∂π, λ, then the actor's backward pass.
+        if actor_moves {
+            forward(gpu, actor, actors(self.actor_net.p), actor_in(s.sa), &s.actor_out, n, p)?;
+            let pi_top = *s.actor_out.last().expect("layers");
+            gpu.launch(
+                "pgser_policy_input",
+                a * n * w,
+                &[Arg::I(ai), Arg::I(ki), Arg::I(ni), Arg::I(w as i32), Arg::I(act as i32), Arg::P(s.sa), Arg::P(pi_top), Arg::P(s.spi)],
+            )?;
+            let q1 = View { params: self.critic_net.p, member_stride: k * critic.len, items: a };
+            let spi_rows = Mat { ptr: s.spi, ld: w, trans: false, stride: n * w };
+            forward(gpu, critic, q1, spi_rows, &s.q1_out, n, p)?;
+            let q1_top = *s.q1_out.last().expect("layers");
+            gpu.launch("pgser_pi_sums", a * p, &[Arg::I(ai), Arg::I(ni), Arg::I(p as i32), Arg::P(q1_top), Arg::P(s.sums)])?;
+            gpu.launch("pgser_fill", a * n, &[Arg::L((a * n) as i64), Arg::F(-1.0 / n as f32), Arg::P(s.g)])?;
+            let dx = Some((s.dpi, w - act));
+            backward(gpu, critic, q1, spi_rows, &s.q1_out, (s.g, s.tmp), None, dx, n, p)?;
+            let td3bc = c.algo == Algo::Td3bc;
+            gpu.launch(
+                "pgser_lambdas",
+                a,
+                &[Arg::I(ai), Arg::I(p as i32), Arg::I(ni), Arg::F(c.alpha as f32), Arg::I(td3bc as i32), Arg::P(s.sums), Arg::P(s.lambda)],
+            )?;
+            let (bc, l2) = (Arg::I(td3bc as i32), Arg::F(c.action_l2() as f32));
+            let action = Arg::P(batch(staged.action));
+            gpu.launch(
+                "pgser_actor_grad",
+                a * n * act,
+                &[
+                    Arg::I(ai),
+                    Arg::I(ni),
+                    Arg::I(act as i32),
+                    Arg::I(w as i32),
+                    Arg::P(s.spi),
+                    Arg::P(s.dpi),
+                    action,
+                    Arg::P(s.lambda),
+                    bc,
+                    l2,
+                    Arg::F(2.0 / (n * act) as f32),
+                    Arg::P(s.g),
+                ],
+            )?;
+            gpu.launch(
+                "pgser_actor_sums",
+                a * p,
+                &[Arg::I(ai), Arg::I(ni), Arg::I(p as i32), Arg::I(act as i32), Arg::I(w as i32), Arg::P(s.spi), action, bc, l2, Arg::P(s.sums)],
+            )?;
+            let grads = Some(s.actor_grad);
+            backward(gpu, actor, actors(self.actor_net.p), actor_in(s.sa), &s.actor_out, (s.g, s.tmp), grads, None, n, p)?;
+        }
+        if ddpg {
+            adam(gpu, &self.critic_net, a * k, critic.len, p, s.critic_grad, consts_critic)?;
+        }
+        if actor_moves {
+            adam(gpu, &self.actor_net, a, actor.len, p, s.actor_grad, consts_actor)?;
+        }
+        self.critic_step = critic_step;
+        self.actor_step = actor_step;
+        if !stats {
+            return Ok(None);
+        }
+        let mut sums = vec![0.0f64; a * p * SUMS];
+        // SAFETY: f64 has no padding; the vector outlives the slice.
+        let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
+        gpu.download(s.sums, bytes)?;
+        Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+    }
+}
+
+impl<G: Gpu> Engine<G> {
+    /// Every agent's policy, agent i on `rows[i]` (raw observations and goals, `n` rows each),
+    /// as `Fused::act_all` computes it (one product over all rows, no parts).
+    pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
+        let (a, od, gd, act) = (self.agents, self.obs_dim, self.goal_dim, self.act_dim());
+        let sg = od + gd;
+        let obs: Vec<f32> = rows.iter().flat_map(|(o, _)| o[..n * od].iter().copied()).collect();
+        let goal: Vec<f32> = rows.iter().flat_map(|(_, g)| g[..n * gd].iter().copied()).collect();
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        let mut temp = Temp::new(gpu);
+        let (obs_d, goal_d, x) = (temp.upload(&obs)?, temp.upload(&goal)?, temp.zeros(a * n * sg)?);
+        let outs = self.actor.sizes[1..].iter().map(|&d| temp.zeros(a * n * d)).collect::<Result<Vec<_>>>()?;
+        let gpu = &mut *temp.gpu;
+        inputs(gpu, a, 1, n, (od, gd, 0), (obs_d, goal_d, 0, 0), self.norm_bufs(), (x, 0))?;
+        let view = View { params: self.actor_net.p, member_stride: self.actor.len, items: a };
+        forward(gpu, &self.actor, view, Mat { ptr: x, ld: sg, trans: false, stride: n * sg }, &outs, n, 1)?;
+        let top = *outs.last().expect("layers");
+        gpu.launch("pgser_tanh", a * n * act, &[Arg::L((a * n * act) as i64), Arg::P(top)])?;
+        let pi = download_f32(gpu, top, a * n * act)?;
+        temp.free()?;
+        Ok(pi.chunks(n * act).map(<[f32]>::to_vec).collect())
+    }
+
+    /// The smallest of agent 0's critics' values for `n` rows (raw s, g, a), as `Fused::q`.
+    pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Result<Vec<f32>> {
+        let (k, od, gd, act) = (self.k, self.obs_dim, self.goal_dim, self.act_dim());
+        let w = od + gd + act;
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        let mut temp = Temp::new(gpu);
+        let (obs_d, goal_d, act_d) = (temp.upload(&obs[..n * od])?, temp.upload(&goal[..n * gd])?, temp.upload(&action[..n * act])?);
+        let x = temp.zeros(k * n * w)?;
+        let outs = self.critic.sizes[1..].iter().map(|&d| temp.zeros(k * n * d)).collect::<Result<Vec<_>>>()?;
+        let best = temp.zeros(n)?;
+        let gpu = &mut *temp.gpu;
+        inputs(gpu, 1, k, n, (od, gd, act), (obs_d, goal_d, 0, act_d), self.norm_bufs(), (x, 0))?;
+        let view = View { params: self.critic_net.p, member_stride: self.critic.len, items: k };
+        forward(gpu, &self.critic, view, Mat { ptr: x, ld: w, trans: false, stride: n * w }, &outs, n, 1)?;
+        let top = *outs.last().expect("layers");
+        gpu.launch("pgser_min_q", n, &[Arg::I(k as i32), Arg::I(n as i32), Arg::P(top), Arg::P(best)])?;
+        let out = download_f32(gpu, best, n)?;
+        temp.free()?;
+        Ok(out)
+    }
+
+    fn norm_bufs(&self) -> (Ptr, Ptr, Ptr) {
+        (self.norm_mean, self.norm_std, self.norm_clip)
+    }
+}
+
+/// Device buffers for one call, returned at its end.
+struct Temp<'a> {
+    gpu: &'a mut dyn Gpu,
+    bufs: Vec<Ptr>,
+}
+
+impl<'a> Temp<'a> {
+    fn new(gpu: &'a mut dyn Gpu) -> Temp<'a> {
+        Temp { gpu, bufs: Vec::new() }
+    }
+
+    fn zeros(&mut self, len: usize) -> Result<Ptr> {
+        let p = self.gpu.alloc(4 * len.max(1))?;
+        self.bufs.push(p);
+        Ok(p)
+    }
+
+    fn upload(&mut self, v: &[f32]) -> Result<Ptr> {
+        let p = self.zeros(v.len())?;
+        self.gpu.upload(p, f32_bytes(v))?;
+        Ok(p)
+    }
+
+    fn free(self) -> Result<()> {
+        for p in self.bufs {
+            self.gpu.free(p)?;
+        }
+        Ok(())
+    }
+}
+
+/// `pgser_inputs`: the normalized (s, g[, a]) rows of `agents` agents, `copies` times each
+/// (the critics' copies), into `out.0` (and (s', g) into `out.1` when `src.2`, next_obs, is set).
+/// `dims` = (obs, goal, action columns); `src` = (obs, goal, next_obs, action) pointers (0: none).
+fn inputs(
+    gpu: &mut dyn Gpu,
+    agents: usize,
+    copies: usize,
+    n: usize,
+    dims: (usize, usize, usize),
+    src: (Ptr, Ptr, Ptr, Ptr),
+    norm: (Ptr, Ptr, Ptr),
+    out: (Ptr, Ptr),
+) -> Result<()> {
+    let (od, gd, act) = dims;
+    gpu.launch(
+        "pgser_inputs",
+        agents * copies * n * (od + gd + act),
+        &[
+            Arg::I(agents as i32),
+            Arg::I(copies as i32),
+            Arg::I(n as i32),
+            Arg::I(od as i32),
+            Arg::I(gd as i32),
+            Arg::I(act as i32),
+            Arg::P(src.0),
+            Arg::P(src.1),
+            Arg::P(src.2),
+            Arg::P(src.3),
+            Arg::P(norm.0),
+            Arg::P(norm.1),
+            Arg::P(norm.2),
+            Arg::P(out.0),
+            Arg::P(out.1),
+        ],
+    )
+}
+
+/// Adam's constants for step `step`, as `fused/net.rs::adam` computes them (each rounded to f32),
+/// and the Polyak weights when the targets move.
+fn adam_consts(out: &mut [f32], lr: f64, step: u64, tau: Option<f64>) {
+    let t = step.max(1) as i32;
+    out[0] = (lr / (1.0 - BETA1.powi(t))) as f32;
+    out[1] = (1.0 - BETA2.powi(t)).sqrt() as f32;
+    let (keep, take) = tau.map_or((1.0, 0.0), |tau| ((1.0 - tau) as f32, tau as f32));
+    out[2] = keep;
+    out[3] = take;
+    out[4] = if tau.is_some() { 1.0 } else { 0.0 };
+}
+
+/// The per-agent losses from the per-(agent, part) sums, as `Fused::update` computes them.
+fn stats_from_sums(c: &AgentConfig, sums: &[f64], a: usize, p: usize, n: usize, act: usize, actor_moves: bool) -> Stats {
+    (0..a)
+        .map(|i| {
+            let sum = |j: usize| (0..p).map(|q| sums[(i * p + q) * SUMS + j]).sum::<f64>();
+            let (nf, cells) = (n as f64, (n * act) as f64);
+            let actor_loss = actor_moves.then(|| {
+                let lambda = if c.algo == Algo::Td3bc {
+                    let abs = (0..p).map(|q| sums[(i * p + q) * SUMS + 3] as f32).sum::<f32>();
+                    c.alpha as f32 * (1.0 / (abs / n as f32))
+                } else {
+                    1.0
+                };
+                let mut loss = -(lambda as f64) * sum(2) / nf;
+                if c.algo == Algo::Td3bc {
+                    loss += sum(4) / cells;
+                }
+                loss += c.action_l2() * sum(5) / cells;
+                loss as f32
+            });
+            ((sum(0) / nf) as f32, (sum(1) / nf) as f32, actor_loss)
+        })
+        .collect()
+}
+
+/// Forward pass of `view.items` networks of `shape` on `n` rows each: `outs[l]` `[items, n, d]`
+/// gets layer l's output, ReLU'd below the top. `x` is the first layer's input.
+fn forward(gpu: &mut dyn Gpu, shape: &Shape, view: View, x: Mat, outs: &[Ptr], n: usize, p: usize) -> Result<()> {
+    let top = shape.layers() - 1;
+    for l in 0..shape.layers() {
+        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
+        let a = if l == 0 { x } else { Mat { ptr: outs[l - 1], ld: din, trans: false, stride: n * din } };
+        gpu.gemm(&Gemm {
+            m: n,
+            n: dout,
+            k: din,
+            a,
+            b: Mat { ptr: at(view.params, shape.weight(l).start), ld: dout, trans: false, stride: view.member_stride },
+            c: Mat { ptr: outs[l], ld: dout, trans: false, stride: n * dout },
+            batch: view.items,
+            parts: Some(p),
+        })?;
+        gpu.launch(
+            "pgser_bias_act",
+            view.items * n * dout,
+            &[
+                Arg::L((view.items * n) as i64),
+                Arg::I(dout as i32),
+                Arg::P(outs[l]),
+                Arg::P(view.params),
+                Arg::L(view.member_stride as i64),
+                Arg::L(shape.bias(l).start as i64),
+                Arg::I(n as i32),
+                Arg::I((l < top) as i32),
+            ],
+        )?;
+    }
+    Ok(())
+}
+
+/// Backward pass of `view.items` networks from G = ∂loss/∂(top layer's output) in `g.0`
+/// (`[items, n, out]`; `g.1` is scratch of the same size; both are overwritten). With `grad`,
+/// writes each (network, part)'s ∂W and ∂b into `grad` (`[items, p, len]`); with `dx = (ptr,
+/// from)`, the gradient of the input columns `from..` into `ptr` (`[items, n, in − from]`).
+#[allow(clippy::too_many_arguments)]
+fn backward(
+    gpu: &mut dyn Gpu,
+    shape: &Shape,
+    view: View,
+    x: Mat,
+    outs: &[Ptr],
+    g: (Ptr, Ptr),
+    grad: Option<Ptr>,
+    dx: Option<(Ptr, usize)>,
+    n: usize,
+    p: usize,
+) -> Result<()> {
+    let (mut g, mut tmp) = g;
+    let top = shape.layers() - 1;
+    let items = view.items;
+    let len = shape.len;
+    if let Some(grad) = grad {
+        let dout = shape.sizes[top + 1];
+        gpu.launch(
+            "pgser_bias_grad",
+            items * p * dout,
+            &[
+                Arg::L(items as i64),
+                Arg::I(n as i32),
+                Arg::I(p as i32),
+                Arg::I(dout as i32),
+                Arg::P(g),
+                Arg::P(grad),
+                Arg::L(len as i64),
+                Arg::L(shape.bias(top).start as i64),
+            ],
+        )?;
+    }
+    for l in (0..=top).rev() {
+        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
+        let input = if l == 0 { x } else { Mat { ptr: outs[l - 1], ld: din, trans: false, stride: n * din } };
+        let w = at(view.params, shape.weight(l).start);
+        if let Some(grad) = grad {
+            // ∂W = inputᵀ·G, part by part (each part's its own, added by Adam in part order).
+            for q in 0..p {
+                let (start, end) = (n * q / p, n * (q + 1) / p);
+                gpu.gemm(&Gemm {
+                    m: din,
+                    n: dout,
+                    k: end - start,
+                    a: Mat { ptr: at(input.ptr, start * input.ld), ld: input.ld, trans: true, stride: input.stride },
+                    b: Mat { ptr: at(g, start * dout), ld: dout, trans: false, stride: n * dout },
+                    c: Mat { ptr: at(grad, q * len + shape.weight(l).start), ld: dout, trans: false, stride: p * len },
+                    batch: items,
+                    parts: None,
+                })?;
+            }
+        }
+        let g_rows = Mat { ptr: g, ld: dout, trans: false, stride: n * dout };
+        if l > 0 {
+            // G·Wᵀ, masked by the ReLU below, with that layer's ∂b in the same pass.
+            gpu.gemm(&Gemm {
+                m: n,
+                n: din,
+                k: dout,
+                a: g_rows,
+                b: Mat { ptr: w, ld: dout, trans: true, stride: view.member_stride },
+                c: Mat { ptr: tmp, ld: din, trans: false, stride: n * din },
+                batch: items,
+                parts: Some(p),
+            })?;
+            gpu.launch(
+                "pgser_relu_mask",
+                items * p * din,
+                &[
+                    Arg::L(items as i64),
+                    Arg::I(n as i32),
+                    Arg::I(p as i32),
+                    Arg::I(din as i32),
+                    Arg::P(tmp),
+                    Arg::P(outs[l - 1]),
+                    Arg::P(grad.unwrap_or(0)),
+                    Arg::L(len as i64),
+                    Arg::L(shape.bias(l - 1).start as i64),
+                ],
+            )?;
+            std::mem::swap(&mut g, &mut tmp);
+        } else if let Some((dx, from)) = dx {
+            // The input columns from..din only: rows from..din of W.
+            let cols = din - from;
+            gpu.gemm(&Gemm {
+                m: n,
+                n: cols,
+                k: dout,
+                a: g_rows,
+                b: Mat { ptr: at(w, from * dout), ld: dout, trans: true, stride: view.member_stride },
+                c: Mat { ptr: dx, ld: cols, trans: false, stride: n * cols },
+                batch: items,
+                parts: Some(p),
+            })?;
+        }
+    }
+    Ok(())
+}
+
+/// Adam and, when this update's constants say so, Polyak, on `members` networks of `len`.
+fn adam(gpu: &mut dyn Gpu, net: &NetBufs, members: usize, len: usize, p: usize, grad: Ptr, consts: Ptr) -> Result<()> {
+    gpu.launch(
+        "pgser_adam",
+        members * len,
+        &[
+            Arg::L(members as i64),
+            Arg::L(len as i64),
+            Arg::I(p as i32),
+            Arg::P(net.p),
+            Arg::P(net.m),
+            Arg::P(net.v),
+            Arg::P(net.target),
+            Arg::P(grad),
+            Arg::P(consts),
+            Arg::F(BETA1 as f32),
+            Arg::F((1.0 - BETA1) as f32),
+            Arg::F(BETA2 as f32),
+            Arg::F((1.0 - BETA2) as f32),
+            Arg::F(EPS as f32),
+        ],
+    )
+    .context("Adam")
+}

@@ -1,0 +1,199 @@
+//! The CUDA engine against the CPU engine (its reference), on the host shim; and its kernels
+//! through NVRTC for the GPUs pgser is measured on.
+
+use burn::tensor::Device;
+
+use super::host::HostGpu;
+use super::*;
+use crate::agent::fused::Fused;
+use crate::agent::{Agent, AgentConfig, Algo};
+use crate::task::Task;
+
+fn batch(task: &Task, n: usize, seed: u64, weighted: bool) -> Batch {
+    let mut rng = NpRandom::new(seed);
+    let mut u = |k: usize| (0..k).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<_>>();
+    Batch {
+        n,
+        obs: u(n * task.obs_dim),
+        goal: u(n * task.goal_dim),
+        action: u(n * task.act_dim).into_iter().map(|a| 0.9 * a).collect(),
+        reward: u(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
+        next_obs: u(n * task.obs_dim),
+        weight: if weighted { u(n).into_iter().map(|x| 0.75 + 0.5 * x).collect() } else { vec![] },
+    }
+}
+
+fn norms(task: &Task, a: usize) -> Vec<Normalizer> {
+    (0..a)
+        .map(|i| {
+            let mut n = Normalizer::identity(task, 5.0);
+            n.obs_mean.iter_mut().for_each(|m| *m = 0.1 * i as f32);
+            n.goal_std.iter_mut().for_each(|s| *s = 0.5 + i as f32);
+            n
+        })
+        .collect()
+}
+
+/// A stack of `seeds.len()` agents on the CPU engine, and the same state on the shim's engine.
+fn pair(cfg: &AgentConfig, task: &Task, seeds: &[u64]) -> (Agent, Engine<HostGpu>) {
+    let mut cpu = Agent::stack_new(cfg.clone(), task.clone(), norms(task, seeds.len()), seeds, Device::flex());
+    cpu.fuse();
+    let f: &Fused = cpu.fused.as_deref().expect("fused");
+    let (actor, critic) = crate::agent::net_sizes(cfg, task);
+    let engine =
+        Engine::new(HostGpu::default(), &actor, &critic, task.obs_dim, &f.nets, &cpu.norms, f.actor_step, f.critic_step)
+            .expect("the shim's engine");
+    (cpu, engine)
+}
+
+/// Compares two stacks' every network, target and Adam moment: the largest difference relative
+/// to each buffer's scale.
+fn worst(x: &[Nets], y: &[Nets]) -> f32 {
+    let nets = |n: &[Nets]| n.iter().flat_map(|a| std::iter::once(a.actor.clone()).chain(a.critics.clone())).collect::<Vec<_>>();
+    let mut worst = 0.0f32;
+    for (a, b) in nets(x).iter().zip(nets(y)) {
+        for (u, v) in [(&a.p, &b.p), (&a.m, &b.m), (&a.v, &b.v), (&a.target, &b.target)] {
+            let scale = u.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(f32::MIN_POSITIVE);
+            let diff = u.iter().zip(v).fold(0.0f32, |m, (p, q)| m.max((p - q).abs()));
+            worst = worst.max(diff / scale);
+        }
+    }
+    worst
+}
+
+#[test]
+fn the_cuda_engine_on_the_host_shim_is_the_cpu_engine_bit_for_bit() {
+    // The CUDA engine's kernels (compiled as C++) and its launch sequence, with the CPU engine's
+    // products standing in for cuBLAS's: a stack of three agents, batches of 520 rows in two
+    // parts, priorities on one agent, per-agent normalizers, DDPG with its action penalty. Every
+    // logged loss, every weight, target and Adam moment must be the CPU engine's bits over 200
+    // updates (the issue asks 1e-5; bit equality is what the design gives, and it makes a wrong
+    // index impossible to hide behind a tolerance).
+    let task = Task::known("FetchPush").unwrap();
+    for algo in [Algo::Td3bc, Algo::Td3, Algo::Ddpg] {
+        let cfg = AgentConfig { algo, hidden: 64, layers: 2, lr: Some(3e-4), ..AgentConfig::default() };
+        let n = 520;
+        assert_eq!(parts(n), 2);
+        let (mut cpu, mut engine) = pair(&cfg, &task, &[3, 8, 21]);
+        let mut rngs = cpu.noise_rngs.clone();
+        for u in 0..200u64 {
+            let b: Vec<Batch> = (0..3).map(|i| batch(&task, n, 1000 * u + i, i == 1)).collect();
+            let x = cpu.update(&b).read();
+            let y = engine.update(&cfg, &b, &cpu.norms, &mut rngs, u + 1, true).unwrap().unwrap();
+            let y: Vec<(f64, f64, Option<f64>)> =
+                y.iter().map(|&(c, q, a)| (c as f64, q as f64, a.map(f64::from))).collect();
+            assert_eq!(x, y, "{algo:?} update {u}: logged losses");
+        }
+        assert_eq!(cpu.noise_rngs, rngs, "{algo:?}: noise streams");
+        let f = cpu.fused.as_deref().unwrap();
+        assert_eq!((f.actor_step, f.critic_step), (engine.actor_step, engine.critic_step), "{algo:?}: Adam steps");
+        let gpu_nets = engine.nets().unwrap();
+        assert_eq!(worst(&f.nets, &gpu_nets), 0.0, "{algo:?}: the state differs");
+
+        // Acting and scoring: every agent's policy, and agent 0's min Q.
+        let rows: Vec<Batch> = (0..3).map(|i| batch(&task, 37, 77 + i, false)).collect();
+        let pairs: Vec<(&[f32], &[f32])> = rows.iter().map(|b| (&b.obs[..], &b.goal[..])).collect();
+        assert_eq!(f.act_all(&cpu.norms, &pairs, 37), engine.act_all(&pairs, 37).unwrap(), "{algo:?}: act_all");
+        let r = &rows[0];
+        assert_eq!(
+            f.q(&cpu.norms[0], &r.obs, &r.goal, &r.action, 37),
+            engine.q(&r.obs, &r.goal, &r.action, 37).unwrap(),
+            "{algo:?}: q"
+        );
+    }
+}
+
+#[test]
+fn the_shim_engine_is_the_cpu_engine_with_one_part_and_with_four() {
+    // Batch sizes that cut into one part (255 rows) and four (1031 rows, uneven parts), where
+    // every per-part index is exercised differently.
+    let task = Task::known("FetchReach").unwrap();
+    let cfg = AgentConfig { algo: Algo::Td3bc, hidden: 32, layers: 3, ..AgentConfig::default() };
+    for n in [255, 1031] {
+        let (mut cpu, mut engine) = pair(&cfg, &task, &[5]);
+        let mut rngs = cpu.noise_rngs.clone();
+        for u in 0..6u64 {
+            let b = vec![batch(&task, n, 31 * u + n as u64, true)];
+            cpu.update(&b);
+            engine.update(&cfg, &b, &cpu.norms, &mut rngs, u + 1, false).unwrap();
+        }
+        let f = cpu.fused.as_deref().unwrap();
+        assert_eq!(worst(&f.nets, &engine.nets().unwrap()), 0.0, "n = {n} ({} parts)", parts(n));
+    }
+}
+
+#[test]
+fn the_shim_refuses_an_operand_outside_its_buffers() {
+    let mut gpu = HostGpu::default();
+    let a = gpu.alloc(4 * 6).unwrap();
+    let c = gpu.alloc(4 * 4).unwrap();
+    let m = |ptr, ld| Mat { ptr, ld, trans: false, stride: 0 };
+    // 2×3 · 3×2 reads B as 3×2 from a 6-float buffer: fine; 3×3 reads past it.
+    let ok = Gemm { m: 2, n: 2, k: 3, a: m(a, 3), b: m(a, 2), c: m(c, 2), batch: 1, parts: None };
+    gpu.gemm(&ok).unwrap();
+    let err = gpu.gemm(&Gemm { n: 3, b: m(a, 3), ..ok }).unwrap_err().to_string();
+    assert!(err.contains("gemm B") && err.contains("outside every allocation"), "{err}");
+    assert!(gpu.launch("pgser_nonexistent", 1, &[]).unwrap_err().to_string().contains("no kernel named"));
+}
+
+#[test]
+fn every_kernel_compiles_for_sm_90_with_no_register_spills() {
+    // NVRTC from the nvidia-cuda-nvrtc wheel that `make` unpacks into .deps/nvrtc. `make test`
+    // sets PGSER_REQUIRE_NVRTC, so there a missing NVRTC fails; a bare `cargo test` says it skipped.
+    if !nvrtc::available() {
+        assert!(
+            std::env::var_os("PGSER_REQUIRE_NVRTC").is_none(),
+            "PGSER_REQUIRE_NVRTC is set but NVRTC does not load: run `make deps`"
+        );
+        eprintln!("SKIPPED: NVRTC (libnvrtc.so.13) not found: `make deps` installs it");
+        return;
+    }
+    let (major, minor) = nvrtc::version().unwrap();
+    assert_eq!((major, minor), (13, 0), "NVRTC 13.0 is pinned: newer PTX does not load on driver 580");
+    let cubin = nvrtc::compile("sm_90", true).unwrap();
+    assert_eq!(&cubin.image[..4], b"\x7fELF", "a cubin is an ELF image");
+    let report = nvrtc::ptxas_report(&cubin.log);
+    for k in nvrtc::KERNELS {
+        let (_, regs, stores, loads) =
+            report.iter().find(|r| r.0 == *k).unwrap_or_else(|| panic!("{k} missing from ptxas' report:\n{}", cubin.log));
+        assert_eq!((*stores, *loads), (0, 0), "{k} spills ({regs} registers)");
+        assert!(*regs <= 64, "{k} uses {regs} registers: more than a full-occupancy block allows");
+    }
+    let ptx = String::from_utf8(nvrtc::compile("compute_90", false).unwrap().image).unwrap();
+    assert!(ptx.contains(".version 9.0"), "PTX 9.0 (CUDA 13.0): {}", &ptx[..ptx.len().min(400)]);
+    for k in nvrtc::KERNELS {
+        assert!(ptx.contains(&format!(".entry {k}(")), "{k} is not an entry of the PTX");
+    }
+}
+
+#[test]
+fn a_broken_kernel_gives_the_compilers_log() {
+    if !nvrtc::available() {
+        eprintln!("SKIPPED: NVRTC not found");
+        return;
+    }
+    let err = nvrtc::compile_source("extern \"C\" __global__ void k(float* x) { x[0] = undefined_name; }", "sm_90", false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("undefined_name") && err.contains("sm_90"), "{err}");
+}
+
+#[test]
+fn the_kernel_lists_agree() {
+    // Three lists name the kernels: kernels.cu's definitions, shim.cpp's launch table and
+    // `nvrtc::KERNELS` (what the GPU side loads). They must be one set.
+    let defined: Vec<&str> = nvrtc::SOURCE
+        .split("__global__ void ")
+        .skip(1)
+        .map(|s| s.split('(').next().unwrap().trim())
+        .collect();
+    let shim = include_str!("shim.cpp");
+    let table: Vec<&str> = shim.split("PGSER_KERNEL(").skip(2).map(|s| s.split(')').next().unwrap()).collect();
+    let mut listed = nvrtc::KERNELS.to_vec();
+    for v in [&defined, &table] {
+        let mut v = v.clone();
+        v.sort_unstable();
+        listed.sort_unstable();
+        assert_eq!(v, listed);
+    }
+}
