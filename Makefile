@@ -156,15 +156,15 @@ vulkan-deps:
 	      mesa-vulkan-drivers libvulkan1 >/dev/null; }; } || echo "make vulkan-deps: could not install mesa-vulkan-drivers"; \
 	else echo "make vulkan-deps: no Vulkan driver, and not root with apt-get: wgpu will use what it finds (OpenGL) or fail"; fi
 
-# The GPU backends (`--features wgpu`, `--features cuda`) must keep compiling; checked, not built
+# The GPU backends of burn (`--features wgpu`, `--features cuda-burn`) must keep compiling; checked, not built
 # (a release build with them is a second whole build: make build-cuda took 33 min on 2 cores).
 # check-gpu checks both at once; over the artifacts of the wgpu-only check it replaced it took
 # 1 min 59 s here: the CUDA side adds cubecl-cuda, cudarc and cubecl-llvm's C++ shims (against
 # llvm-deps' LLVM).
 check-gpu: llvm-deps
-	$(CUDA_ENV) $(CARGO) check --release $(FEATURES) --features wgpu,cuda --lib --bins
+	$(CUDA_ENV) $(CARGO) check --release $(FEATURES) --features wgpu,cuda-burn --lib --bins
 
-# burn's CUDA backend (`--features cuda`, `--device cuda`). cubecl-cuda always compiles
+# burn's CUDA backend (`--features cuda-burn`, `--device cuda-burn`). cubecl-cuda always compiles
 # cubecl-llvm, whose build-dependency tracel-llvm-bundler downloads an LLVM 23.1 bundle from
 # GitHub at build time, unless the file .tracel-llvm-installed marks one as installed in
 # $$XDG_DATA_HOME/tracel/tracel-llvm-23.1.0-4. llvm-deps installs one there from the package
@@ -197,7 +197,7 @@ $(LLVM_STAMP):
 # The GPU build: pgser-train and pgser-etl with both GPU backends, in target-gpu/ (the default
 # build's binaries stay CPU-only). No HDF5: GPU machines need not have the library.
 build-cuda: deps llvm-deps
-	$(CUDA_ENV) CARGO_TARGET_DIR=target-gpu $(CARGO) build --release --no-default-features --features cuda,wgpu
+	$(CUDA_ENV) CARGO_TARGET_DIR=target-gpu $(CARGO) build --release --no-default-features --features cuda-burn,wgpu
 
 # One folder (target-gpu/bundle/, under 64 MiB with the repo) that measures pgser on a GPU machine
 # in one run: correctness of cuda and wgpu against the CPU, and speed beside JAX and PyTorch.

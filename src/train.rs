@@ -233,7 +233,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         agents.push(agent);
     }
     // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
-    let mut agent = Shards::new(agents, backend);
+    let mut agent = Shards::new(agents, backend)?;
     let cfg = first.cfg.clone();
     let evaluate = |agent: &Shards| -> Result<Option<Vec<EvalReport>>> {
         if cfg.eval_episodes == 0 {
@@ -265,13 +265,15 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         let t0 = Instant::now();
         // Each cell samples from its own streams, so doing it in parallel changes no draw.
         let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
-        let stats = agent.update(&batches);
-        let u = agent.updates();
+        let u = agent.updates() + 1;
         let log = cfg.log_every > 0 && u.is_multiple_of(cfg.log_every);
+        // Losses only on logging steps: on a GPU, reading them waits for the update.
+        let stats = agent.step(&batches, log);
         let mut lines: Vec<MetricsLine> = (0..runs.len())
             .map(|_| MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None })
             .collect();
         if log {
+            let stats = stats.expect("asked for on logging steps");
             for ((line, (critic, q, actor)), run) in lines.iter_mut().zip(stats.read()).zip(&runs) {
                 if !critic.is_finite() {
                     bail!(

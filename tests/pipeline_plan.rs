@@ -128,13 +128,17 @@ fn missing_or_foreign_pickles_an_unbuilt_device_and_an_unwritable_out_fail_first
     if !cfg!(feature = "wgpu") {
         fails_before_any_work(&file, &["--device", "wgpu"], "--device wgpu: this pgser was built without that backend");
     }
-    // Built with cuda on a machine without the driver, it is the driver's line instead (docs/gpu.md).
-    if !cfg!(feature = "cuda") {
+    // Built with cuda-burn on a machine without the driver, it is the driver's line instead (docs/gpu.md).
+    if !cfg!(feature = "cuda-burn") {
         fails_before_any_work(
             &file,
-            &["--device", "cuda"],
-            "--device cuda: this pgser was built without that backend (rebuild with `make build-cuda`",
+            &["--device", "cuda-burn"],
+            "--device cuda-burn: this pgser was built without that backend (rebuild with `make build-cuda`",
         );
+    }
+    // The hand-written CUDA engine is in every build: without the NVIDIA driver, one line says so.
+    if !pgser::agent::cuda::driver_present() {
+        fails_before_any_work(&file, &["--device", "cuda"], "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load)");
     }
 
     // Tests run as root, whom file modes do not stop: out under a regular file cannot be made.

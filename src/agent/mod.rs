@@ -17,6 +17,7 @@
 mod adam;
 pub mod checkpoint;
 pub mod cuda;
+pub mod engine;
 mod fused;
 mod host;
 mod shards;
@@ -33,7 +34,8 @@ use serde::{Deserialize, Serialize};
 pub use adam::Adam;
 pub use host::HostActor;
 pub use shards::Shards;
-pub use td3::{Agent, Batch, UpdateStats, net_sizes, td_target};
+pub use engine::{Batch, EngineKind, Precision};
+pub use td3::{Agent, UpdateStats, net_sizes, td_target};
 
 use crate::nprandom::NpRandom;
 
@@ -423,29 +425,48 @@ fn mean_std(parts: &[&[f32]], dim: usize) -> (Vec<f32>, Vec<f32>) {
 
 /// Where the networks run, and on which engine.
 /// - `cpu`: the hand-written update (`fused/`), pgser's fastest on a CPU (BENCHMARKS.md);
-/// - `cpu-burn`: burn's flex backend, the reference the `cpu` engine is tested against;
+/// - `cpu-burn`: burn's flex backend, the reference the hand-written engines are tested against;
+/// - `cuda`: the hand-written CUDA engine (`cuda/`) on NVIDIA GPU 0, FP32; `cuda-tf32` the same
+///   with TF32 tensor cores in its products (opt-in). In every build: the driver, cuBLAS and NVRTC
+///   are opened at run time (docs/gpu.md says where they come from);
 /// - `wgpu` (Vulkan, Metal, DX12): burn on a GPU, when pgser is built with `--features wgpu`;
-/// - `cuda`: burn on an NVIDIA GPU through CUDA, when pgser is built with `--features cuda`
-///   (`make build-cuda`: its LLVM comes from the package registry, docs/gpu.md).
+/// - `cuda-burn`: burn on an NVIDIA GPU through CUDA, when pgser is built with `--features
+///   cuda-burn` (`make build-cuda`: its LLVM comes from the package registry, docs/gpu.md).
 ///
 /// Everything but training (evaluation, scoring, reports) runs the same on `cpu` and `cpu-burn`.
+/// A precision is a device here rather than a flag of its own, so that pipelines, Slurm jobs and
+/// checkpoints carry it as they carry the device.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Backend {
     Cpu,
     CpuBurn,
-    Wgpu,
     Cuda,
+    CudaTf32,
+    Wgpu,
+    CudaBurn,
 }
 
 impl Backend {
+    /// The burn device of the agent's own fields: the GPU for burn's GPU backends, the CPU
+    /// otherwise (a hand-written engine keeps the training state itself). `cuda` checks here that
+    /// the NVIDIA driver loads, so a machine without one fails before any step starts.
     pub fn device(self) -> anyhow::Result<Device> {
         match self {
             Backend::Cpu | Backend::CpuBurn => Ok(Device::flex()),
+            Backend::Cuda | Backend::CudaTf32 => {
+                if !cuda::driver_present() {
+                    anyhow::bail!(
+                        "--device {}: no NVIDIA driver here (libcuda.so.1 does not load): use --device cpu, or run on a machine with an NVIDIA GPU and its driver",
+                        self.name()
+                    );
+                }
+                Ok(Device::flex())
+            }
             #[cfg(feature = "wgpu")]
             Backend::Wgpu => Ok(wgpu_device()),
-            #[cfg(feature = "cuda")]
-            Backend::Cuda => cuda_device(),
+            #[cfg(feature = "cuda-burn")]
+            Backend::CudaBurn => cuda_device(),
             #[allow(unreachable_patterns)]
             other => anyhow::bail!(
                 "--device {}: this pgser was built without that backend (rebuild with {})",
@@ -455,13 +476,13 @@ impl Backend {
         }
     }
 
-    /// How to get a build with this backend: a cargo feature, or for `cuda` the make target that
-    /// first installs the LLVM its build script would otherwise download (docs/gpu.md).
+    /// How to get a build with this backend: a cargo feature, or for `cuda-burn` the make target
+    /// that first installs the LLVM its build script would otherwise download (docs/gpu.md).
     fn build_command(self) -> &'static str {
         match self {
-            Backend::Cpu | Backend::CpuBurn => "`cargo build --release`",
+            Backend::Cpu | Backend::CpuBurn | Backend::Cuda | Backend::CudaTf32 => "`cargo build --release`",
             Backend::Wgpu => "`cargo build --release --features wgpu`",
-            Backend::Cuda => "`make build-cuda`, which installs the LLVM it needs; docs/gpu.md",
+            Backend::CudaBurn => "`make build-cuda`, which installs the LLVM it needs; docs/gpu.md",
         }
     }
 
@@ -469,14 +490,21 @@ impl Backend {
         match self {
             Backend::Cpu => "cpu",
             Backend::CpuBurn => "cpu-burn",
-            Backend::Wgpu => "wgpu",
             Backend::Cuda => "cuda",
+            Backend::CudaTf32 => "cuda-tf32",
+            Backend::Wgpu => "wgpu",
+            Backend::CudaBurn => "cuda-burn",
         }
     }
 
-    /// Whether stacks train on the hand-written CPU engine.
-    pub fn fused(self) -> bool {
-        self == Backend::Cpu
+    /// The hand-written engine stacks train on, if any (else burn's update).
+    pub fn engine(self) -> Option<EngineKind> {
+        match self {
+            Backend::Cpu => Some(EngineKind::Cpu),
+            Backend::Cuda => Some(EngineKind::Cuda(Precision::F32)),
+            Backend::CudaTf32 => Some(EngineKind::Cuda(Precision::Tf32)),
+            Backend::CpuBurn | Backend::Wgpu | Backend::CudaBurn => None,
+        }
     }
 }
 
@@ -484,22 +512,22 @@ impl Backend {
 /// `libcuda.so` in burn's worker thread and panics there when it is missing, and the caller then
 /// dies on a closed channel with no word about CUDA; a machine without the NVIDIA driver must get
 /// one line instead. The device's name is logged once, as wgpu's adapter is.
-#[cfg(feature = "cuda")]
+#[cfg(feature = "cuda-burn")]
 fn cuda_device() -> anyhow::Result<Device> {
     static LOGGED: std::sync::Once = std::sync::Once::new();
     // SAFETY: dlopen of a shared library by name, flags from libc; the handle is closed at once.
     let handle = unsafe { libc::dlopen(c"libcuda.so.1".as_ptr(), libc::RTLD_NOW | libc::RTLD_LOCAL) };
     if handle.is_null() {
         anyhow::bail!(
-            "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load): use --device cpu, or run on a machine with an NVIDIA GPU and its driver"
+            "--device cuda-burn: no NVIDIA driver here (libcuda.so.1 does not load): use --device cpu, or run on a machine with an NVIDIA GPU and its driver"
         );
     }
     // SAFETY: the handle came from the dlopen above and is not used after.
     unsafe { libc::dlclose(handle) };
     let device = Device::cuda(0);
     LOGGED.call_once(|| match device.identity() {
-        Some(id) => eprintln!("--device cuda: running on {}", id.name),
-        None => eprintln!("--device cuda: running on CUDA device 0"),
+        Some(id) => eprintln!("--device cuda-burn: running on {}", id.name),
+        None => eprintln!("--device cuda-burn: running on CUDA device 0"),
     });
     Ok(device)
 }

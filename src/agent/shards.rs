@@ -39,8 +39,9 @@ fn shard_count(agents: usize, backend: Backend) -> usize {
 impl Shards {
     /// `agents` (stacks, each usually of one agent, all with the same settings, task and update
     /// count) regrouped in order into the parts `backend` wants; the first `len % parts` get one
-    /// more. On `Backend::Cpu` the stack trains on the hand-written engine.
-    pub fn new(agents: Vec<Agent>, backend: Backend) -> Shards {
+    /// more. Where `backend` has a hand-written engine (`cpu`, `cuda`), the stack trains on it;
+    /// that fails, in one line, where the engine cannot start (no GPU).
+    pub fn new(agents: Vec<Agent>, backend: Backend) -> anyhow::Result<Shards> {
         assert!(!agents.is_empty(), "no agent to shard");
         let k = shard_count(agents.len(), backend).clamp(1, agents.len());
         let mut rest = agents.into_iter();
@@ -52,8 +53,8 @@ impl Shards {
             starts.push(start);
             start += group.iter().map(Agent::agents).sum::<usize>();
             let mut part = if group.len() == 1 { group.into_iter().next().expect("one") } else { Agent::stack(group) };
-            if backend.fused() {
-                part.fuse();
+            if let Some(kind) = backend.engine() {
+                part.attach(kind)?;
             }
             parts.push(part);
         }
@@ -70,7 +71,7 @@ impl Shards {
         } else {
             Vec::new()
         };
-        Shards { parts, starts, pools }
+        Ok(Shards { parts, starts, pools })
     }
 
     /// Agents in all parts.
@@ -112,9 +113,14 @@ impl Shards {
 
     /// One update of every agent, agent i on `batches[i]`; the parts run side by side.
     pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
+        self.step(batches, true).expect("asked for")
+    }
+
+    /// `update`, returning the losses only when `stats` (`Agent::step`).
+    pub fn step(&mut self, batches: &[Batch], stats: bool) -> Option<UpdateStats> {
         assert_eq!(batches.len(), self.agents(), "one batch per agent");
         if self.pools.is_empty() {
-            return self.parts[0].update(batches);
+            return self.parts[0].step(batches, stats);
         }
         let chunks = self.pieces(batches);
         let pools = &self.pools;
@@ -123,9 +129,9 @@ impl Shards {
             .par_iter_mut()
             .zip(chunks)
             .enumerate()
-            .map(|(p, (part, b))| pools[p].install(|| part.update(b)))
-            .collect();
-        UpdateStats::cat(stats)
+            .map(|(p, (part, b))| pools[p].install(|| part.step(b, stats)))
+            .collect::<Option<_>>()?;
+        Some(UpdateStats::cat(stats))
     }
 
     /// Every agent's policy on its rows (as [`Agent::act_all`]); the parts run side by side.

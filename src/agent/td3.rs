@@ -9,36 +9,13 @@
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
 
+use anyhow::Result;
+
+use super::engine::{Batch, Engine, EngineKind, Net, Nets, State};
 use super::fused::{self, Fused};
 use super::{Adam, AgentConfig, Algo, Member, Mlp, Normalizer, host, init_member};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
-
-/// A training batch on the host: row i is (s, g, a, r, s'). `goal` is the goal the transition is
-/// trained on (original, relabelled or swapped) and `reward` was computed for that goal.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Batch {
-    pub n: usize,
-    pub obs: Vec<f32>,
-    pub goal: Vec<f32>,
-    pub action: Vec<f32>,
-    pub reward: Vec<f32>,
-    pub next_obs: Vec<f32>,
-    /// Importance-sampling weights of the critic loss per row; empty means all 1.
-    pub weight: Vec<f32>,
-}
-
-impl Batch {
-    /// Appends `other`'s rows (weights are handled by the caller, who knows both halves).
-    pub fn append(&mut self, other: &Batch) {
-        self.n += other.n;
-        self.obs.extend_from_slice(&other.obs);
-        self.goal.extend_from_slice(&other.goal);
-        self.action.extend_from_slice(&other.action);
-        self.reward.extend_from_slice(&other.reward);
-        self.next_obs.extend_from_slice(&other.next_obs);
-    }
-}
 
 /// Losses of one update per agent (`[A]` tensors), left on the device: reading them forces a
 /// sync, so the trainer reads them only when it logs.
@@ -89,11 +66,12 @@ pub struct Agent {
     pub updates: u64,
     /// Agent i's target-policy smoothing noise stream.
     pub noise_rngs: Vec<NpRandom>,
-    /// The hand-written CPU engine (`fused/`), when this stack trains on it: it then holds the
-    /// newest networks, targets and Adam state, and the burn fields above are as of the last
-    /// `sync` (`stale` says whether updates came since). Checkpoints are written from the burn
-    /// fields and refuse a stale agent, so a missed `sync` fails loudly, never silently.
-    pub(super) fused: Option<Box<Fused>>,
+    /// The hand-written engine (`engine.rs`: the CPU's or the GPU's), when this stack trains on
+    /// one: it then holds the newest networks, targets and Adam state, and the burn fields above
+    /// are as of the last `sync` (`stale` says whether updates came since). Checkpoints are
+    /// written from the burn fields and refuse a stale agent, so a missed `sync` fails loudly,
+    /// never silently.
+    pub(super) engine: Option<Box<dyn Engine>>,
     stale: bool,
 }
 
@@ -141,7 +119,7 @@ impl Agent {
             critics,
             updates: 0,
             noise_rngs: seeds.iter().map(|&s| NpRandom::spawned(s, &[STREAM_NOISE])).collect(),
-            fused: None,
+            engine: None,
             stale: false,
             config,
             task,
@@ -173,61 +151,91 @@ impl Agent {
             task: first.task.clone(),
             updates: first.updates,
             device: first.device.clone(),
-            fused: None,
+            engine: None,
             stale: false,
         }
     }
 
     /// Trains from now on with the hand-written CPU engine (`fused/`), from the current state.
     pub fn fuse(&mut self) {
-        if self.fused.is_some() {
-            return;
+        self.attach(EngineKind::Cpu).expect("the CPU engine starts without fail");
+    }
+
+    /// Trains from now on with the hand-written engine `kind`, from the current state (a no-op
+    /// when it already trains on a hand-written engine). Fails where the engine cannot start
+    /// (no GPU, no driver), in one line.
+    pub fn attach(&mut self, kind: EngineKind) -> Result<()> {
+        if self.engine.is_some() {
+            return Ok(());
         }
         let (actor_sizes, critic_sizes) = super::net_sizes(&self.config, &self.task);
+        let state = self.burn_state();
+        self.engine = Some(match kind {
+            EngineKind::Cpu => {
+                Box::new(Fused::new(&actor_sizes, &critic_sizes, state.nets, state.actor_step, state.critic_step))
+            }
+            EngineKind::Cuda(precision) => Box::new(super::cuda::CudaEngine::new(
+                super::cuda::open(0, precision)?,
+                &actor_sizes,
+                &critic_sizes,
+                self.task.obs_dim,
+                &state.nets,
+                &self.norms,
+                state.actor_step,
+                state.critic_step,
+            )?),
+        });
+        Ok(())
+    }
+
+    /// The burn fields' training state in the engines' flat layout.
+    pub(in crate::agent) fn burn_state(&self) -> State {
         let k = self.config.algo.critics();
         let flat = |m: &Member| fused::flatten(m);
         let (actor, actor_target, critics, critics_target) =
             (self.actor.tensors(), self.actor_target.tensors(), self.critics.tensors(), self.critics_target.tensors());
         let net = |p: &[(Vec<usize>, Vec<f32>)], t: &[(Vec<usize>, Vec<f32>)], opt: &Adam, j: usize| {
             let (m, v) = opt.member(j);
-            fused::Net {
-                p: flat(&super::member_of(p, j)),
-                m: flat(&m),
-                v: flat(&v),
-                target: flat(&super::member_of(t, j)),
-            }
+            Net { p: flat(&super::member_of(p, j)), m: flat(&m), v: flat(&v), target: flat(&super::member_of(t, j)) }
         };
         let nets = (0..self.agents())
-            .map(|i| fused::Nets {
+            .map(|i| Nets {
                 actor: net(&actor, &actor_target, &self.actor_opt, i),
                 critics: (0..k).map(|c| net(&critics, &critics_target, &self.critics_opt, k * i + c)).collect(),
             })
             .collect();
-        let (a, c) = (self.actor_opt.step, self.critics_opt.step);
-        self.fused = Some(Box::new(Fused::new(&actor_sizes, &critic_sizes, nets, a, c)));
+        State { nets, actor_step: self.actor_opt.step, critic_step: self.critics_opt.step }
     }
 
-    /// Writes the CPU engine's state back into the burn fields (a no-op when they are current).
+    /// Writes the engine's state back into the burn fields (a no-op when they are current).
+    /// Panics if the engine cannot give its state back (a GPU lost mid-run), so no checkpoint is
+    /// ever written from old fields.
     pub fn sync(&mut self) {
-        let Some(f) = self.fused.as_deref() else { return };
+        let Some(e) = self.engine.as_deref() else { return };
         if !self.stale {
             return;
         }
-        let (a, k, d, lr) = (self.agents(), self.config.algo.critics(), &self.device, self.config.lr());
-        let actors = |pick: fn(&fused::Net) -> &Vec<f32>| (0..a).map(|i| f.actor_member(i, pick)).collect::<Vec<_>>();
-        let critics = |pick: fn(&fused::Net) -> &Vec<f32>| {
-            (0..a * k).map(|j| f.critic_member(j / k, j % k, pick)).collect::<Vec<_>>()
+        let state = e.state().unwrap_or_else(|err| panic!("reading the training state back from the engine: {err:#}"));
+        let (k, d, lr) = (self.config.algo.critics(), &self.device, self.config.lr());
+        let (actor_sizes, critic_sizes) = super::net_sizes(&self.config, &self.task);
+        let unflat = |v: &Vec<f32>, sizes: &[usize]| fused::unflatten(v, sizes);
+        let actors = |pick: fn(&Net) -> &Vec<f32>| {
+            state.nets.iter().map(|n| unflat(pick(&n.actor), &actor_sizes)).collect::<Vec<_>>()
         };
+        let critics = |pick: fn(&Net) -> &Vec<f32>| {
+            state.nets.iter().flat_map(|n| n.critics.iter().map(|c| unflat(pick(c), &critic_sizes))).collect::<Vec<_>>()
+        };
+        debug_assert!(state.nets.iter().all(|n| n.critics.len() == k));
         self.actor = Mlp::from_members(&actors(|n| &n.p), d);
         self.actor_target = Mlp::from_members(&actors(|n| &n.target), d);
-        self.actor_opt = Adam::from_members(lr, f.actor_step, &actors(|n| &n.m), &actors(|n| &n.v), d);
+        self.actor_opt = Adam::from_members(lr, state.actor_step, &actors(|n| &n.m), &actors(|n| &n.v), d);
         self.critics = Mlp::from_members(&critics(|n| &n.p), d);
         self.critics_target = Mlp::from_members(&critics(|n| &n.target), d);
-        self.critics_opt = Adam::from_members(lr, f.critic_step, &critics(|n| &n.m), &critics(|n| &n.v), d);
+        self.critics_opt = Adam::from_members(lr, state.critic_step, &critics(|n| &n.m), &critics(|n| &n.v), d);
         self.stale = false;
     }
 
-    /// Whether updates on the CPU engine came since the last `sync`.
+    /// Whether updates on the hand-written engine came since the last `sync`.
     pub fn is_stale(&self) -> bool {
         self.stale
     }
@@ -239,22 +247,31 @@ impl Agent {
 
     /// One TD3 / TD3+BC / DDPG update of every agent, agent i on `batches[i]` (all of one size).
     pub fn update(&mut self, batches: &[Batch]) -> UpdateStats {
+        self.step(batches, true).expect("asked for")
+    }
+
+    /// `update`, returning the losses only when `stats` (a GPU engine then waits for the update;
+    /// the trainer asks on logging steps only). Panics, with the engine's one-line error, where a
+    /// hand-written engine fails mid-run (a GPU fault): nothing can be trained on after that.
+    pub fn step(&mut self, batches: &[Batch], stats: bool) -> Option<UpdateStats> {
         let c = &self.config;
         let (a, n, act_dim, k) = (self.agents(), batches[0].n, self.task.act_dim, c.algo.critics());
         let ddpg = c.algo == Algo::Ddpg;
         assert_eq!(batches.len(), a, "one batch per agent");
         assert!(batches.iter().all(|b| b.n == n), "the agents' batches differ in size");
-        if let Some(f) = self.fused.as_deref_mut() {
+        if let Some(e) = self.engine.as_deref_mut() {
             self.updates += 1;
             self.stale = true;
-            let stats = f.update(c, batches, &self.norms, &mut self.noise_rngs, self.updates);
+            let stats = e
+                .update(c, batches, &self.norms, &mut self.noise_rngs, self.updates, stats)
+                .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
             let column = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [a]), &self.device);
             let actor = stats[0].2.is_some().then(|| column(stats.iter().map(|s| s.2.unwrap_or(0.0)).collect()));
-            return UpdateStats {
+            return Some(UpdateStats {
                 critic_loss: column(stats.iter().map(|s| s.0).collect()),
                 q_mean: column(stats.iter().map(|s| s.1).collect()),
                 actor_loss: actor,
-            };
+            });
         }
         let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
         let next_sg = self.input(batches.iter().map(|b| (&b.next_obs[..], &b.goal[..])), n);
@@ -338,7 +355,7 @@ impl Agent {
             self.actor_target.soft_update(&self.actor, c.tau);
             self.critics_target.soft_update(&self.critics, c.tau);
         }
-        UpdateStats { critic_loss: per_agent.detach().reshape([a]).without_autodiff(), q_mean, actor_loss }
+        Some(UpdateStats { critic_loss: per_agent.detach().reshape([a]).without_autodiff(), q_mean, actor_loss })
     }
 
     /// The deterministic policy π(s, g) of agent 0 for `n` rows of raw observations and goals.
@@ -349,8 +366,8 @@ impl Agent {
     /// Every agent's policy at once, agent i on `rows[i]` = (observations, goals) of `n` rows:
     /// one forward pass for all agents' environments.
     pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Vec<Vec<f32>> {
-        if let Some(f) = self.fused.as_deref() {
-            return f.act_all(&self.norms, rows, n);
+        if let Some(e) = self.engine.as_deref() {
+            return e.act_all(&self.norms, rows, n).unwrap_or_else(|err| panic!("acting: {err:#}"));
         }
         let out = host(tanh(self.actor.forward(self.input(rows.iter().copied(), n)))).1;
         out.chunks(n * self.task.act_dim).map(<[f32]>::to_vec).collect()
@@ -359,8 +376,8 @@ impl Agent {
     /// min(Q1, Q2)(s, g, a) of agent 0 for `n` rows (DDPG: its critic's Q): the score PGSER's
     /// Alg. 2 ranks swapped transitions by.
     pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Vec<f32> {
-        if let Some(f) = self.fused.as_deref() {
-            return f.q(&self.norms[0], obs, goal, action, n);
+        if let Some(e) = self.engine.as_deref() {
+            return e.q(&self.norms[0], obs, goal, action, n).unwrap_or_else(|err| panic!("scoring: {err:#}"));
         }
         let a = self.agents();
         let sg = self.input(std::iter::repeat_n((obs, goal), a), n);

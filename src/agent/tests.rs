@@ -405,7 +405,7 @@ fn a_grid_split_across_cores_trains_each_agent_as_alone() {
     let (grid, stats) = two.install(|| {
         let alone: Vec<Agent> =
             seeds.iter().map(|&s| Agent::new(cfg.clone(), task.clone(), unit_norm(&task), s, device())).collect();
-        let mut grid = Shards::new(alone, Backend::CpuBurn);
+        let mut grid = Shards::new(alone, Backend::CpuBurn).unwrap();
         let stats: Vec<_> = batches.iter().map(|b| grid.update(b).read()).collect();
         (grid, stats)
     });

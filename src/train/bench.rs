@@ -67,7 +67,7 @@ pub fn bench_agents(
     // As the trainer holds a grid (agent/shards.rs).
     let alone =
         (0..agents as u64).map(|s| Agent::new(agent_cfg.clone(), task.clone(), norm.clone(), s, device.clone()));
-    let mut agent = Shards::new(alone.collect(), backend);
+    let mut agent = Shards::new(alone.collect(), backend)?;
     let shards = agent.parts().len();
     let mut run = |k: u64| {
         let mut last = None;

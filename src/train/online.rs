@@ -269,8 +269,8 @@ pub fn train_online(
             metrics: vec![],
         }
     };
-    if backend.fused() {
-        run.agent.fuse();
+    if let Some(kind) = backend.engine() {
+        run.agent.attach(kind)?;
     }
     bar.set_length(cfg.epochs * cfg.cycles);
     bar.set_position(run.progress.epoch * cfg.cycles + run.progress.cycle);

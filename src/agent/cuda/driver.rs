@@ -9,13 +9,7 @@ use cudarc::driver::{CudaContext, CudaFunction, CudaStream, LaunchConfig, PushKe
 use cudarc::nvrtc::Ptx;
 
 use super::{Arg, Gemm, Gpu, Ptr, nvrtc};
-
-/// Floats in products: FP32 (cuBLAS's default math), or TF32 tensor cores (opt-in).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Precision {
-    F32,
-    Tf32,
-}
+use crate::agent::engine::Precision;
 
 pub struct CudaGpu {
     ctx: Arc<CudaContext>,

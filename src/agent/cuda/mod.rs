@@ -42,11 +42,12 @@ use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 
-use super::fused::{Net, Nets, Shape, parts};
-use super::{AgentConfig, Algo, Batch, Normalizer};
+use super::engine::{Batch, Engine, Net, Nets, State, Stats};
+use super::fused::{Shape, parts};
+use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
 
-pub use driver::{CudaGpu, open as open_cuda};
+pub use driver::{CudaGpu, driver_present, open};
 
 /// A device address (a host address on the shim).
 pub type Ptr = u64;
@@ -211,12 +212,8 @@ impl Staged {
     }
 }
 
-/// Per agent: (critic loss, mean Q₁ over the batch, actor loss if the actor moved), as the CPU
-/// engine's `fused::Stats`.
-pub type Stats = Vec<(f32, f32, Option<f32>)>;
-
 /// The stack's training state on a device, and the scratch of its update.
-pub struct Engine<G: Gpu> {
+pub struct CudaEngine<G: Gpu> {
     gpu: Mutex<G>,
     actor: Shape,
     critic: Shape,
@@ -237,7 +234,7 @@ pub struct Engine<G: Gpu> {
     scratch: Option<Scratch>,
 }
 
-impl<G: Gpu> Engine<G> {
+impl<G: Gpu> CudaEngine<G> {
     /// A stack on `gpu` from its state on the host (as `Fused::new` takes it) and its agents'
     /// normalizers.
     #[allow(clippy::too_many_arguments)]
@@ -250,7 +247,7 @@ impl<G: Gpu> Engine<G> {
         norms: &[Normalizer],
         actor_step: u64,
         critic_step: u64,
-    ) -> Result<Engine<G>> {
+    ) -> Result<CudaEngine<G>> {
         let (actor, critic) = (Shape::new(actor_sizes), Shape::new(critic_sizes));
         let (agents, k) = (nets.len(), nets[0].critics.len());
         let sg = actor_sizes[0];
@@ -268,7 +265,7 @@ impl<G: Gpu> Engine<G> {
         let norm_mean = gpu.alloc(4 * agents * sg)?;
         let norm_std = gpu.alloc(4 * agents * sg)?;
         let norm_clip = gpu.alloc(4 * agents)?;
-        let mut engine = Engine {
+        let mut engine = CudaEngine {
             gpu: Mutex::new(gpu),
             actor,
             critic,
@@ -565,7 +562,7 @@ impl<G: Gpu> Engine<G> {
     }
 }
 
-impl<G: Gpu> Engine<G> {
+impl<G: Gpu> CudaEngine<G> {
     /// Every agent's policy, agent i on `rows[i]` (raw observations and goals, `n` rows each),
     /// as `Fused::act_all` computes it (one product over all rows, no parts).
     pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
@@ -611,6 +608,34 @@ impl<G: Gpu> Engine<G> {
 
     fn norm_bufs(&self) -> (Ptr, Ptr, Ptr) {
         (self.norm_mean, self.norm_std, self.norm_clip)
+    }
+}
+
+impl<G: Gpu + 'static> Engine for CudaEngine<G> {
+    fn update(
+        &mut self,
+        c: &AgentConfig,
+        batches: &[Batch],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        stats: bool,
+    ) -> Result<Option<Stats>> {
+        CudaEngine::update(self, c, batches, norms, noise_rngs, updates, stats)
+    }
+
+    fn act_all(&self, norms: &[Normalizer], rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
+        anyhow::ensure!(norms == self.norms, "the CUDA engine holds other normalizers than the agent's");
+        CudaEngine::act_all(self, rows, n)
+    }
+
+    fn q(&self, norm: &Normalizer, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Result<Vec<f32>> {
+        anyhow::ensure!(norm == &self.norms[0], "the CUDA engine holds another normalizer than agent 0's");
+        CudaEngine::q(self, obs, goal, action, n)
+    }
+
+    fn state(&self) -> Result<State> {
+        Ok(State { nets: self.nets()?, actor_step: self.actor_step, critic_step: self.critic_step })
     }
 }
 

@@ -7,6 +7,7 @@ use super::host::HostGpu;
 use super::*;
 use crate::agent::fused::Fused;
 use crate::agent::{Agent, AgentConfig, Algo};
+use crate::agent::engine::Nets;
 use crate::task::Task;
 
 fn batch(task: &Task, n: usize, seed: u64, weighted: bool) -> Batch {
@@ -34,16 +35,16 @@ fn norms(task: &Task, a: usize) -> Vec<Normalizer> {
         .collect()
 }
 
-/// A stack of `seeds.len()` agents on the CPU engine, and the same state on the shim's engine.
-fn pair(cfg: &AgentConfig, task: &Task, seeds: &[u64]) -> (Agent, Engine<HostGpu>) {
-    let mut cpu = Agent::stack_new(cfg.clone(), task.clone(), norms(task, seeds.len()), seeds, Device::flex());
-    cpu.fuse();
-    let f: &Fused = cpu.fused.as_deref().expect("fused");
+/// A new stack of `seeds.len()` agents on the CPU engine, the same state on the shim's engine,
+/// and the agents' normalizers and noise streams.
+fn pair(cfg: &AgentConfig, task: &Task, seeds: &[u64]) -> (Fused, CudaEngine<HostGpu>, Vec<Normalizer>, Vec<NpRandom>) {
+    let agent = Agent::stack_new(cfg.clone(), task.clone(), norms(task, seeds.len()), seeds, Device::flex());
+    let s = agent.burn_state();
     let (actor, critic) = crate::agent::net_sizes(cfg, task);
-    let engine =
-        Engine::new(HostGpu::default(), &actor, &critic, task.obs_dim, &f.nets, &cpu.norms, f.actor_step, f.critic_step)
-            .expect("the shim's engine");
-    (cpu, engine)
+    let fused = Fused::new(&actor, &critic, s.nets.clone(), s.actor_step, s.critic_step);
+    let engine = CudaEngine::new(HostGpu::default(), &actor, &critic, task.obs_dim, &s.nets, &agent.norms, s.actor_step, s.critic_step)
+        .expect("the shim's engine");
+    (fused, engine, agent.norms, agent.noise_rngs)
 }
 
 /// Compares two stacks' every network, target and Adam moment: the largest difference relative
@@ -74,18 +75,15 @@ fn the_cuda_engine_on_the_host_shim_is_the_cpu_engine_bit_for_bit() {
         let cfg = AgentConfig { algo, hidden: 64, layers: 2, lr: Some(3e-4), ..AgentConfig::default() };
         let n = 520;
         assert_eq!(parts(n), 2);
-        let (mut cpu, mut engine) = pair(&cfg, &task, &[3, 8, 21]);
-        let mut rngs = cpu.noise_rngs.clone();
+        let (mut f, mut engine, norms, mut cpu_rngs) = pair(&cfg, &task, &[3, 8, 21]);
+        let mut rngs = cpu_rngs.clone();
         for u in 0..200u64 {
             let b: Vec<Batch> = (0..3).map(|i| batch(&task, n, 1000 * u + i, i == 1)).collect();
-            let x = cpu.update(&b).read();
-            let y = engine.update(&cfg, &b, &cpu.norms, &mut rngs, u + 1, true).unwrap().unwrap();
-            let y: Vec<(f64, f64, Option<f64>)> =
-                y.iter().map(|&(c, q, a)| (c as f64, q as f64, a.map(f64::from))).collect();
+            let x = f.update(&cfg, &b, &norms, &mut cpu_rngs, u + 1);
+            let y = engine.update(&cfg, &b, &norms, &mut rngs, u + 1, true).unwrap().unwrap();
             assert_eq!(x, y, "{algo:?} update {u}: logged losses");
         }
-        assert_eq!(cpu.noise_rngs, rngs, "{algo:?}: noise streams");
-        let f = cpu.fused.as_deref().unwrap();
+        assert_eq!(cpu_rngs, rngs, "{algo:?}: noise streams");
         assert_eq!((f.actor_step, f.critic_step), (engine.actor_step, engine.critic_step), "{algo:?}: Adam steps");
         let gpu_nets = engine.nets().unwrap();
         assert_eq!(worst(&f.nets, &gpu_nets), 0.0, "{algo:?}: the state differs");
@@ -93,10 +91,10 @@ fn the_cuda_engine_on_the_host_shim_is_the_cpu_engine_bit_for_bit() {
         // Acting and scoring: every agent's policy, and agent 0's min Q.
         let rows: Vec<Batch> = (0..3).map(|i| batch(&task, 37, 77 + i, false)).collect();
         let pairs: Vec<(&[f32], &[f32])> = rows.iter().map(|b| (&b.obs[..], &b.goal[..])).collect();
-        assert_eq!(f.act_all(&cpu.norms, &pairs, 37), engine.act_all(&pairs, 37).unwrap(), "{algo:?}: act_all");
+        assert_eq!(f.act_all(&norms, &pairs, 37), engine.act_all(&pairs, 37).unwrap(), "{algo:?}: act_all");
         let r = &rows[0];
         assert_eq!(
-            f.q(&cpu.norms[0], &r.obs, &r.goal, &r.action, 37),
+            f.q(&norms[0], &r.obs, &r.goal, &r.action, 37),
             engine.q(&r.obs, &r.goal, &r.action, 37).unwrap(),
             "{algo:?}: q"
         );
@@ -110,14 +108,13 @@ fn the_shim_engine_is_the_cpu_engine_with_one_part_and_with_four() {
     let task = Task::known("FetchReach").unwrap();
     let cfg = AgentConfig { algo: Algo::Td3bc, hidden: 32, layers: 3, ..AgentConfig::default() };
     for n in [255, 1031] {
-        let (mut cpu, mut engine) = pair(&cfg, &task, &[5]);
-        let mut rngs = cpu.noise_rngs.clone();
+        let (mut f, mut engine, norms, mut cpu_rngs) = pair(&cfg, &task, &[5]);
+        let mut rngs = cpu_rngs.clone();
         for u in 0..6u64 {
             let b = vec![batch(&task, n, 31 * u + n as u64, true)];
-            cpu.update(&b);
-            engine.update(&cfg, &b, &cpu.norms, &mut rngs, u + 1, false).unwrap();
+            f.update(&cfg, &b, &norms, &mut cpu_rngs, u + 1);
+            engine.update(&cfg, &b, &norms, &mut rngs, u + 1, false).unwrap();
         }
-        let f = cpu.fused.as_deref().unwrap();
         assert_eq!(worst(&f.nets, &engine.nets().unwrap()), 0.0, "n = {n} ({} parts)", parts(n));
     }
 }

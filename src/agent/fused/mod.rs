@@ -30,31 +30,23 @@
 
 use rayon::prelude::*;
 
-use super::{AgentConfig, Algo, Member, Normalizer};
+use super::engine::{Batch, Engine, Nets, State, Stats};
+use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
-
-use super::td3::Batch;
 
 mod net;
 #[cfg(test)]
 mod tests;
 
-pub(in crate::agent) use net::Shape;
-use net::{MAX_PARTS, adam, backward, forward, unflatten};
-pub use net::{Net, flatten};
+pub(in crate::agent) use net::{Shape, unflatten};
+use net::{MAX_PARTS, adam, backward, forward};
+pub use net::flatten;
 
 /// The parts a batch of `n` rows is cut into: about 256 rows each (a product of that height still
 /// runs near the micro-kernel's peak), at least one, at most four. A function of `n` only, so the
 /// bytes never depend on the machine.
 pub fn parts(n: usize) -> usize {
     (n / 256).clamp(1, MAX_PARTS)
-}
-
-/// One agent's networks: its actor and its K critics.
-#[derive(Debug, Clone)]
-pub struct Nets {
-    pub actor: Net,
-    pub critics: Vec<Net>,
 }
 
 /// The scratch of one (agent, part): its rows' inputs, every layer's output, the backward
@@ -114,9 +106,6 @@ pub struct Fused {
     lambdas: Vec<f32>,
 }
 
-/// Per agent: (critic loss, mean Q₁ over the batch, actor loss if the actor moved).
-pub type Stats = Vec<(f32, f32, Option<f32>)>;
-
 impl Fused {
     pub fn new(
         actor_sizes: &[usize],
@@ -136,15 +125,6 @@ impl Fused {
             work: Vec::new(),
             sized_for: 0,
         }
-    }
-
-    /// Agent `i`'s actor (or critic k) as a `Member`, from `pick`'s buffer of it.
-    pub fn actor_member(&self, i: usize, pick: impl Fn(&Net) -> &Vec<f32>) -> Member {
-        unflatten(pick(&self.nets[i].actor), &self.actor.sizes)
-    }
-
-    pub fn critic_member(&self, i: usize, k: usize, pick: impl Fn(&Net) -> &Vec<f32>) -> Member {
-        unflatten(pick(&self.nets[i].critics[k]), &self.critic.sizes)
     }
 
     /// Buffers for batches of `n` rows (once; again only if the batch size changes).
@@ -313,6 +293,33 @@ impl Fused {
             }
         }
         best
+    }
+}
+
+impl Engine for Fused {
+    fn update(
+        &mut self,
+        c: &AgentConfig,
+        batches: &[Batch],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        _stats: bool,
+    ) -> anyhow::Result<Option<Stats>> {
+        // The sums are a by-product here: returning them costs nothing.
+        Ok(Some(Fused::update(self, c, batches, norms, noise_rngs, updates)))
+    }
+
+    fn act_all(&self, norms: &[Normalizer], rows: &[(&[f32], &[f32])], n: usize) -> anyhow::Result<Vec<Vec<f32>>> {
+        Ok(Fused::act_all(self, norms, rows, n))
+    }
+
+    fn q(&self, norm: &Normalizer, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> anyhow::Result<Vec<f32>> {
+        Ok(Fused::q(self, norm, obs, goal, action, n))
+    }
+
+    fn state(&self) -> anyhow::Result<State> {
+        Ok(State { nets: self.nets.clone(), actor_step: self.actor_step, critic_step: self.critic_step })
     }
 }
 

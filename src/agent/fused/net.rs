@@ -6,6 +6,7 @@
 use rayon::prelude::*;
 
 use crate::agent::Member;
+use crate::agent::engine::Net;
 
 // Adam's constants as `adam.rs` has them (f64, each product rounded to f32 as burn does).
 const BETA1: f64 = 0.9;
@@ -55,21 +56,12 @@ impl Shape {
     }
 }
 
-/// One network's parameters, Adam moments and target copy, flat in `Shape` order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Net {
-    pub p: Vec<f32>,
-    pub m: Vec<f32>,
-    pub v: Vec<f32>,
-    pub target: Vec<f32>,
-}
-
 /// A member's layers as one flat buffer, and back.
 pub fn flatten(member: &Member) -> Vec<f32> {
     member.iter().flat_map(|(w, b)| w.iter().chain(b).copied()).collect()
 }
 
-pub(super) fn unflatten(flat: &[f32], sizes: &[usize]) -> Member {
+pub(in crate::agent) fn unflatten(flat: &[f32], sizes: &[usize]) -> Member {
     let shape = Shape::new(sizes);
     (0..shape.layers()).map(|l| (flat[shape.weight(l)].to_vec(), flat[shape.bias(l)].to_vec())).collect()
 }

@@ -120,7 +120,7 @@ fn the_fused_engine_is_the_same_bits_on_one_thread_or_two_and_alone_or_stacked()
                 .iter()
                 .map(|&s| Agent::new(cfg.clone(), task.clone(), Normalizer::identity(&task, 5.0), s, Device::flex()))
                 .collect();
-            let mut grid = Shards::new(alone, Backend::Cpu);
+            let mut grid = Shards::new(alone, Backend::Cpu).unwrap();
             let stats: Vec<_> = batches.iter().map(|b| grid.update(b).read()).collect();
             grid.sync();
             (grid, stats)
@@ -192,8 +192,9 @@ fn tiny(algo: Algo, alpha: f64, l2: Option<f64>, b: &Batch) -> (AgentConfig, Fus
     // Targets apart from the networks, so the TD target is not the critic's own value.
     a.update(std::slice::from_ref(b));
     a.update(std::slice::from_ref(b));
-    a.fuse();
-    let mut f = *a.fused.take().unwrap();
+    let (actor_sizes, critic_sizes) = crate::agent::net_sizes(&cfg, &task);
+    let s = a.burn_state();
+    let mut f = Fused::new(&actor_sizes, &critic_sizes, s.nets, s.actor_step, s.critic_step);
     f.size_work(b.n, cfg.algo.critics());
     assert_eq!(f.work.len(), 1, "one part");
     (cfg, f, a.norms[0].clone())
