@@ -5,11 +5,21 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use cudarc::cublas::{CudaBlas, sys as blas};
-use cudarc::driver::{CudaContext, CudaFunction, CudaStream, LaunchConfig, PushKernelArg, result};
+use cudarc::driver::{CudaContext, CudaFunction, CudaGraph, CudaStream, LaunchConfig, PushKernelArg, result, sys};
 use cudarc::nvrtc::Ptx;
 
 use super::{Arg, Gemm, Gpu, Ptr, nvrtc};
 use crate::agent::engine::Precision;
+
+/// cuBLAS's workspace, fixed: under graph capture cuBLAS must not allocate its own.
+const BLAS_WORKSPACE: usize = 32 << 20;
+
+/// One pinned host buffer of `stage`, and the event that marks its last copy done.
+struct Pinned {
+    ptr: *mut f32,
+    len: usize,
+    copied: sys::CUevent,
+}
 
 pub struct CudaGpu {
     ctx: Arc<CudaContext>,
@@ -17,6 +27,10 @@ pub struct CudaGpu {
     blas: CudaBlas,
     functions: Vec<(&'static str, CudaFunction)>,
     allocs: Vec<Ptr>,
+    /// `stage`'s two pinned buffers, used in turn.
+    pinned: [Option<Pinned>; 2],
+    turn: usize,
+    graphs: Vec<CudaGraph>,
     /// The device's name and compute capability, for logs.
     pub name: String,
 }
@@ -28,6 +42,14 @@ unsafe impl Send for CudaGpu {}
 impl Drop for CudaGpu {
     fn drop(&mut self) {
         let _ = self.stream.synchronize();
+        self.graphs.clear();
+        for p in self.pinned.iter_mut().filter_map(Option::take) {
+            // SAFETY: allocated by malloc_host with its event in `stage`, freed once, stream idle.
+            unsafe {
+                let _ = result::event::destroy(p.copied);
+                let _ = result::free_host(p.ptr.cast());
+            }
+        }
         for &p in &self.allocs {
             // SAFETY: allocated by malloc_sync below, freed once, after the stream is idle.
             let _ = unsafe { result::free_sync(p) };
@@ -76,7 +98,14 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
     };
     // SAFETY: a live handle.
     unsafe { blas::cublasSetMathMode(*blas.handle(), mode) }.result().context("cublasSetMathMode")?;
-    Ok(CudaGpu { ctx, stream, blas, functions, allocs: Vec::new(), name })
+    let mut gpu =
+        CudaGpu { ctx, stream, blas, functions, allocs: Vec::new(), pinned: [None, None], turn: 0, graphs: Vec::new(), name };
+    let workspace = gpu.alloc(BLAS_WORKSPACE)?;
+    // SAFETY: a live handle and a device buffer of that size, owned by `gpu` as long as the handle.
+    unsafe { blas::cublasSetWorkspace_v2(*gpu.blas.handle(), workspace as *mut _, BLAS_WORKSPACE) }
+        .result()
+        .context("cublasSetWorkspace")?;
+    Ok(gpu)
 }
 
 impl Gpu for CudaGpu {
@@ -128,6 +157,60 @@ impl Gpu for CudaGpu {
         let cfg = LaunchConfig { grid_dim: (grid, 1, 1), block_dim: (block, 1, 1), shared_mem_bytes: 0 };
         // SAFETY: the arguments are typed as the kernel declares them (the engine's contract).
         unsafe { b.launch(cfg) }.with_context(|| format!("launching {name}"))?;
+        Ok(())
+    }
+
+    fn stage(&mut self, dst: Ptr, len: usize, fill: &mut dyn FnMut(&mut [f32])) -> Result<()> {
+        let slot = &mut self.pinned[self.turn];
+        self.turn = 1 - self.turn;
+        if slot.as_ref().is_some_and(|p| p.len < len) {
+            let old = slot.take().expect("checked");
+            // SAFETY: its last copy is waited for before the buffer goes.
+            unsafe {
+                result::event::synchronize(old.copied)?;
+                result::event::destroy(old.copied)?;
+                result::free_host(old.ptr.cast())?;
+            }
+        }
+        if slot.is_none() {
+            // SAFETY: page-locked memory of `len` floats, freed on drop; an event to fence it.
+            let ptr = unsafe { result::malloc_host(4 * len, 0) }.context("cuMemAllocHost")?.cast::<f32>();
+            let copied = result::event::create(sys::CUevent_flags::CU_EVENT_DISABLE_TIMING)?;
+            *slot = Some(Pinned { ptr, len, copied });
+        } else {
+            // SAFETY: the event was recorded after this buffer's last copy.
+            unsafe { result::event::synchronize(slot.as_ref().expect("some").copied) }.context("staging")?;
+        }
+        let p = slot.as_ref().expect("some");
+        // SAFETY: `len` floats of our pinned buffer, whose previous copy has finished.
+        let host = unsafe { std::slice::from_raw_parts_mut(p.ptr, len) };
+        fill(host);
+        unsafe {
+            result::memcpy_htod_async(dst, &host[..], self.stream.cu_stream()).context("staging copy")?;
+            result::event::record(p.copied, self.stream.cu_stream())?;
+        }
+        Ok(())
+    }
+
+    fn begin_capture(&mut self) -> Result<()> {
+        self.stream
+            .begin_capture(sys::CUstreamCaptureMode::CU_STREAM_CAPTURE_MODE_THREAD_LOCAL)
+            .context("beginning a graph capture")?;
+        Ok(())
+    }
+
+    fn end_capture(&mut self) -> Result<usize> {
+        let graph = self
+            .stream
+            .end_capture(sys::CUgraphInstantiate_flags::CUDA_GRAPH_INSTANTIATE_FLAG_AUTO_FREE_ON_LAUNCH)
+            .context("ending a graph capture")?
+            .context("the capture recorded nothing")?;
+        self.graphs.push(graph);
+        Ok(self.graphs.len() - 1)
+    }
+
+    fn replay(&mut self, graph: usize) -> Result<()> {
+        self.graphs.get(graph).context("no such graph")?.launch().context("launching a graph")?;
         Ok(())
     }
 

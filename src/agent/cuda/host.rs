@@ -16,10 +16,22 @@ unsafe extern "C" {
     fn pgser_shim_launch(name: *const c_char, grid: u32, block: u32, args: *mut *mut c_void) -> i32;
 }
 
-/// Host memory posing as a device's.
+/// A launch or a product, as a graph records it.
+#[derive(Clone)]
+enum Op {
+    Launch(&'static str, usize, Vec<Arg>),
+    Gemm(Gemm),
+}
+
+/// Host memory posing as a device's; graphs are recorded lists of operations, replayed in order
+/// (what a CUDA graph is, less the speed).
 #[derive(Default)]
 pub struct HostGpu {
     allocs: Vec<(Ptr, Layout)>,
+    recording: Option<Vec<Op>>,
+    graphs: Vec<Vec<Op>>,
+    /// The host buffer `stage` fills.
+    staging: Vec<f32>,
 }
 
 // SAFETY: the allocations are owned by this value alone and only touched through `&mut self`.
@@ -91,6 +103,10 @@ impl Gpu for HostGpu {
     }
 
     fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()> {
+        if let Some(ops) = self.recording.as_mut() {
+            ops.push(Op::Launch(name, items, args.to_vec()));
+            return Ok(());
+        }
         // An odd grid of a few small blocks: every grid-stride loop wraps several times, so an
         // index that assumed one thread per item would show.
         let (block, grid) = (7u32, items.div_ceil(7).clamp(1, 3) as u32);
@@ -106,6 +122,10 @@ impl Gpu for HostGpu {
     }
 
     fn gemm(&mut self, g: &Gemm) -> Result<()> {
+        if let Some(ops) = self.recording.as_mut() {
+            ops.push(Op::Gemm(*g));
+            return Ok(());
+        }
         for b in 0..g.batch {
             let item = |m: &Mat| Mat { ptr: m.ptr + 4 * (b * m.stride) as u64, ..*m };
             let (a, bm, c) = (item(&g.a), item(&g.b), item(&g.c));
@@ -119,6 +139,42 @@ impl Gpu for HostGpu {
                 let a = Mat { ptr: a.ptr + 4 * (start * a.ld) as u64, ..a };
                 let c = Mat { ptr: c.ptr + 4 * (start * c.ld) as u64, ..c };
                 matmul(end - start, g.n, g.k, &c, &a, &bm);
+            }
+        }
+        Ok(())
+    }
+
+    fn stage(&mut self, dst: Ptr, len: usize, fill: &mut dyn FnMut(&mut [f32])) -> Result<()> {
+        let mut host = std::mem::take(&mut self.staging);
+        host.resize(len, 0.0);
+        fill(&mut host);
+        // SAFETY: f32 has no padding; `host` outlives the slice.
+        let bytes = unsafe { std::slice::from_raw_parts(host.as_ptr().cast::<u8>(), 4 * len) };
+        let done = self.upload(dst, bytes);
+        self.staging = host;
+        done
+    }
+
+    fn begin_capture(&mut self) -> Result<()> {
+        if self.recording.is_some() {
+            bail!("host shim: a capture is already under way");
+        }
+        self.recording = Some(Vec::new());
+        Ok(())
+    }
+
+    fn end_capture(&mut self) -> Result<usize> {
+        let ops = self.recording.take().ok_or_else(|| anyhow::anyhow!("host shim: no capture under way"))?;
+        self.graphs.push(ops);
+        Ok(self.graphs.len() - 1)
+    }
+
+    fn replay(&mut self, graph: usize) -> Result<()> {
+        let ops = self.graphs.get(graph).cloned().ok_or_else(|| anyhow::anyhow!("host shim: no graph {graph}"))?;
+        for op in &ops {
+            match op {
+                Op::Launch(name, items, args) => self.launch(name, *items, args)?,
+                Op::Gemm(g) => self.gemm(g)?,
             }
         }
         Ok(())

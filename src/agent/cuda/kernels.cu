@@ -19,6 +19,9 @@
 
 #ifndef PGSER_SHIM
 #define PGSER_INF __int_as_float(0x7f800000)
+// A row loop's loads issued eight at a time (its adds stay in order): one thread walks a part's
+// ~256 rows, and one load in flight at a time would leave it waiting on memory.
+#define PGSER_UNROLL _Pragma("unroll 8")
 #endif
 
 #define PGSER_FOR(i, total)                                                                    \
@@ -148,6 +151,7 @@ extern "C" __global__ void pgser_critic_sums(int agents, int K, int n, int p, co
         const long long start = pgser_part_start(n, p, part), end = pgser_part_start(n, p, part + 1);
         double loss = 0.0, qs = 0.0;
         for (int k = 0; k < K; ++k) {
+            PGSER_UNROLL
             for (long long r = start; r < end; ++r) {
                 const float qv = q[(a * K + k) * n + r];
                 const float w = weight[a * n + r];
@@ -172,6 +176,7 @@ extern "C" __global__ void pgser_bias_grad(long long members, int n, int p, int 
         const long long m = mp / p;
         const int part = (int)(mp % p);
         float s = 0.0f;
+        PGSER_UNROLL
         for (long long r = pgser_part_start(n, p, part); r < pgser_part_start(n, p, part + 1); ++r)
             s += g[(m * n + r) * dout + c];
         grad[mp * len + bias_off + c] = s;
@@ -189,6 +194,7 @@ extern "C" __global__ void pgser_relu_mask(long long members, int n, int p, int 
         const long long m = mp / p;
         const int part = (int)(mp % p);
         float s = 0.0f;
+        PGSER_UNROLL
         for (long long r = pgser_part_start(n, p, part); r < pgser_part_start(n, p, part + 1); ++r) {
             const long long at = (m * n + r) * din + c;
             const float v = below[at] > 0.0f ? t[at] : 0.0f;
@@ -220,6 +226,7 @@ extern "C" __global__ void pgser_pi_sums(int agents, int n, int p, const float* 
         const int part = (int)(i % p);
         double qs = 0.0;
         float abs_sum = 0.0f;
+        PGSER_UNROLL
         for (long long r = pgser_part_start(n, p, part); r < pgser_part_start(n, p, part + 1); ++r) {
             const float v = q[a * n + r];
             qs += (double)v;
@@ -271,6 +278,7 @@ extern "C" __global__ void pgser_actor_sums(int agents, int n, int p, int act, i
         const long long a = i / p;
         const int part = (int)(i % p);
         double bc_sum = 0.0, l2_sum = 0.0;
+        PGSER_UNROLL
         for (long long r = pgser_part_start(n, p, part); r < pgser_part_start(n, p, part + 1); ++r) {
             for (int j = 0; j < act; ++j) {
                 const float pi = spi[(a * n + r) * W + (W - act) + j];

@@ -108,6 +108,18 @@ pub trait Gpu: Send {
     /// Runs kernel `name` over `items` independent items (a grid-stride loop: any grid is right).
     fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()>;
     fn gemm(&mut self, g: &Gemm) -> Result<()>;
+    /// Queues a copy of `len` f32 into `dst` from a host buffer that `fill` writes first: on a GPU
+    /// one of two pinned buffers, so that filling the next update's batch overlaps the copy and
+    /// the work of this one (the call waits only until that buffer's previous copy is done).
+    fn stage(&mut self, dst: Ptr, len: usize, fill: &mut dyn FnMut(&mut [f32])) -> Result<()>;
+    /// From here until `end_capture`, launches and products are recorded, not run.
+    fn begin_capture(&mut self) -> Result<()>;
+    /// Ends a capture; returns the recorded graph's id for `replay`.
+    fn end_capture(&mut self) -> Result<usize>;
+    /// Runs a captured graph: its launches and products, with the arguments they were captured
+    /// with (so every buffer a graph names must outlive it, and per-update values come from
+    /// device memory: `stage`).
+    fn replay(&mut self, graph: usize) -> Result<()>;
 }
 
 /// The kernel arguments as CUDA takes them: one pointer to each argument's value.
@@ -182,8 +194,8 @@ struct Scratch {
     actor_grad: Ptr,
     critic_grad: Ptr,
     sums: Ptr,
-    /// The host side of `staging`.
-    host: Vec<f32>,
+    /// The captured updates: ((batch size, whether the actor moves), graph id).
+    graphs: Mutex<Vec<((usize, bool), usize)>>,
 }
 
 /// Offsets (in f32) of the batch's arrays inside the staging block.
@@ -232,6 +244,9 @@ pub struct CudaEngine<G: Gpu> {
     norm_clip: Ptr,
     norms: Vec<Normalizer>,
     scratch: Option<Scratch>,
+    /// Whether updates are captured once as CUDA graphs and replayed (the default), or every
+    /// kernel launched each time (PGSER_CUDA_GRAPHS=0: to time what graphs save).
+    pub graphs: bool,
 }
 
 impl<G: Gpu> CudaEngine<G> {
@@ -282,6 +297,7 @@ impl<G: Gpu> CudaEngine<G> {
             norm_clip,
             norms: Vec::new(),
             scratch: None,
+            graphs: std::env::var_os("PGSER_CUDA_GRAPHS").is_none_or(|v| v != "0"),
         };
         engine.set_norms(norms)?;
         Ok(engine)
@@ -363,7 +379,7 @@ impl<G: Gpu> CudaEngine<G> {
             actor_grad: f32s(a * p * self.actor.len)?,
             critic_grad: f32s(a * k * p * self.critic.len)?,
             sums: f32s(2 * a * p * SUMS)?, // f64
-            host: vec![0.0; staged.len],
+            graphs: Mutex::new(Vec::new()),
         };
         self.scratch = Some(scratch);
         Ok(())
@@ -381,7 +397,7 @@ impl<G: Gpu> CudaEngine<G> {
         updates: u64,
         stats: bool,
     ) -> Result<Option<Stats>> {
-        let (a, n, k, act) = (self.agents, batches[0].n, self.k, self.act_dim());
+        let (a, n, act) = (self.agents, batches[0].n, self.act_dim());
         let ddpg = c.algo == Algo::Ddpg;
         let p = parts(n);
         self.set_norms(norms)?;
@@ -394,36 +410,72 @@ impl<G: Gpu> CudaEngine<G> {
         let actor_step = self.actor_step + u64::from(actor_moves);
 
         // The host's part: Adam's constants and the batch (and TD3's target noise, drawn from
-        // each agent's stream in the CPU engine's order), in one upload.
+        // each agent's stream in the CPU engine's order), written straight into the staging
+        // buffer and copied in one transfer.
         let (od, gd) = (self.obs_dim, self.goal_dim);
         let staged = Staged::new(a, n, od, gd, act);
-        let s = self.scratch.as_mut().expect("sized");
+        let s = self.scratch.as_ref().expect("sized");
         debug_assert_eq!(s.staging_len, staged.len);
-        adam_consts(&mut s.host[..CONSTS], lr, actor_step, tau);
-        adam_consts(&mut s.host[CONSTS..2 * CONSTS], lr, critic_step, tau);
-        for (i, b) in batches.iter().enumerate() {
-            let host = &mut s.host;
-            let span = |off: usize, d: usize| off + i * n * d..off + (i + 1) * n * d;
-            host[span(staged.obs, od)].copy_from_slice(&b.obs);
-            host[span(staged.goal, gd)].copy_from_slice(&b.goal);
-            host[span(staged.next_obs, od)].copy_from_slice(&b.next_obs);
-            host[span(staged.action, act)].copy_from_slice(&b.action);
-            host[span(staged.reward, 1)].copy_from_slice(&b.reward);
-            if b.weight.is_empty() {
-                host[span(staged.weight, 1)].fill(1.0);
-            } else {
-                host[span(staged.weight, 1)].copy_from_slice(&b.weight);
-            }
-            let noise = &mut host[span(staged.noise, act)];
-            if !ddpg {
-                for x in noise.iter_mut() {
-                    *x = (noise_rngs[i].standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32;
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        gpu.stage(s.staging, staged.len, &mut |host: &mut [f32]| {
+            adam_consts(&mut host[..CONSTS], lr, actor_step, tau);
+            adam_consts(&mut host[CONSTS..2 * CONSTS], lr, critic_step, tau);
+            for (i, b) in batches.iter().enumerate() {
+                let span = |off: usize, d: usize| off + i * n * d..off + (i + 1) * n * d;
+                host[span(staged.obs, od)].copy_from_slice(&b.obs);
+                host[span(staged.goal, gd)].copy_from_slice(&b.goal);
+                host[span(staged.next_obs, od)].copy_from_slice(&b.next_obs);
+                host[span(staged.action, act)].copy_from_slice(&b.action);
+                host[span(staged.reward, 1)].copy_from_slice(&b.reward);
+                if b.weight.is_empty() {
+                    host[span(staged.weight, 1)].fill(1.0);
+                } else {
+                    host[span(staged.weight, 1)].copy_from_slice(&b.weight);
+                }
+                if !ddpg {
+                    for x in &mut host[span(staged.noise, act)] {
+                        *x = (noise_rngs[i].standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip)
+                            as f32;
+                    }
                 }
             }
+        })?;
+
+        // The device's part: one captured graph per (batch size, whether the actor moves),
+        // replayed; PGSER_CUDA_GRAPHS=0 launches every kernel instead (to time the difference).
+        let key = (n, actor_moves);
+        let graphs = self.graphs;
+        let cached = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
+        match cached {
+            Some(id) if graphs => gpu.replay(id)?,
+            _ if graphs => {
+                gpu.begin_capture()?;
+                let recorded = self.launches(gpu, c, s, &staged, actor_moves);
+                let id = gpu.end_capture()?;
+                recorded?;
+                s.graphs.lock().expect("graphs").push((key, id));
+                gpu.replay(id)?;
+            }
+            _ => self.launches(gpu, c, s, &staged, actor_moves)?,
         }
-        let s = self.scratch.as_ref().expect("sized");
-        let gpu = &mut *self.gpu.lock().expect("the device lock");
-        gpu.upload(s.staging, f32_bytes(&s.host))?;
+        self.critic_step = critic_step;
+        self.actor_step = actor_step;
+        if !stats {
+            return Ok(None);
+        }
+        let mut sums = vec![0.0f64; a * p * SUMS];
+        // SAFETY: f64 has no padding; the vector outlives the slice.
+        let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
+        gpu.download(s.sums, bytes)?;
+        Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+    }
+
+    /// Every launch and product of one update, in order, on batches of `s.n` rows staged at
+    /// `staged`'s offsets.
+    fn launches(&self, gpu: &mut dyn Gpu, c: &AgentConfig, s: &Scratch, staged: &Staged, actor_moves: bool) -> Result<()> {
+        let (a, n, k, act) = (self.agents, s.n, self.k, self.act_dim());
+        let (od, gd) = (self.obs_dim, self.goal_dim);
+        let (ddpg, p) = (c.algo == Algo::Ddpg, parts(n));
         let batch = |off: usize| at(s.staging, off);
         let (consts_actor, consts_critic) = (s.staging, at(s.staging, CONSTS));
         let (actor, critic) = (&self.actor, &self.critic);
@@ -549,16 +601,7 @@ impl<G: Gpu> CudaEngine<G> {
         if actor_moves {
             adam(gpu, &self.actor_net, a, actor.len, p, s.actor_grad, consts_actor)?;
         }
-        self.critic_step = critic_step;
-        self.actor_step = actor_step;
-        if !stats {
-            return Ok(None);
-        }
-        let mut sums = vec![0.0f64; a * p * SUMS];
-        // SAFETY: f64 has no padding; the vector outlives the slice.
-        let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
-        gpu.download(s.sums, bytes)?;
-        Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+        Ok(())
     }
 }
 

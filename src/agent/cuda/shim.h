@@ -14,6 +14,7 @@
 #define __device__
 #define __restrict__ __restrict
 #define PGSER_INF (std::numeric_limits<float>::infinity())
+#define PGSER_UNROLL
 
 struct pgser_dim3 {
     unsigned int x, y, z;
