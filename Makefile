@@ -200,9 +200,11 @@ build-cuda: deps llvm-deps
 	$(CUDA_ENV) CARGO_TARGET_DIR=target-gpu $(CARGO) build --release --no-default-features --features cuda-burn,wgpu
 
 # One folder (target-gpu/bundle/, under 64 MiB with the repo) that measures pgser on a GPU machine
-# in one run: correctness of cuda and wgpu against the CPU, and speed beside JAX and PyTorch.
-# scripts/gpu_bundle.sh says what is in it; docs/gpu.md how to run it.
-gpu-bundle: build-cuda
+# in one run: correctness of the CUDA engine (and of burn's GPU backends) against the CPU, speed
+# beside JAX and PyTorch at FP32 and TF32, and real training stacks. It needs only `make build`
+# (the CUDA engine is in every build); run `make build-cuda` first to add burn's cuda-burn and
+# wgpu. scripts/gpu_bundle.sh says what is in it; docs/gpu.md how to run it.
+gpu-bundle: build
 	scripts/gpu_bundle.sh
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,

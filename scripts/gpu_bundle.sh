@@ -3,33 +3,46 @@
 # run (its run.sh is scripts/gpu_run.sh; docs/gpu.md). Our GPU machines start bare, reach no
 # package registry and receive at most 64 MiB of files per run, so the folder holds everything
 # and, with the repo's own files (which travel with every run), stays under 64 MiB (checked here):
-#   bin/    pgser-train from `make build-cuda` (cuda + wgpu), stripped, xz. Not pgser-etl: with
+#   bin/    pgser-train from `make build` (cpu and the hand-written cuda engine: in every build),
+#           and, where `make build-cuda` was run, its pgser-train as pgser-train-burn (burn's
+#           cuda-burn and wgpu, the GPU references), stripped, xz. Not pgser-etl: with
 #           polars it is 48 MB under xz against pgser-train's 33, and the two do not fit together
 #           (measured 2026-11-27); the device check of `score` is the critic's Q logged in training
 #           (run.sh), and BUNDLE_ETL=1 adds pgser-etl for a machine that can receive it.
 #   lib/    MuJoCo 3.17.0's library, xz (the binaries link it)
 #   debs/   the Vulkan loader and libglvnd (Debian packages), for wgpu
-#   data/   FetchReach tables and a Q, made here on the CPU by the same binaries
+#   kernels/ the CUDA engine's kernels as an sm_90 cubin (H100, H200), compiled here by NVRTC 13.0
+#           (`pgser-train cuda-kernels`), so the GPU machine needs no NVRTC of its own
+#   data/   FetchReach tables and a Q (the correctness check), and a FetchPush -mem table (100
+#           expert + 400 random episodes, a 200-update Q, K = 4: the real stacks' timing), made
+#           here on the CPU by the same binaries
 #   bench/  bench_grid.py and the JAX / PyTorch peers it runs, gpu_compare.py
 #   run.sh, VERSION
 # Built beside its place and moved there, so an interrupted build leaves the previous bundle.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-rel=target-gpu/release
-dest=target-gpu/bundle
+rel=${BUNDLE_REL:-target/release}
+burn=${BUNDLE_BURN:-target-gpu/release}
+dest=${BUNDLE_DEST:-target-gpu/bundle}
 tmp=$dest.tmp
 bins=(pgser-train)
 [ "${BUNDLE_ETL:-0}" = 1 ] && bins+=(pgser-etl)
 for x in pgser-train pgser-etl; do
-  [ -x "$rel/$x" ] || { echo "gpu-bundle: $rel/$x is missing: run make build-cuda first" >&2; exit 1; }
+  [ -x "$rel/$x" ] || { echo "gpu-bundle: $rel/$x is missing: run make build first" >&2; exit 1; }
 done
 rm -rf "$tmp"
-mkdir -p "$tmp"/{bin,lib,debs,data,bench}
+mkdir -p "$tmp"/{bin,lib,debs,data,bench,kernels}
 
 for x in "${bins[@]}"; do
   strip -o "$tmp/bin/$x" "$rel/$x"
   xz -6 -T0 "$tmp/bin/$x"
 done
+if [ -x "$burn/pgser-train" ]; then
+  strip -o "$tmp/bin/pgser-train-burn" "$burn/pgser-train"
+  xz -6 -T0 "$tmp/bin/pgser-train-burn"
+else
+  echo "gpu-bundle: no $burn/pgser-train (make build-cuda): burn's cuda-burn and wgpu are left out"
+fi
 xz -6 -c .deps/mujoco/libmujoco.so.3.17.0 >"$tmp/lib/libmujoco.so.3.17.0.xz"
 
 # Debian's Vulkan loader (libvulkan1) and GL dispatch libraries (libglvnd and the rest) for amd64,
@@ -54,9 +67,18 @@ d=$tmp/data
   --eval-episodes 0 --device cpu >/dev/null
 rm -f "$d"/q.ckpt.* "$d"/q.metrics* 2>/dev/null || true
 "$rel/pgser-etl" score --q "$d/q.ckpt" --data "$d/reach.parquet" -o "$d/scored.parquet" --swaps 4 --include-original
+# FetchPush for the real stacks' timing: the sampler's and stager's work at the paper's dimensions.
+"$rel/pgser-etl" collect --task FetchPush --policy expert --episodes 100 --seed 0 -o "$d/push_expert.pkl"
+"$rel/pgser-etl" collect --task FetchPush --policy random --episodes 400 --seed 100 -o "$d/push_random.pkl"
+"$rel/pgser-etl" convert "$d/push_expert.pkl" "$d/push_random.pkl" -o "$d/push.parquet" --task FetchPush
+"$rel/pgser-train" --data "$d/push.parquet" -o "$d/push_q.ckpt" --updates 200 --batch-size 256 --swap random \
+  --eval-episodes 0 --device cpu >/dev/null
+"$rel/pgser-etl" score --q "$d/push_q.ckpt" --data "$d/push.parquet" -o "$d/push_scored.parquet" --swaps 4 --include-original
+rm -f "$d"/push_*.pkl "$d"/push.parquet "$d"/push_q.ckpt*
+"$rel/pgser-train" cuda-kernels --arch sm_90 --cubin "$tmp/kernels/kernels_sm90.cubin"
 
 cp bench/bench_grid.py bench/train_peer.py bench/train_peer_stacked.py bench/train_peer_jax.py \
-  bench/train_flops.py bench/peer_python.py bench/sgemm_peak.py bench/gpu_compare.py "$tmp/bench/"
+  bench/train_flops.py bench/peer_python.py bench/sgemm_peak.py bench/gpu_compare.py bench/gpu_summary.py "$tmp/bench/"
 cp scripts/gpu_run.sh "$tmp/run.sh"
 chmod +x "$tmp/run.sh"
 echo "pgser $(git describe --always --dirty 2>/dev/null || echo unknown), bundled $(date -u +%FT%TZ)" >"$tmp/VERSION"

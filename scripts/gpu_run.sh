@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # pgser on a GPU machine, in one run: the bundle's script (`make gpu-bundle` copies this file into
 # target-gpu/bundle/ as run.sh; docs/gpu.md). Everything it needs is in the bundle: pgser-train
-# built with `cuda` and `wgpu` (xz; pgser-etl too where the bundle was made with BUNDLE_ETL=1),
-# MuJoCo's library, the Vulkan loader and libglvnd as Debian packages, FetchReach tables and a
-# Q made on the CPU, and the benchmark peers' scripts. It installs nothing outside a temporary
-# folder.
+# with every GPU engine (the hand-written `cuda` and `cuda-tf32`, burn's `cuda-burn` and `wgpu`;
+# xz; pgser-etl too where the bundle was made with BUNDLE_ETL=1), the CUDA engine's kernels as
+# an sm_90 cubin built with NVRTC 13.0, MuJoCo's library, the Vulkan loader and libglvnd as
+# Debian packages, FetchReach and FetchPush tables and Qs made on the CPU, and the benchmark
+# peers' scripts. It installs nothing outside a temporary folder; cuBLAS comes from the machine
+# (the nvidia-cublas wheel beside JAX and PyTorch, or a CUDA toolkit).
 #
 #   run.sh OUT_DIR [SECONDS]       (SECONDS: the time it may take, default 480)
 #
@@ -13,11 +15,17 @@
 #     NVIDIA GPU gets "no GPU" plainly, the one-line error of `--device cuda`, and a CPU run that
 #     shows the binaries work; then it stops (exit 0).
 #  2. correctness: a stack of three -mem agents (FetchReach, hidden 256, batch 256) trained 50
-#     updates on cuda, wgpu and cpu: their weights, and the losses and mean Q logged every 10
-#     updates, compared (bench/gpu_compare.py); with pgser-etl in the bundle, `score`'s Q too.
-#  3. speed: bench/bench_grid.py, agent-updates/s of pgser on cuda beside JAX and PyTorch
-#     (stacked, CUDA graphs) in the same run, for A = 60, 1, 120, 30, 10 agents, in that order,
-#     each A only while enough of SECONDS is left; pgser on wgpu at A = 60.
+#     updates on cpu and on every GPU engine: their weights, and the losses and mean Q logged every
+#     10 updates, compared with the CPU's (bench/gpu_compare.py): `cuda` (FP32) must be within
+#     1e-5; the others are reported at 1e-4 (for `cuda-tf32` the distance is the measurement);
+#     with pgser-etl in the bundle, `score`'s Q too.
+#  3. speed: bench/bench_grid.py, agent-updates/s of pgser beside JAX and PyTorch (stacked, CUDA
+#     graphs) in the same run, at each precision: FP32 (pgser `cuda`, JAX `highest`, PyTorch TF32
+#     off) and TF32 (pgser `cuda-tf32`, JAX's default, PyTorch TF32 on); for A = 60, 1, 10, 30,
+#     120 agents, in that order, each A only while enough of SECONDS is left. At A = 60 and 1 also
+#     pgser without CUDA graphs (PGSER_CUDA_GRAPHS=0); wgpu at A = 60 if time is left.
+#  4. the real thing: `pgser-train --seeds` stacks of 10 and 60 -mem agents on FetchPush data
+#     (sampling, priorities and staging included), against the bench's rate at the same A.
 # Out: OUT_DIR/gpu.json (every figure), run.log, logs.tar.gz (each child's output): three files,
 # within what a device run brings back.
 set -uo pipefail
@@ -58,23 +66,21 @@ export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-$work}
 export PYTHONUNBUFFERED=1
 # JAX's Triton GEMM autotuning costs ~40 s per A and changes its speed by ~2 % (bench_grid.py).
 export XLA_FLAGS=${XLA_FLAGS:---xla_gpu_enable_triton_gemm=false}
+# The CUDA engine's kernels: on an sm_90 GPU the cubin built with the bundle (NVRTC 13.0, as
+# `make test` checks it); elsewhere the engine compiles them with the machine's own NVRTC.
+if [ "$(nvidia-smi --query-gpu=compute_cap --format=csv,noheader 2>/dev/null | head -1)" = "9.0" ] &&
+  [ -f "$here/kernels/kernels_sm90.cubin" ]; then
+  export PGSER_CUDA_CUBIN=$here/kernels/kernels_sm90.cubin
+fi
 train=$work/bin/pgser-train
+# burn's GPU backends (cuda-burn, wgpu) are in their own build, where the bundle has it.
+burn=$work/bin/pgser-train-burn
 etl=$work/bin/pgser-etl
 data=$here/data
 say "bundle $(cat "$here/VERSION" 2>/dev/null || echo '(no VERSION)'); host $(uname -n), $(nproc) CPUs"
 
-summary() {  # gpu.json from the parts written so far, and the logs
-  python3 - "$out" "$work" <<'EOF' || say "could not write gpu.json"
-import json, sys, glob, os
-out, work = sys.argv[1], sys.argv[2]
-doc = {}
-for name in ("machine", "correctness"):
-    p = os.path.join(work, name + ".json")
-    if os.path.exists(p):
-        doc[name] = json.load(open(p))
-doc["grid"] = {os.path.basename(p)[5:-5]: json.load(open(p)) for p in sorted(glob.glob(os.path.join(work, "grid-*.json")))}
-json.dump(doc, open(os.path.join(out, "gpu.json"), "w"), indent=1)
-EOF
+summary() {  # gpu.json from the parts written so far (pgser / JAX per A and precision), and the logs
+  python3 "$here/bench/gpu_summary.py" "$out" "$work" || say "could not write gpu.json"
   tar -czf "$out/logs.tar.gz" -C "$work" logs 2>/dev/null
 }
 
@@ -92,7 +98,7 @@ if [ -z "$gpu" ]; then
 fi
 say "GPU: $gpu; libdevice from ${CUDA_PATH:-/usr/local/cuda (default)}"
 
-# ---- 2. correctness: cuda and wgpu against cpu ----------------------------------------------------
+# ---- 2. correctness: every GPU engine against cpu -------------------------------------------------
 # The device a pgser run names in its log ("--device cuda: running on NVIDIA H200"), if any.
 running_on() { grep -m1 -- ": running on" "$1" | sed 's/.*running on //'; }
 # One command of the check: under a time limit, its output in logs/NAME.out and .log, a line in
@@ -106,45 +112,67 @@ step() {
   say "${name/-/ --device }: rc $rc, $((SECONDS - t0)) s${on:+, on $on}"
   [ $rc -eq 0 ] || tail -3 "$logs/$name.log" | sed 's/^/    /' | tee -a "$out/run.log" >&2
 }
-for dev in cpu cuda wgpu; do
-  step "train-$dev" "$train" --data "$data/scored.parquet" -o "$work/train-$dev" --seeds 0,1,2 --updates 50 \
+devices="cpu cuda cuda-tf32"
+[ -x "$burn" ] && devices="$devices cuda-burn wgpu"
+for dev in $devices; do
+  exe=$train
+  case $dev in cuda-burn | wgpu) exe=$burn;; esac
+  step "train-$dev" "$exe" --data "$data/scored.parquet" -o "$work/train-$dev" --seeds 0,1,2 --updates 50 \
     --batch-size 256 --eval-episodes 0 --log-every 10 --device "$dev"
   [ -x "$etl" ] && step "score-$dev" "$etl" score --q "$data/q.ckpt" --data "$data/reach.parquet" \
     -o "$work/score-$dev.parquet" --swaps 2 --device "$dev"
 done
-python3 - "$work/machine.json" "$gpu" "$(running_on "$logs/train-cuda.log")" "$(running_on "$logs/train-wgpu.log")" <<'EOF'
+python3 - "$work/machine.json" "$gpu" "$(running_on "$logs/train-cuda.log")" "$(running_on "$logs/train-wgpu.log")" \
+  "$(running_on "$logs/train-cuda-burn.log")" "${PGSER_CUDA_CUBIN:-compiled by the NVRTC of the machine}" <<'EOF'
 import json, sys
-json.dump({"gpu": sys.argv[2], "cuda_device": sys.argv[3], "wgpu_adapter": sys.argv[4]}, open(sys.argv[1], "w"), indent=1)
+json.dump({"gpu": sys.argv[2], "cuda_device": sys.argv[3], "wgpu_adapter": sys.argv[4], "cuda_burn_device": sys.argv[5],
+           "kernels": sys.argv[6]}, open(sys.argv[1], "w"), indent=1)
 EOF
 # wgpu is timed only on the GPU itself: where it opened a software adapter (or none), its
 # figures would be the CPU's under a GPU's name.
 wgpu_on_gpu=1
-case "$(running_on "$logs/train-wgpu.log")" in
+[ -x "$burn" ] || { wgpu_on_gpu=0; say "no pgser-train-burn in the bundle: cuda-burn and wgpu are not run"; }
+[ $wgpu_on_gpu = 0 ] || case "$(running_on "$logs/train-wgpu.log")" in
   "") wgpu_on_gpu=0; say "wgpu opened no adapter: it is not timed";;
   *"no GPU"*) wgpu_on_gpu=0; say "wgpu opened a software adapter, not the GPU: it is not timed";;
 esac
 sc() { if [ -x "$etl" ]; then echo "$work/score-$1.parquet"; else echo -; fi; }
-python3 "$here/bench/gpu_compare.py" --tol 1e-4 --cpu-train "$work/train-cpu" --cpu-score "$work/score-cpu.parquet" \
-  --backend cuda "$work/train-cuda" "$(sc cuda)" --backend wgpu "$work/train-wgpu" "$(sc wgpu)" \
+python3 "$here/bench/gpu_compare.py" --tol 1e-5 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" \
+  --backend cuda "$work/train-cuda" "$(sc cuda)" --json "$work/correctness-fp32.json" 2>&1 | tee -a "$out/run.log"
+others=(--backend cuda-tf32 "$work/train-cuda-tf32" "$(sc cuda-tf32)")
+[ -x "$burn" ] && others+=(--backend cuda-burn "$work/train-cuda-burn" "$(sc cuda-burn)" --backend wgpu "$work/train-wgpu" "$(sc wgpu)")
+python3 "$here/bench/gpu_compare.py" --tol 1e-4 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" "${others[@]}" \
   --json "$work/correctness.json" 2>&1 | tee -a "$out/run.log"
 summary
 
-# ---- 3. speed: pgser beside JAX and PyTorch, the same run -----------------------------------------
-for A in 60 1 120 30 10; do
-  # A cell takes up to ~2 min (each child's start, compilation and autotuning are untimed).
-  if [ "$(left)" -lt 120 ]; then say "A = $A and after: skipped, $(left) s left of $budget"; break; fi
+# ---- 3. speed: pgser beside JAX and PyTorch, the same run, at each precision ---------------------
+grid() {  # grid NAME A [bench_grid args...]: one cell of the speed grid, logged and kept as JSON
+  local name=$1 A=$2
+  shift 2
   python3 "$here/bench/bench_grid.py" --device cuda --python python3 --jax-python python3 --pgser "$train" \
-    --pgser-device cuda --peers pgser,jax,stacked-graph --agents "$A" --seconds 3 --timeout 150 \
-    --workdir "$work/bench" --json "$work/grid-cuda-A$A.json" 2>&1 | tee "$logs/grid-cuda-A$A.txt" | tee -a "$out/run.log"
-  # wgpu at A = 60 only: its rate hardly depends on A below that (BENCHMARKS.md, H200 2026-11-26),
-  # and the time is better spent on cuda's other A values.
-  [ "$A" = 60 ] && [ $wgpu_on_gpu = 1 ] || { summary; continue; }
-  if [ "$(left)" -lt 45 ]; then say "wgpu at A = $A: skipped, $(left) s left"; continue; fi
-  python3 "$here/bench/bench_grid.py" --device cuda --python python3 --pgser "$train" --pgser-device wgpu \
-    --peers pgser --agents "$A" --seconds 3 --timeout 120 --workdir "$work/bench" \
-    --json "$work/grid-wgpu-A$A.json" 2>&1 | tee "$logs/grid-wgpu-A$A.txt" | tee -a "$out/run.log"
+    --agents "$A" --seconds 3 --timeout 150 --workdir "$work/bench" --json "$work/grid-$name-A$A.json" "$@" 2>&1 |
+    tee "$logs/grid-$name-A$A.txt" | tee -a "$out/run.log"
+}
+for A in 60 1 10 30 120; do
+  # A cell takes up to ~2 min (each child's start, compilation and autotuning are untimed).
+  if [ "$(left)" -lt 150 ]; then say "A = $A and after: skipped, $(left) s left of $budget"; break; fi
+  grid fp32 "$A" --pgser-device cuda --peers pgser,jax,stacked-graph
+  grid tf32 "$A" --pgser-device cuda-tf32 --tf32 --peers pgser,jax,stacked-graph
+  if [ "$A" = 60 ] || [ "$A" = 1 ]; then
+    PGSER_CUDA_GRAPHS=0 grid nograph "$A" --pgser-device cuda --peers pgser
+  fi
   summary
+  # ---- 4. the real stacks, once their A's bench is in: sampling, priorities, staging included --
+  if [ "$A" = 10 ] || [ "$A" = 60 ]; then
+    step "stack-A$A" "$train" --data "$data/push_scored.parquet" -o "$work/stack-A$A" --seeds "$(seq -s, 0 $((A - 1)))" \
+      --updates 3000 --batch-size 512 --eval-episodes 0 --log-every 1000 --device cuda --json
+    tail -1 "$logs/stack-A$A.out" >"$work/stack-A$A.json" 2>/dev/null
+    summary
+  fi
 done
+if [ $wgpu_on_gpu = 1 ] && [ "$(left)" -gt 60 ]; then
+  grid wgpu 60 --pgser "$burn" --pgser-device wgpu --peers pgser
+fi
 cp -r "$work/bench/grid-logs" "$logs/" 2>/dev/null
 summary
 say "done: $out/gpu.json"

@@ -144,6 +144,20 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Compile the CUDA engine's kernels (`--device cuda`) with NVRTC, here, with or without a
+    /// GPU: the NVRTC version and each kernel's registers and spills; with --cubin, the image,
+    /// for a GPU machine without NVRTC (PGSER_CUDA_CUBIN=FILE).
+    #[command(after_help = "Examples:\n  pgser-train cuda-kernels\n  pgser-train cuda-kernels --arch sm_90 --cubin kernels_sm90.cubin --json")]
+    CudaKernels {
+        /// Target: sm_XY (a cubin for compute capability X.Y).
+        #[arg(long, default_value = "sm_90")]
+        arch: String,
+        /// Write the cubin here.
+        #[arg(long)]
+        cubin: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Time the update alone on random batches (what `make bench` compares with PyTorch); with
     /// --agents A, A agents trained at once as one stack (agent-updates/s = A × updates/s).
     #[command(after_help = "Examples:\n  pgser-train bench --task FetchPush --batch-size 512 --updates 300 --json\n  \
@@ -251,6 +265,17 @@ fn main() -> ExitCode {
                         r.samples_per_sec,
                         r.setup_seconds
                     );
+                }
+            }
+            Some(Command::CudaKernels { arch, cubin, json }) => {
+                let r = pgser::agent::cuda::nvrtc::report(&arch, cubin.as_deref())?;
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!("NVRTC {} for {}: a cubin of {} bytes", r.nvrtc, r.arch, r.cubin_bytes);
+                    for (k, regs, stores, loads) in &r.kernels {
+                        println!("  {k}: {regs} registers, spills {stores} B stored / {loads} B loaded");
+                    }
                 }
             }
             Some(Command::Bench { task, agents, batch_size, updates, warmup, agent, json }) => {

@@ -59,18 +59,21 @@ pub struct Compiled {
 fn lib_dirs() -> Vec<PathBuf> {
     let mut dirs: Vec<PathBuf> = std::env::var_os("PGSER_CUDA_LIBS").map(PathBuf::from).into_iter().collect();
     dirs.push(PathBuf::from(BUILD_LIBS));
+    // `nvidia` is a namespace package: each wheel (nvrtc, cublas, …) may sit in its own folder.
     let probe = std::process::Command::new("python3")
-        .args(["-c", "import nvidia, os; print(os.path.join(list(nvidia.__path__)[0], 'cu13', 'lib'))"])
+        .args(["-c", "import nvidia, os\nfor p in nvidia.__path__: print(os.path.join(p, 'cu13', 'lib'))"])
         .stderr(std::process::Stdio::null())
         .output();
     if let Some(out) = probe.ok().filter(|o| o.status.success()) {
-        dirs.push(PathBuf::from(String::from_utf8_lossy(&out.stdout).trim()));
+        dirs.extend(String::from_utf8_lossy(&out.stdout).lines().map(|l| PathBuf::from(l.trim())));
     }
+    // A CUDA toolkit's usual homes.
+    dirs.extend(["/usr/local/cuda/lib64", "/usr/local/cuda/targets/x86_64-linux/lib"].map(PathBuf::from));
     dirs
 }
 
 /// Loads each of `names` (in order) by absolute path from the first folder that has them all,
-/// unless the first already loads by name. Returns the folder used, if any.
+/// unless the last (the one cudarc opens) already loads by name. Returns the folder used, if any.
 pub fn preload(names: &[&str]) -> Option<PathBuf> {
     let loads = |path: &str| {
         let c = CString::new(path).expect("no NUL in a path");
@@ -201,6 +204,35 @@ pub fn ptxas_report(log: &str) -> Vec<(String, u32, u32, u32)> {
         }
     }
     out
+}
+
+/// What `pgser-train cuda-kernels` reports: the compiler and each kernel's resources.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Report {
+    pub nvrtc: String,
+    pub arch: String,
+    pub cubin_bytes: usize,
+    /// (kernel, registers, spill bytes stored, spill bytes loaded).
+    pub kernels: Vec<(String, u32, u32, u32)>,
+}
+
+/// Compiles the kernels for `arch` with ptxas' report; the cubin, if asked for, is written to
+/// `cubin` (for a machine without NVRTC: `PGSER_CUDA_CUBIN`).
+pub fn report(arch: &str, cubin: Option<&Path>) -> Result<Report> {
+    let (major, minor) = version()?;
+    let compiled = compile(arch, true)?;
+    if let Some(path) = cubin {
+        let file = crate::output::AtomicFile::create(path)?;
+        std::io::Write::write_all(&mut file.handle()?, &compiled.image)
+            .with_context(|| format!("{}: writing the cubin", path.display()))?;
+        file.commit()?;
+    }
+    Ok(Report {
+        nvrtc: format!("{major}.{minor}"),
+        arch: arch.to_string(),
+        cubin_bytes: compiled.image.len(),
+        kernels: ptxas_report(&compiled.log),
+    })
 }
 
 /// The cubin the engine loads: `PGSER_CUDA_CUBIN` when set (built elsewhere, for this GPU),
