@@ -41,6 +41,7 @@ use std::ffi::c_void;
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
+use rayon::prelude::*;
 
 use super::engine::{Batch, Engine, Net, Nets, State, Stats};
 use super::fused::{Shape, parts};
@@ -417,27 +418,39 @@ impl<G: Gpu> CudaEngine<G> {
         let s = self.scratch.as_ref().expect("sized");
         debug_assert_eq!(s.staging_len, staged.len);
         let gpu = &mut *self.gpu.lock().expect("the device lock");
+        // Each array is filled agent by agent across the worker threads: at 60 agents a batch is
+        // 7 MB and 123k noise draws, which one thread would take longer to write than the GPU
+        // takes to train on it.
         gpu.stage(s.staging, staged.len, &mut |host: &mut [f32]| {
-            adam_consts(&mut host[..CONSTS], lr, actor_step, tau);
-            adam_consts(&mut host[CONSTS..2 * CONSTS], lr, critic_step, tau);
-            for (i, b) in batches.iter().enumerate() {
-                let span = |off: usize, d: usize| off + i * n * d..off + (i + 1) * n * d;
-                host[span(staged.obs, od)].copy_from_slice(&b.obs);
-                host[span(staged.goal, gd)].copy_from_slice(&b.goal);
-                host[span(staged.next_obs, od)].copy_from_slice(&b.next_obs);
-                host[span(staged.action, act)].copy_from_slice(&b.action);
-                host[span(staged.reward, 1)].copy_from_slice(&b.reward);
-                if b.weight.is_empty() {
-                    host[span(staged.weight, 1)].fill(1.0);
-                } else {
-                    host[span(staged.weight, 1)].copy_from_slice(&b.weight);
-                }
-                if !ddpg {
-                    for x in &mut host[span(staged.noise, act)] {
-                        *x = (noise_rngs[i].standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip)
-                            as f32;
+            let (consts, rest) = host.split_at_mut(2 * CONSTS);
+            adam_consts(&mut consts[..CONSTS], lr, actor_step, tau);
+            adam_consts(&mut consts[CONSTS..], lr, critic_step, tau);
+            let mut rest = rest;
+            let mut next = |d: usize| {
+                let (x, r) = std::mem::take(&mut rest).split_at_mut(a * n * d);
+                rest = r;
+                x
+            };
+            let fields: [(&mut [f32], usize, fn(&Batch) -> &[f32]); 5] = [
+                (next(od), od, |b| &b.obs),
+                (next(gd), gd, |b| &b.goal),
+                (next(od), od, |b| &b.next_obs),
+                (next(act), act, |b| &b.action),
+                (next(1), 1, |b| &b.reward),
+            ];
+            let (weight, noise) = (next(1), next(act));
+            for (dst, d, pick) in fields {
+                dst.par_chunks_mut(n * d).zip(batches).for_each(|(x, b)| x.copy_from_slice(pick(b)));
+            }
+            weight.par_chunks_mut(n).zip(batches).for_each(|(x, b)| {
+                if b.weight.is_empty() { x.fill(1.0) } else { x.copy_from_slice(&b.weight) }
+            });
+            if !ddpg {
+                noise.par_chunks_mut(n * act).zip(noise_rngs.par_iter_mut()).for_each(|(x, rng)| {
+                    for v in x {
+                        *v = (rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32;
                     }
-                }
+                });
             }
         })?;
 
