@@ -85,6 +85,16 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
     let (major, minor) = ctx.compute_capability()?;
     let name = format!("{} (sm_{major}{minor})", ctx.name()?);
     let cubin = nvrtc::cubin_for(&format!("sm_{major}{minor}")).context("--device cuda: compiling the kernels")?;
+    // Once per process, as burn's backends name their adapter: which GPU, precision and kernels.
+    static LOGGED: std::sync::Once = std::sync::Once::new();
+    LOGGED.call_once(|| {
+        let kernels = match std::env::var_os("PGSER_CUDA_CUBIN") {
+            Some(p) => format!("kernels from {}", std::path::Path::new(&p).display()),
+            None => format!("kernels compiled by NVRTC {}", nvrtc::version().map_or("?".into(), |(a, b)| format!("{a}.{b}"))),
+        };
+        let device = if precision == Precision::Tf32 { "cuda-tf32" } else { "cuda" };
+        eprintln!("--device {device}: running on {name}, {precision:?} products, {kernels}");
+    });
     let module = ctx.load_module(Ptx::from_binary(cubin)).context("--device cuda: loading the kernels")?;
     let functions = nvrtc::KERNELS
         .iter()
@@ -110,6 +120,8 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
 
 impl Gpu for CudaGpu {
     fn alloc(&mut self, bytes: usize) -> Result<Ptr> {
+        // Raw driver calls act on the calling thread's current context: every method binds it
+        // (the trainer, an evaluation and the scorer may call from different threads).
         self.ctx.bind_to_thread()?;
         // SAFETY: a plain allocation, zeroed before use; freed on drop.
         let p = unsafe { result::malloc_sync(bytes.max(1).next_multiple_of(256)) }.context("cuMemAlloc")?;
@@ -119,6 +131,7 @@ impl Gpu for CudaGpu {
     }
 
     fn free(&mut self, ptr: Ptr) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         let i = self.allocs.iter().position(|&p| p == ptr).context("free of memory this device did not allocate")?;
         self.allocs.swap_remove(i);
         self.stream.synchronize()?;
@@ -128,6 +141,7 @@ impl Gpu for CudaGpu {
     }
 
     fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         // SAFETY: `dst` is one of our allocations, sized by the engine for `src`; a synchronous
         // copy from pageable memory returns once `src` may be reused.
         unsafe { result::memcpy_htod_async(dst, src, self.stream.cu_stream()) }.context("upload")?;
@@ -135,6 +149,7 @@ impl Gpu for CudaGpu {
     }
 
     fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         // SAFETY: as upload; the stream is synchronized before `dst` is read.
         unsafe { result::memcpy_dtoh_async(dst, src, self.stream.cu_stream()) }.context("download")?;
         self.stream.synchronize().context("download")?;
@@ -142,6 +157,7 @@ impl Gpu for CudaGpu {
     }
 
     fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         let f = &self.functions.iter().find(|(k, _)| *k == name).with_context(|| format!("no kernel {name}"))?.1;
         let block = 256u32;
         let grid = items.div_ceil(block as usize).clamp(1, 65_535) as u32;
@@ -161,6 +177,7 @@ impl Gpu for CudaGpu {
     }
 
     fn stage(&mut self, dst: Ptr, len: usize, fill: &mut dyn FnMut(&mut [f32])) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         let slot = &mut self.pinned[self.turn];
         self.turn = 1 - self.turn;
         if slot.as_ref().is_some_and(|p| p.len < len) {
@@ -193,6 +210,7 @@ impl Gpu for CudaGpu {
     }
 
     fn begin_capture(&mut self) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         self.stream
             .begin_capture(sys::CUstreamCaptureMode::CU_STREAM_CAPTURE_MODE_THREAD_LOCAL)
             .context("beginning a graph capture")?;
@@ -200,9 +218,10 @@ impl Gpu for CudaGpu {
     }
 
     fn end_capture(&mut self) -> Result<usize> {
+        self.ctx.bind_to_thread()?;
         let graph = self
             .stream
-            .end_capture(sys::CUgraphInstantiate_flags::CUDA_GRAPH_INSTANTIATE_FLAG_AUTO_FREE_ON_LAUNCH)
+            .end_capture(sys::CUgraphInstantiate_flags(0))
             .context("ending a graph capture")?
             .context("the capture recorded nothing")?;
         self.graphs.push(graph);
@@ -210,6 +229,7 @@ impl Gpu for CudaGpu {
     }
 
     fn replay(&mut self, graph: usize) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         self.graphs.get(graph).context("no such graph")?.launch().context("launching a graph")?;
         Ok(())
     }
@@ -217,6 +237,7 @@ impl Gpu for CudaGpu {
     /// Row-major C = A·B is column-major Cᵀ = Bᵀ·Aᵀ: cuBLAS gets B first, and a row-major
     /// operand is the column-major transpose of itself with the same leading dimension.
     fn gemm(&mut self, g: &Gemm) -> Result<()> {
+        self.ctx.bind_to_thread()?;
         let op = |t: bool| if t { blas::cublasOperation_t::CUBLAS_OP_T } else { blas::cublasOperation_t::CUBLAS_OP_N };
         let (alpha, beta) = (1.0f32, 0.0f32);
         // SAFETY: every operand lies inside the engine's allocations (the host shim checks the

@@ -195,8 +195,8 @@ struct Scratch {
     actor_grad: Ptr,
     critic_grad: Ptr,
     sums: Ptr,
-    /// The captured updates: ((batch size, whether the actor moves), graph id).
-    graphs: Mutex<Vec<((usize, bool), usize)>>,
+    /// The kinds of update seen: ((batch size, whether the actor moves), its graph once captured).
+    graphs: Mutex<Vec<((usize, bool), Option<usize>)>>,
 }
 
 /// Offsets (in f32) of the batch's arrays inside the staging block.
@@ -455,21 +455,27 @@ impl<G: Gpu> CudaEngine<G> {
         })?;
 
         // The device's part: one captured graph per (batch size, whether the actor moves),
-        // replayed; PGSER_CUDA_GRAPHS=0 launches every kernel instead (to time the difference).
+        // replayed. The first update of a kind runs eagerly: cuBLAS and the driver load what they
+        // load lazily then, which a capture forbids; the second is captured. PGSER_CUDA_GRAPHS=0
+        // launches every kernel every time instead (to time what graphs save).
         let key = (n, actor_moves);
-        let graphs = self.graphs;
-        let cached = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
-        match cached {
-            Some(id) if graphs => gpu.replay(id)?,
-            _ if graphs => {
+        let seen = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
+        match seen {
+            Some(Some(id)) => gpu.replay(id)?,
+            Some(None) if self.graphs => {
                 gpu.begin_capture()?;
                 let recorded = self.launches(gpu, c, s, &staged, actor_moves);
                 let id = gpu.end_capture()?;
                 recorded?;
-                s.graphs.lock().expect("graphs").push((key, id));
+                s.graphs.lock().expect("graphs").iter_mut().find(|g| g.0 == key).expect("seen").1 = Some(id);
                 gpu.replay(id)?;
             }
-            _ => self.launches(gpu, c, s, &staged, actor_moves)?,
+            _ => {
+                self.launches(gpu, c, s, &staged, actor_moves)?;
+                if seen.is_none() {
+                    s.graphs.lock().expect("graphs").push((key, None));
+                }
+            }
         }
         self.critic_step = critic_step;
         self.actor_step = actor_step;
