@@ -195,9 +195,15 @@ struct Scratch {
     actor_grad: Ptr,
     critic_grad: Ptr,
     sums: Ptr,
-    /// The kinds of update seen: ((batch size, whether the actor moves), its graph once captured).
-    graphs: Mutex<Vec<((usize, bool), Option<usize>)>>,
+    /// The kinds of update seen, and each one's graph once captured.
+    graphs: Mutex<Vec<(UpdateKind, Option<usize>)>>,
 }
+
+/// What decides an update's launches: the batch size and whether the actor moves.
+type UpdateKind = (usize, bool);
+
+/// One array of a batch in the staging block: its slice there, its width, and the batch's field.
+type Field<'a> = (&'a mut [f32], usize, fn(&Batch) -> &[f32]);
 
 /// Offsets (in f32) of the batch's arrays inside the staging block.
 struct Staged {
@@ -431,7 +437,7 @@ impl<G: Gpu> CudaEngine<G> {
                 rest = r;
                 x
             };
-            let fields: [(&mut [f32], usize, fn(&Batch) -> &[f32]); 5] = [
+            let fields: [Field; 5] = [
                 (next(od), od, |b| &b.obs),
                 (next(gd), gd, |b| &b.goal),
                 (next(od), od, |b| &b.next_obs),
@@ -735,6 +741,7 @@ impl<'a> Temp<'a> {
 /// `pgser_inputs`: the normalized (s, g[, a]) rows of `agents` agents, `copies` times each
 /// (the critics' copies), into `out.0` (and (s', g) into `out.1` when `src.2`, next_obs, is set).
 /// `dims` = (obs, goal, action columns); `src` = (obs, goal, next_obs, action) pointers (0: none).
+#[allow(clippy::too_many_arguments)]
 fn inputs(
     gpu: &mut dyn Gpu,
     agents: usize,

@@ -84,12 +84,9 @@ pub fn preload(names: &[&str]) -> Option<PathBuf> {
     if loads(names.last().expect("names")) {
         return None;
     }
-    for dir in lib_dirs() {
-        if names.iter().all(|n| dir.join(n).exists()) && names.iter().all(|n| loads(&dir.join(n).to_string_lossy())) {
-            return Some(dir);
-        }
-    }
-    None
+    lib_dirs().into_iter().find(|dir| {
+        names.iter().all(|n| dir.join(n).exists()) && names.iter().all(|n| loads(&dir.join(n).to_string_lossy()))
+    })
 }
 
 /// NVRTC's libraries (the builtins first: libnvrtc opens it by name).
