@@ -23,6 +23,8 @@ mod host;
 mod shards;
 mod td3;
 #[cfg(test)]
+mod testdata;
+#[cfg(test)]
 mod tests;
 
 use burn::module::{Module, Param};

@@ -11,6 +11,7 @@ use std::ffi::{CString, c_char, c_void};
 use anyhow::{Result, bail};
 
 use super::{Arg, Gemm, Gpu, Mat, Ptr, arg_pointers};
+use crate::agent::fused::gemm_raw;
 
 unsafe extern "C" {
     fn pgser_shim_launch(name: *const c_char, grid: u32, block: u32, args: *mut *mut c_void) -> i32;
@@ -181,33 +182,13 @@ impl Gpu for HostGpu {
     }
 }
 
-/// `fused/net.rs::matmul`'s call, on raw pointers: dst (row stride `c.ld`) = A·B.
+/// dst (row stride `c.ld`) = A·B through the CPU engine's own `gemm` call.
 fn matmul(m: usize, n: usize, k: usize, c: &Mat, a: &Mat, b: &Mat) {
-    let strides = |x: &Mat| if x.trans { (1isize, x.ld as isize) } else { (x.ld as isize, 1isize) };
-    let ((a_rs, a_cs), (b_rs, b_cs)) = (strides(a), strides(b));
+    let op = |x: &Mat| {
+        let (rs, cs) = if x.trans { (1, x.ld) } else { (x.ld, 1) };
+        (x.ptr as *const f32, rs, cs)
+    };
     // SAFETY: the caller checked every operand against its allocation; C overlaps neither input
     // (the engine never multiplies in place).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.ptr as *mut f32,
-            1,
-            c.ld as isize,
-            false,
-            a.ptr as *const f32,
-            a_cs,
-            a_rs,
-            b.ptr as *const f32,
-            b_cs,
-            b_rs,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
+    unsafe { gemm_raw(m, n, k, c.ptr as *mut f32, c.ld, op(a), op(b)) };
 }

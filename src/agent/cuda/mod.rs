@@ -44,7 +44,7 @@ use anyhow::{Context, Result};
 use rayon::prelude::*;
 
 use super::engine::{Batch, Engine, Net, Nets, State, Stats};
-use super::fused::{Shape, parts};
+use super::fused::{ADAM_BETAS, AdamStep, Shape, adam_step, parts};
 use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
 
@@ -148,10 +148,6 @@ fn download_f32(gpu: &mut dyn Gpu, src: Ptr, len: usize) -> Result<Vec<f32>> {
     Ok(out)
 }
 
-/// Adam's constants, as `fused/net.rs` has them.
-const BETA1: f64 = 0.9;
-const BETA2: f64 = 0.999;
-const EPS: f64 = 1e-8;
 /// Per-(agent, part) sums (kernels.cu's PGSER_SUMS, in its order).
 const SUMS: usize = 6;
 /// Adam's per-update constants of one network kind (kernels.cu's PGSER_STEP_SIZE …).
@@ -776,16 +772,12 @@ fn inputs(
     )
 }
 
-/// Adam's constants for step `step`, as `fused/net.rs::adam` computes them (each rounded to f32),
-/// and the Polyak weights when the targets move.
+/// Adam's constants for step `step` (the CPU engine's), and the Polyak weights when the targets
+/// move, in kernels.cu's PGSER_STEP_SIZE … order. Step 0 (a network that has not moved yet and
+/// does not move now) gets step 1's, which no kernel reads.
 fn adam_consts(out: &mut [f32], lr: f64, step: u64, tau: Option<f64>) {
-    let t = step.max(1) as i32;
-    out[0] = (lr / (1.0 - BETA1.powi(t))) as f32;
-    out[1] = (1.0 - BETA2.powi(t)).sqrt() as f32;
-    let (keep, take) = tau.map_or((1.0, 0.0), |tau| ((1.0 - tau) as f32, tau as f32));
-    out[2] = keep;
-    out[3] = take;
-    out[4] = if tau.is_some() { 1.0 } else { 0.0 };
+    let AdamStep { step_size, bc2_sqrt, keep, take } = adam_step(lr, step.max(1), tau);
+    out.copy_from_slice(&[step_size, bc2_sqrt, keep, take, if tau.is_some() { 1.0 } else { 0.0 }]);
 }
 
 /// The per-agent losses from the per-(agent, part) sums, as `Fused::update` computes them.
@@ -968,11 +960,11 @@ fn adam(gpu: &mut dyn Gpu, net: &NetBufs, members: usize, len: usize, p: usize, 
             Arg::P(net.target),
             Arg::P(grad),
             Arg::P(consts),
-            Arg::F(BETA1 as f32),
-            Arg::F((1.0 - BETA1) as f32),
-            Arg::F(BETA2 as f32),
-            Arg::F((1.0 - BETA2) as f32),
-            Arg::F(EPS as f32),
+            Arg::F(ADAM_BETAS.0),
+            Arg::F(ADAM_BETAS.1),
+            Arg::F(ADAM_BETAS.2),
+            Arg::F(ADAM_BETAS.3),
+            Arg::F(ADAM_BETAS.4),
         ],
     )
     .context("Adam")

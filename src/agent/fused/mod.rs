@@ -38,7 +38,7 @@ mod net;
 #[cfg(test)]
 mod tests;
 
-pub(in crate::agent) use net::{Shape, unflatten};
+pub(in crate::agent) use net::{ADAM_BETAS, AdamStep, Shape, adam_step, gemm_raw, unflatten};
 use net::{MAX_PARTS, adam, backward, forward};
 pub use net::flatten;
 

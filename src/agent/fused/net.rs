@@ -164,18 +164,40 @@ fn matmul(m: usize, n: usize, k: usize, dst: &mut [f32], a: (&[f32], usize, usiz
     // SAFETY: the asserts above keep every element gemm reads inside `a` and `b` and every one it
     // writes inside `dst`; `dst` is a unique borrow, so it overlaps neither input.
     unsafe {
+        gemm_raw(m, n, k, dst.as_mut_ptr(), n, (a.0.as_ptr(), a.1, a.2), (b.0.as_ptr(), b.1, b.2));
+    }
+}
+
+/// The CPU engine's one `gemm` call: `dst` (`m × n`, row stride `dst_rs`) = A·B, each operand
+/// (pointer, row stride, column stride), on the calling thread. The CUDA engine's host shim
+/// multiplies through it too, so that it rounds as the CPU engine rounds by construction.
+///
+/// # Safety
+/// Every element the strides reach must lie inside its operand's allocation, and `dst` must
+/// overlap neither input.
+pub(in crate::agent) unsafe fn gemm_raw(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    dst_rs: usize,
+    a: (*const f32, usize, usize),
+    b: (*const f32, usize, usize),
+) {
+    // SAFETY: the caller's contract.
+    unsafe {
         gemm::gemm(
             m,
             n,
             k,
-            dst.as_mut_ptr(),
+            dst,
             1,
-            n as isize,
+            dst_rs as isize,
             false,
-            a.0.as_ptr(),
+            a.0,
             a.2 as isize,
             a.1 as isize,
-            b.0.as_ptr(),
+            b.0,
             b.2 as isize,
             b.1 as isize,
             0.0,
@@ -185,6 +207,30 @@ fn matmul(m: usize, n: usize, k: usize, dst: &mut [f32], a: (&[f32], usize, usiz
             false,
             gemm::Parallelism::None,
         );
+    }
+}
+
+/// Adam's constants as burn rounds them to f32: β₁, 1 − β₁, β₂, 1 − β₂, ε.
+pub(in crate::agent) const ADAM_BETAS: (f32, f32, f32, f32, f32) =
+    (BETA1 as f32, (1.0 - BETA1) as f32, BETA2 as f32, (1.0 - BETA2) as f32, EPS as f32);
+
+/// One Adam step's constants (and, with `tau`, the Polyak weights; else 1 and 0), each rounded
+/// to f32 as burn rounds a scalar. The CUDA engine's Adam kernel takes the same.
+pub(in crate::agent) struct AdamStep {
+    pub step_size: f32,
+    pub bc2_sqrt: f32,
+    pub keep: f32,
+    pub take: f32,
+}
+
+pub(in crate::agent) fn adam_step(lr: f64, step: u64, tau: Option<f64>) -> AdamStep {
+    let t = step as i32;
+    let (keep, take) = tau.map_or((1.0, 0.0), |tau| ((1.0 - tau) as f32, tau as f32));
+    AdamStep {
+        step_size: (lr / (1.0 - BETA1.powi(t))) as f32,
+        bc2_sqrt: (1.0 - BETA2.powi(t)).sqrt() as f32,
+        keep,
+        take,
     }
 }
 
@@ -199,11 +245,8 @@ pub(super) fn adam<'a>(
     step: u64,
     tau: Option<f64>,
 ) {
-    let t = step as i32;
-    let bc2_sqrt = (1.0 - BETA2.powi(t)).sqrt() as f32;
-    let step_size = (lr / (1.0 - BETA1.powi(t))) as f32;
-    let (b1, nb1, b2, nb2, eps) = (BETA1 as f32, (1.0 - BETA1) as f32, BETA2 as f32, (1.0 - BETA2) as f32, EPS as f32);
-    let (keep, take) = tau.map_or((1.0, 0.0), |tau| ((1.0 - tau) as f32, tau as f32));
+    let AdamStep { step_size, bc2_sqrt, keep, take } = adam_step(lr, step, tau);
+    let (b1, nb1, b2, nb2, eps) = ADAM_BETAS;
     debug_assert!(parts <= MAX_PARTS);
     let Net { p, m, v, target } = net;
     p.par_chunks_mut(ADAM_CHUNK)

@@ -3,33 +3,9 @@
 use burn::tensor::Device;
 
 use super::*;
+use crate::agent::testdata::{batch, norms};
 use crate::agent::{Agent, Backend, Mlp, Shards};
 use crate::task::Task;
-
-fn batch(task: &Task, n: usize, seed: u64, weighted: bool) -> Batch {
-    let mut rng = NpRandom::new(seed);
-    let mut u = |k: usize| (0..k).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<_>>();
-    Batch {
-        n,
-        obs: u(n * task.obs_dim),
-        goal: u(n * task.goal_dim),
-        action: u(n * task.act_dim).into_iter().map(|a| 0.9 * a).collect(),
-        reward: u(n).into_iter().map(|x| if x < 0.0 { -1.0 } else { 0.0 }).collect(),
-        next_obs: u(n * task.obs_dim),
-        weight: if weighted { u(n).into_iter().map(|x| 0.75 + 0.5 * x).collect() } else { vec![] },
-    }
-}
-
-fn norms(task: &Task, a: usize) -> Vec<Normalizer> {
-    (0..a)
-        .map(|i| {
-            let mut n = Normalizer::identity(task, 5.0);
-            n.obs_mean.iter_mut().for_each(|m| *m = 0.1 * i as f32);
-            n.goal_std.iter_mut().for_each(|s| *s = 0.5 + i as f32);
-            n
-        })
-        .collect()
-}
 
 /// Every parameter tensor of a stack: networks, targets, Adam moments (each `Mlp::tensors`).
 fn state(a: &Agent) -> Vec<(String, Vec<f32>)> {
