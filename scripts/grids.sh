@@ -179,10 +179,10 @@ case "${1:-}" in
     done
     ;;
   collect)
-    # What gets committed of a finished grid (never out/ itself): its Table 2 (results.csv, .md),
-    # training curves and the report of its Q (Fig. 5, Table 1). A grid counts as finished when
-    # `pipeline status` finds its last step, results, up to date, so a grid stopped half way, or
-    # one whose file changed since, is left out and says so.
+    # What gets committed of a finished grid (never out/ itself): its Table 2 (results.csv, .md,
+    # scores.csv), training curves and the report of its Q (Fig. 5, Table 1). A grid counts as
+    # finished when `pipeline status` finds its last step, results, up to date, so a grid stopped
+    # half way, or one whose file changed since, is left out and says so.
     shift
     results=$RESULTS_DIR
     bin=$(pinned)
@@ -219,15 +219,21 @@ case "${1:-}" in
         for step in report results; do
           (cd "$tmp" && with_pinned "$render" pipeline step "pipelines/$(basename "$g")" $step --threads 1 >/dev/null)
         done
-        for f in results.csv report/table1.json; do
-          cmp -s "$tmp/out/$name/$f" "$src/$f" ||
-            { echo "grids.sh: $name: $render computes another $(basename "$f") than the grid's" >&2; exit 1; }
-        done
+        # A grid's results.csv written before the pooled episodes' columns is compared on its own
+        # columns (the newer build appends its columns after them).
+        cols=$(head -n 1 "$src/results.csv" | awk -F, '{ print NF }')
+        cmp -s <(cut -d, -f1-"$cols" "$tmp/out/$name/results.csv") "$src/results.csv" &&
+          cmp -s "$tmp/out/$name/report/table1.json" "$src/report/table1.json" ||
+          { echo "grids.sh: $name: $render computes another results.csv or table1.json than the grid's" >&2; exit 1; }
         drawn="$tmp/out/$name"
       fi
       mkdir -p "$results/$name"
       cp "$src/results.csv" "$src/results.md" "$src/report/table1.json" "$src/report/table1.md" \
         "$drawn"/curves_*.png "$drawn/report/fig5_q_hist.png" "$results/$name/"
+      # Each run's final evaluation (episodes, mean, std), which table2's pooled spread needs: the
+      # grid's own, or, for a grid run by a build older than scores.csv, what the newer build read
+      # from the grid's metrics files (every evaluation line has always held its episodes' std).
+      for d in "$src" "$drawn"; do [ ! -f "$d/scores.csv" ] || cp "$d/scores.csv" "$results/$name/"; done
       # Which data the numbers came from: the sha256 of the collected pickles, so that results
       # of one recipe run on two machines (or a rerun) can be told apart by their data.
       if compgen -G "$src/data/*.pkl" > /dev/null; then

@@ -102,6 +102,8 @@ fn polars_and_duckdb_read_every_table_pgser_writes() {
                 "paper_score_mean": f(r.paper_score_mean), "paper_score_std": f(r.paper_score_std),
                 "success_mean": f(r.success_mean), "p_vs_baseline": o(r.p_vs_baseline), "p_vs_swap": o(r.p_vs_swap),
                 "p_one_sided_vs_baseline": o(r.p_one_sided_vs_baseline), "p_one_sided_vs_swap": o(r.p_one_sided_vs_swap),
+                "episodes": r.episodes, "paper_score_std_episodes": o(r.paper_score_std_episodes),
+                "p_episodes_vs_baseline": o(r.p_episodes_vs_baseline), "p_episodes_vs_swap": o(r.p_episodes_vs_swap),
             });
             assert_eq!(got, &want, "results.csv by {reader}");
         }

@@ -312,7 +312,7 @@ fn results_table_from_metrics_files() {
     assert_eq!(&lines[0][..3], ["FetchReach", "td3", "mem"], "TD3 before TD3+BC");
     assert_eq!(lines[0][5], "NaN", "one seed has no std: {csv}");
     assert_eq!(lines[0][7], "", "no baseline for td3: {csv}");
-    assert_eq!(lines[0].len(), 11, "two-sided and one-sided p: {csv}");
+    assert_eq!(lines[0].len(), 15, "two-sided and one-sided p, episodes pooled and their p: {csv}");
     let num = |s: &str| s.parse::<f64>().unwrap();
     for (i, (variant, scores)) in cells.iter().enumerate() {
         let l = &lines[i + 1];
@@ -333,8 +333,20 @@ fn results_table_from_metrics_files() {
     assert_eq!(md, report::results_markdown(&r));
     assert!(md.contains("## FetchReach"), "{md}");
     let mem_row = md.lines().find(|l| l.starts_with("| TD3+BC mem |")).unwrap_or_else(|| panic!("{md}"));
-    assert!(mem_row.contains("31.333 ± 1.528") && mem_row.matches(report::BETTER).count() == 2, "{mem_row}");
+    let cols: Vec<&str> = mem_row.split('|').map(str::trim).collect();
+    assert_eq!(cols[2], "31.333 ± 1.528", "{mem_row}");
+    assert!(cols[7].ends_with(report::BETTER) && cols[8].ends_with(report::BETTER), "{mem_row}");
     assert!(!mem_row.contains('*') && !mem_row.contains(report::WORSE), "{mem_row}");
+    // Each run evaluated 10 episodes with std 1 (metrics_file): as episodes, 5 at its score − 1
+    // and 5 at + 1. Pooled over the 3 seeds: 30 episodes, their sample std.
+    let episodes: Vec<f64> =
+        cells[2].1.iter().flat_map(|m| (0..10).map(move |i| if i % 2 == 0 { m - 1.0 } else { m + 1.0 })).collect();
+    let pooled = mean_std(&episodes).1;
+    assert_eq!((cols[3], cols[6]), (format!("{pooled:.3}").as_str(), "30"), "{mem_row}");
+    assert!((num(lines[3][12]) - pooled).abs() < 1e-12 && lines[3][11] == "30", "{:?}", lines[3]);
+    let scores = std::fs::read_to_string(&r.scores).unwrap();
+    assert!(scores.starts_with("task,algo,variant,seed,episodes,paper_score,episode_std\n"), "{scores}");
+    assert!(scores.contains("\nFetchReach,td3bc,mem,2,10,33,1\n"), "{scores}");
     assert!(md.lines().any(|l| l.starts_with("| TD3+BC baseline | 12.000 ± 2.000 |")), "{md}");
     assert_eq!(r.curves, vec![out.join("curves_FetchReach.png")]);
     assert_eq!(png_size(&r.curves[0]), report::FIG_SIZE);
@@ -399,16 +411,16 @@ fn results_mark_the_direction_of_a_significant_difference() {
     assert_eq!(rows.len(), 2, "{md}");
     let cols = |row: &str| row.split('|').map(str::trim).map(String::from).collect::<Vec<_>>();
     let push_row = cols(rows[0]);
-    assert!(push_row[5].ends_with(report::BETTER) && push_row[6].ends_with(report::WORSE), "{}", rows[0]);
+    assert!(push_row[7].ends_with(report::BETTER) && push_row[8].ends_with(report::WORSE), "{}", rows[0]);
     let reach_row = cols(rows[1]);
-    for c in &reach_row[5..7] {
+    for c in &reach_row[7..9] {
         assert!(!c.contains(report::BETTER) && !c.contains(report::WORSE) && !c.contains('*'), "{}", rows[1]);
     }
     assert!(md.contains("Welch's two-sided t-test") && md.contains("one-sided") && md.contains(report::WORSE), "{md}");
 
     let csv = std::fs::read_to_string(&r.csv).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    assert_eq!(&header[7..], ["p_vs_baseline", "p_vs_swap", "p_one_sided_vs_baseline", "p_one_sided_vs_swap"]);
+    assert_eq!(&header[7..11], ["p_vs_baseline", "p_vs_swap", "p_one_sided_vs_baseline", "p_one_sided_vs_swap"]);
     let push_csv: Vec<&str> = csv.lines().find(|l| l.starts_with("FetchPush,td3bc,mem,")).unwrap().split(',').collect();
     assert_eq!(push_csv[9].parse::<f64>().unwrap(), push.p_one_sided_vs_baseline.unwrap());
     assert_eq!(push_csv[10].parse::<f64>().unwrap(), push.p_one_sided_vs_swap.unwrap());
@@ -453,7 +465,8 @@ fn committed_results_tables_follow_from_their_csv() {
                 assert!((p - two).abs() < 1e-9 * two && (p1 - one).abs() < 1e-9 * one, "{}: {r:?}", csv_path.display());
             }
         }
-        let results = report::Results { rows, markdown: dir.join("results.md"), csv: csv_path, curves: vec![] };
+        let scores = dir.join("scores.csv");
+        let results = report::Results { rows, markdown: dir.join("results.md"), csv: csv_path, scores, curves: vec![] };
         let md = std::fs::read_to_string(&results.markdown).unwrap();
         assert_eq!(md, report::results_markdown(&results), "{}", results.markdown.display());
         checked += 1;
@@ -464,7 +477,9 @@ fn committed_results_tables_follow_from_their_csv() {
 /// One line of a results.csv as the row that wrote it.
 fn result_row(path: &Path, line: &str) -> report::ResultRow {
     let f: Vec<&str> = line.split(',').collect();
-    assert_eq!(f.len(), 11, "{}: {line}", path.display());
+    // 11 fields before pgser kept the episodes' spread, 15 since.
+    assert!(f.len() == 11 || f.len() == 15, "{}: {line}", path.display());
+    let at = |i: usize| f.get(i).copied().unwrap_or("");
     let num = |s: &str| s.parse::<f64>().unwrap_or_else(|e| panic!("{}: {s}: {e}", path.display()));
     let p = |s: &str| if s.is_empty() { None } else { Some(num(s)) };
     report::ResultRow {
@@ -479,6 +494,10 @@ fn result_row(path: &Path, line: &str) -> report::ResultRow {
         p_vs_swap: p(f[8]),
         p_one_sided_vs_baseline: p(f[9]),
         p_one_sided_vs_swap: p(f[10]),
+        episodes: p(at(11)).map(|n| n as usize),
+        paper_score_std_episodes: p(at(12)),
+        p_episodes_vs_baseline: p(at(13)),
+        p_episodes_vs_swap: p(at(14)),
     }
 }
 

@@ -304,7 +304,12 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         name: "results".into(),
         params: json!({"runs": runs.iter().map(|r| (&r.algo, &r.variant, r.seed)).collect::<Vec<_>>()}),
         inputs: runs.iter().map(|r| r.metrics.clone()).collect(),
-        outputs: vec![out.join("results.md"), out.join("results.csv"), out.join(format!("curves_{}.png", p.task))],
+        outputs: vec![
+            out.join("results.md"),
+            out.join("results.csv"),
+            out.join("scores.csv"),
+            out.join(format!("curves_{}.png", p.task)),
+        ],
         action: Action::Results(runs),
     });
     assign_stacks(&mut steps, p.agents.batch.unwrap_or(usize::MAX));

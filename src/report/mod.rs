@@ -22,6 +22,7 @@ mod negatives;
 mod plot;
 mod qreport;
 mod results;
+mod spread;
 mod table2;
 
 use std::io::Write;
@@ -37,6 +38,7 @@ pub use results::{
     ALPHA, BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_from_summary, welch_greater,
     welch_t_test,
 };
+pub use spread::{Block, Pooled, ScoreCell, pool, read_scores};
 pub use table2::{Table2, Table2Cell, Table2Options, table2};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.

@@ -3,10 +3,15 @@
 //!
 //! A run's score is its final evaluation: the last metrics line that carries `eval` (training
 //! evaluates every `--eval-every` updates and once at the end). Scores are averaged over seeds
-//! per (task, algorithm, variant); the paper reports mean ± std over seeds, and so do we (sample
-//! std, n − 1). Whether prioritized swapping (`mem`) beats `baseline` and `swap` is tested with
-//! Welch's t-test on the per-seed scores: the variants' spreads differ, so Student's pooled
-//! variance would be wrong, and with ~10 seeds a rank test has little power.
+//! per (task, algorithm, variant), with two spreads ([`super::spread`]): the sample std of the
+//! seeds' mean scores (n − 1), and the std of all evaluation episodes pooled (seeds × episodes),
+//! which the paper's ± most likely is. Whether prioritized swapping (`mem`) beats `baseline` and
+//! `swap` is tested with Welch's t-test on the per-seed scores, the test the marks use: the runs
+//! are the independent replicates, the variants' spreads differ, so Student's pooled variance
+//! would be wrong, and with ~10 seeds a rank test has little power. The same test over pooled
+//! episodes, which counts each episode as independent, is in results.csv for comparison with the
+//! paper's marks. `scores.csv` beside it keeps each run's (episodes, mean, std), from which both
+//! are recomputed.
 //!
 //! The table shows the two-sided p and marks a significant difference with its direction (▲ mem
 //! better, ▼ mem worse): a bare star read as "better" even where mem was significantly worse.
@@ -22,6 +27,7 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::plot::{self, Curve};
+use super::spread::{Block, ScoreRow, pool, scores_csv};
 use super::{FIG_SIZE, ensure_dir, file_safe, fmt3, write_text};
 use crate::train::MetricsLine;
 
@@ -57,6 +63,15 @@ pub struct ResultRow {
     /// mem is clearly worse); None where the two-sided p is.
     pub p_one_sided_vs_baseline: Option<f64>,
     pub p_one_sided_vs_swap: Option<f64>,
+    /// Evaluation episodes of all seeds pooled; None for a results.csv written before pgser kept
+    /// them, or a group whose runs were evaluated on different numbers of episodes (its pooled
+    /// mean would not be the table's mean).
+    pub episodes: Option<usize>,
+    /// Sample std over the pooled episodes.
+    pub paper_score_std_episodes: Option<f64>,
+    /// Welch's two-sided p of mem against baseline / swap over pooled episodes.
+    pub p_episodes_vs_baseline: Option<f64>,
+    pub p_episodes_vs_swap: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -64,6 +79,8 @@ pub struct Results {
     pub rows: Vec<ResultRow>,
     pub markdown: PathBuf,
     pub csv: PathBuf,
+    /// Each run's final evaluation as (episodes, mean, std): `scores.csv`.
+    pub scores: PathBuf,
     pub curves: Vec<PathBuf>,
 }
 
@@ -84,9 +101,13 @@ struct Eval {
     updates: u64,
     paper_score: f64,
     success_rate: f64,
+    episodes: u64,
+    /// Std of the episodes' scores (n, not n − 1), `EvalReport::return_std`.
+    episode_std: f64,
 }
 
-/// Writes `out_dir/results.md`, `out_dir/results.csv` and `out_dir/curves_<task>.png`.
+/// Writes `out_dir/results.md`, `out_dir/results.csv`, `out_dir/scores.csv` and
+/// `out_dir/curves_<task>.png`.
 ///
 /// The metrics files become one frame of evaluation lines (a row per line, in run and file
 /// order), which polars groups: the last line of each run, then the runs of each group (in run
@@ -99,8 +120,8 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
     }
     let evals = evals_frame(runs)?;
     let groups = final_scores(&evals).context("Table 2: grouping the final evaluations")?;
-    let scores_of = |task: &str, algo: &str, variant: &str| {
-        groups.iter().find(|g| g.task == task && g.algo == algo && g.variant == variant).map(|g| &g.scores)
+    let group_of = |task: &str, algo: &str, variant: &str| {
+        groups.iter().find(|g| g.task == task && g.algo == algo && g.variant == variant)
     };
     let mut rows = Vec::new();
     for g in &groups {
@@ -109,11 +130,19 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
             if g.variant != "mem" {
                 return None;
             }
-            let theirs = scores_of(&g.task, &g.algo, other)?;
+            let theirs = &group_of(&g.task, &g.algo, other)?.scores;
             Some((welch_t_test(&g.scores, theirs)?.2, welch_greater(&g.scores, theirs)?))
         };
         let (vs_baseline, vs_swap) = (p_vs("baseline"), p_vs("swap"));
         let (m, s) = mean_std(&g.scores);
+        let pooled = pooled_episodes(g);
+        let p_episodes_vs = |other: &str| -> Option<f64> {
+            if g.variant != "mem" {
+                return None;
+            }
+            let (mine, theirs) = (pooled?, pooled_episodes(group_of(&g.task, &g.algo, other)?)?);
+            Some(welch_from_summary((m, mine.1, mine.0), (theirs.2, theirs.1, theirs.0))?.2)
+        };
         rows.push(ResultRow {
             task: g.task.clone(),
             algo: g.algo.clone(),
@@ -126,8 +155,24 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
             p_vs_swap: vs_swap.map(|p| p.0),
             p_one_sided_vs_baseline: vs_baseline.map(|p| p.1),
             p_one_sided_vs_swap: vs_swap.map(|p| p.1),
+            episodes: pooled.map(|p| p.0),
+            paper_score_std_episodes: pooled.map(|p| p.1),
+            p_episodes_vs_baseline: p_episodes_vs("baseline"),
+            p_episodes_vs_swap: p_episodes_vs("swap"),
         });
     }
+    let scores: Vec<ScoreRow> = groups
+        .iter()
+        .flat_map(|g| {
+            g.blocks.iter().zip(&g.seeds).map(|(b, seed)| ScoreRow {
+                task: g.task.clone(),
+                algo: g.algo.clone(),
+                variant: g.variant.clone(),
+                seed: *seed,
+                block: *b,
+            })
+        })
+        .collect();
 
     ensure_dir(out_dir)?;
     let mut curves = Vec::new();
@@ -143,10 +188,27 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
         )?;
         curves.push(path);
     }
-    let r = Results { rows, markdown: out_dir.join("results.md"), csv: out_dir.join("results.csv"), curves };
+    let r = Results {
+        rows,
+        markdown: out_dir.join("results.md"),
+        csv: out_dir.join("results.csv"),
+        scores: out_dir.join("scores.csv"),
+        curves,
+    };
     write_text(&r.markdown, &results_markdown(&r))?;
     write_text(&r.csv, &csv(&r.rows))?;
+    write_text(&r.scores, &scores_csv(&scores))?;
     Ok(r)
+}
+
+/// A group's episodes pooled over its seeds: (episodes, sample std, mean); None when its runs
+/// were evaluated on different numbers of episodes, so that the pooled mean would weigh the
+/// seeds unequally and differ from the seeds' mean the table shows.
+fn pooled_episodes(g: &Group) -> Option<(usize, f64, f64)> {
+    if g.blocks.iter().any(|b| b.episodes != g.blocks[0].episodes) {
+        return None;
+    }
+    pool(&g.blocks).map(|p| (p.episodes, p.std, p.mean))
 }
 
 /// A Table 2 group: its runs' final scores and success rates, in run order.
@@ -156,6 +218,9 @@ struct Group {
     variant: String,
     scores: Vec<f64>,
     success: Vec<f64>,
+    /// Each run's final evaluation as a block of episodes, and its seed, in run order.
+    blocks: Vec<Block>,
+    seeds: Vec<u64>,
 }
 
 /// Every evaluation line of every run: the group columns, the run's index, and the line.
@@ -163,6 +228,7 @@ fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
     let (mut task, mut algo, mut variant) = (Vec::new(), Vec::new(), Vec::new());
     let (mut algo_ranks, mut variant_ranks, mut run) = (Vec::new(), Vec::new(), Vec::new());
     let (mut updates, mut score, mut success) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut seed, mut episodes, mut episode_std) = (Vec::new(), Vec::new(), Vec::new());
     for (i, r) in runs.iter().enumerate() {
         for e in read_evals(&r.metrics)? {
             task.push(r.task.as_str());
@@ -174,6 +240,9 @@ fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
             updates.push(e.updates);
             score.push(e.paper_score);
             success.push(e.success_rate);
+            seed.push(r.seed);
+            episodes.push(e.episodes);
+            episode_std.push(e.episode_std);
         }
     }
     let columns = vec![
@@ -186,6 +255,9 @@ fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
         Column::new("updates".into(), updates),
         Column::new("paper_score".into(), score),
         Column::new("success_rate".into(), success),
+        Column::new("seed".into(), seed),
+        Column::new("episodes".into(), episodes),
+        Column::new("episode_std".into(), episode_std),
     ];
     Ok(DataFrame::new_infer_height(columns)?)
 }
@@ -199,9 +271,15 @@ fn final_scores(evals: &DataFrame) -> PolarsResult<Vec<Group>> {
         .clone()
         .lazy()
         .group_by_stable(by_run)
-        .agg([col("paper_score").last(), col("success_rate").last()])
+        .agg([
+            col("paper_score").last(),
+            col("success_rate").last(),
+            col("seed").last(),
+            col("episodes").last(),
+            col("episode_std").last(),
+        ])
         .group_by_stable(group)
-        .agg([col("paper_score"), col("success_rate")])
+        .agg([col("paper_score"), col("success_rate"), col("seed"), col("episodes"), col("episode_std")])
         .sort(GROUP, SortMultipleOptions::default().with_maintain_order(true))
         .collect()?;
     let text = |name: &str| -> PolarsResult<Vec<String>> {
@@ -209,11 +287,17 @@ fn final_scores(evals: &DataFrame) -> PolarsResult<Vec<Group>> {
     };
     let (task, algo, variant) = (text("task")?, text("algo")?, text("variant")?);
     let (scores, success) = (f64_lists(df.column("paper_score")?)?, f64_lists(df.column("success_rate")?)?);
+    let (seeds, episodes) = (u64_lists(df.column("seed")?)?, u64_lists(df.column("episodes")?)?);
+    let episode_std = f64_lists(df.column("episode_std")?)?;
     Ok((0..df.height())
         .map(|i| Group {
             task: task[i].clone(),
             algo: algo[i].clone(),
             variant: variant[i].clone(),
+            blocks: (0..scores[i].len())
+                .map(|j| Block { episodes: episodes[i][j] as usize, mean: scores[i][j], std: episode_std[i][j] })
+                .collect(),
+            seeds: seeds[i].clone(),
             scores: scores[i].clone(),
             success: success[i].clone(),
         })
@@ -266,34 +350,66 @@ fn f64_lists(c: &Column) -> PolarsResult<Vec<Vec<f64>>> {
         .collect()
 }
 
-/// Table 2 as markdown: one table per task, one row per algorithm and variant.
+/// A list column of counts as vectors.
+fn u64_lists(c: &Column) -> PolarsResult<Vec<Vec<u64>>> {
+    let lists = c.list()?;
+    (0..lists.len())
+        .map(|i| lists.get_as_series(i).map_or(Ok(Vec::new()), |s| Ok(s.u64()?.into_no_null_iter().collect())))
+        .collect()
+}
+
+/// Table 2 as markdown: one table per task, one row per algorithm and variant. The pooled
+/// episodes' columns appear when the rows have them (a results.csv written before pgser kept them
+/// is drawn as it was).
 pub fn results_markdown(r: &Results) -> String {
+    let pooled = r.rows.iter().any(|row| row.episodes.is_some());
     let mut s = String::from("# Table 2: final paper score (mean ± std over seeds)\n");
     let mut task: Option<&str> = None;
     for row in &r.rows {
         if task != Some(row.task.as_str()) {
             task = Some(&row.task);
-            let _ = write!(
-                s,
-                "\n## {}\n\n| agent | paper score | success | seeds | p vs baseline | p vs swap |\n\
-                 |---|---:|---:|---:|---:|---:|\n",
-                row.task
-            );
+            let _ = write!(s, "\n## {}\n\n", row.task);
+            s += if pooled {
+                "| agent | paper score | ± over episodes | success | seeds | episodes | p vs baseline | p vs swap | \
+                 p vs baseline (episodes) | p vs swap (episodes) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            } else {
+                "| agent | paper score | success | seeds | p vs baseline | p vs swap |\n|---|---:|---:|---:|---:|---:|\n"
+            };
         }
-        let _ = writeln!(
-            s,
-            "| {} {} | {} ± {} | {} | {} | {} | {} |",
-            algo_name(&row.algo),
-            row.variant,
-            fmt3(row.paper_score_mean),
-            fmt3(row.paper_score_std),
-            fmt3(row.success_mean),
-            row.seeds,
-            fmt_p(row.p_vs_baseline, row.p_one_sided_vs_baseline),
-            fmt_p(row.p_vs_swap, row.p_one_sided_vs_swap)
-        );
+        let seeds = format!("{} ± {}", fmt3(row.paper_score_mean), fmt3(row.paper_score_std));
+        let tests =
+            [fmt_p(row.p_vs_baseline, row.p_one_sided_vs_baseline), fmt_p(row.p_vs_swap, row.p_one_sided_vs_swap)];
+        let agent = format!("{} {}", algo_name(&row.algo), row.variant);
+        let success = fmt3(row.success_mean);
+        if pooled {
+            // The episodes' test is two-sided only: its direction is the means'.
+            let dir = |p: Option<f64>, other: &str| {
+                let o = r.rows.iter().find(|x| x.task == row.task && x.algo == row.algo && x.variant == other);
+                fmt_p_above(p, o.map(|o| row.paper_score_mean > o.paper_score_mean))
+            };
+            let _ = writeln!(
+                s,
+                "| {agent} | {seeds} | {} | {success} | {} | {} | {} | {} | {} | {} |",
+                row.paper_score_std_episodes.map_or("n/a".to_string(), fmt3),
+                row.seeds,
+                row.episodes.map_or("n/a".to_string(), |n| n.to_string()),
+                tests[0],
+                tests[1],
+                dir(row.p_episodes_vs_baseline, "baseline"),
+                dir(row.p_episodes_vs_swap, "swap"),
+            );
+        } else {
+            let _ = writeln!(s, "| {agent} | {seeds} | {success} | {} | {} | {} |", row.seeds, tests[0], tests[1]);
+        }
     }
     s += &legend();
+    if pooled {
+        s += "\nThe marks and the p columns test the seeds' mean scores (n = seeds), the test pgser's claims rest on. \
+              ± over episodes is the std of every evaluation episode of every seed pooled (n = episodes), and the \
+              (episodes) columns are Welch's test over those pooled episodes, which counts each episode as an \
+              independent sample: the paper's likely terms, for comparing with its marks. scores.csv holds each \
+              run's final evaluation (episodes, mean, std) that both are computed from.\n";
+    }
     s
 }
 
@@ -375,7 +491,16 @@ fn read_evals(path: &Path) -> Result<Vec<Eval>> {
             if !e.paper_score.is_finite() {
                 bail!("{at}: line {}: paper score is {}", i + 1, e.paper_score);
             }
-            evals.push(Eval { updates: m.updates, paper_score: e.paper_score, success_rate: e.success_rate });
+            if !(e.return_std.is_finite() && e.return_std >= 0.0) {
+                bail!("{at}: line {}: return_std is {}, not a std", i + 1, e.return_std);
+            }
+            evals.push(Eval {
+                updates: m.updates,
+                paper_score: e.paper_score,
+                success_rate: e.success_rate,
+                episodes: e.episodes as u64,
+                episode_std: e.return_std,
+            });
         }
     }
     if lines == 0 {
@@ -390,13 +515,14 @@ fn read_evals(path: &Path) -> Result<Vec<Eval>> {
 fn csv(rows: &[ResultRow]) -> String {
     let mut s = String::from(
         "task,algo,variant,seeds,paper_score_mean,paper_score_std,success_mean,p_vs_baseline,p_vs_swap,\
-         p_one_sided_vs_baseline,p_one_sided_vs_swap\n",
+         p_one_sided_vs_baseline,p_one_sided_vs_swap,episodes,paper_score_std_episodes,p_episodes_vs_baseline,\
+         p_episodes_vs_swap\n",
     );
     let opt = |p: Option<f64>| p.map(|p| p.to_string()).unwrap_or_default();
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.task,
             r.algo,
             r.variant,
@@ -407,7 +533,11 @@ fn csv(rows: &[ResultRow]) -> String {
             opt(r.p_vs_baseline),
             opt(r.p_vs_swap),
             opt(r.p_one_sided_vs_baseline),
-            opt(r.p_one_sided_vs_swap)
+            opt(r.p_one_sided_vs_swap),
+            r.episodes.map(|n| n.to_string()).unwrap_or_default(),
+            opt(r.paper_score_std_episodes),
+            opt(r.p_episodes_vs_baseline),
+            opt(r.p_episodes_vs_swap)
         );
     }
     s
@@ -416,9 +546,15 @@ fn csv(rows: &[ResultRow]) -> String {
 /// The two-sided p with the direction of a significant difference: the one-sided p of "mem is
 /// higher" is below ½ exactly when mem's mean is above the reference's.
 fn fmt_p(two_sided: Option<f64>, one_sided: Option<f64>) -> String {
-    match (two_sided, one_sided) {
-        (Some(p), Some(up)) => {
-            let mark = match (p < ALPHA, up < 0.5) {
+    fmt_p_above(two_sided, one_sided.map(|up| up < 0.5))
+}
+
+/// The two-sided p with the direction of a significant difference, given whether mem's mean is
+/// the higher one.
+fn fmt_p_above(two_sided: Option<f64>, above: Option<bool>) -> String {
+    match (two_sided, above) {
+        (Some(p), Some(above)) => {
+            let mark = match (p < ALPHA, above) {
                 (false, _) => "",
                 (true, true) => BETTER,
                 (true, false) => WORSE,
