@@ -6,6 +6,11 @@
 //! holding its classifiers and Fig. 5's two histograms as drawn; this reads only those files, so
 //! the combined figure needs neither the scored tables nor the checkpoints, and a figure of six
 //! tasks is drawn in a second from six small files that can be copied off a cluster.
+//!
+//! Beneath each classifier's row is the paper's own accuracy for the same kind of classifier
+//! (`assets/paper_table1.csv`, compiled in, its source named there), so the two can be read side
+//! by side; the paper's classes are described in its caption a little differently (transitions of
+//! successful trajectories or not), which the table's note says.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -14,6 +19,7 @@ use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
 use super::classify::ClassifierScore;
+use super::paper::{self, PaperAccuracy};
 use super::plot::{self, DensityPanel, PALETTE};
 use super::qreport::Fig5Hist;
 use super::table2::TASKS;
@@ -114,7 +120,8 @@ pub fn fig5_all(opts: &Fig5Options) -> Result<Fig5All> {
     let figure = opts.out_dir.join("fig5_all.png");
     plot::density_panels(&figure, (600 * cols as u32, 450 * rows as u32), cols, ("Q(s, g, a)", "density"), &panels)?;
     let table1 = opts.out_dir.join("table1_all.md");
-    write_text(&table1, &markdown(&reports))?;
+    let theirs = paper::read_table1(paper::TABLE1, "assets/paper_table1.csv")?;
+    write_text(&table1, &markdown(&reports, &theirs))?;
     Ok(Fig5All {
         tasks: reports.iter().map(|(i, _, _)| TASKS[*i].0.to_string()).collect(),
         missing: TASKS
@@ -129,8 +136,9 @@ pub fn fig5_all(opts: &Fig5Options) -> Result<Fig5All> {
 }
 
 /// Table 1 for every task: a column per task, a row per classifier, each cell the paper's
-/// negatives' accuracy and the controlled negatives' beside it.
-fn markdown(reports: &[(usize, PathBuf, Report)]) -> String {
+/// negatives' accuracy and the controlled negatives' beside it, and beneath each row the paper's
+/// accuracy for that classifier.
+fn markdown(reports: &[(usize, PathBuf, Report)], theirs: &[PaperAccuracy]) -> String {
     let mut s = String::from(
         "# Table 1 across tasks: held-out accuracy of telling own goals from swapped goals by Q alone\n\n\
          Each cell: the paper's negatives (random goal swaps of the whole table) / controlled negatives (the \
@@ -155,6 +163,16 @@ fn markdown(reports: &[(usize, PathBuf, Report)]) -> String {
             })
             .collect();
         let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+        let paper: Vec<String> = reports
+            .iter()
+            .map(|(i, _, _)| {
+                theirs
+                    .iter()
+                    .find(|(task, c, _)| *task == TASKS[*i].0 && c == name)
+                    .map_or("—".to_string(), |(_, _, acc)| format!("{acc:.3}"))
+            })
+            .collect();
+        let _ = writeln!(s, "| {name} (paper) | {} |", paper.join(" | "));
     }
     let stat = |f: &dyn Fn(&Report) -> String| reports.iter().map(|(_, _, r)| f(r)).collect::<Vec<_>>().join(" | ");
     let _ = writeln!(s, "| mean Q, own goals | {} |", stat(&|r| format!("{:.2}", r.positive_q_mean)));
@@ -167,6 +185,15 @@ fn markdown(reports: &[(usize, PathBuf, Report)]) -> String {
         s,
         "| samples (own / negatives) | {} |",
         stat(&|r| format!("{} / {} / {}", r.positives, r.negatives, r.controlled.negatives))
+    );
+    let names: Vec<String> = paper::CLASSIFIERS.iter().map(|(p, ours)| format!("{p} beneath {ours}")).collect();
+    let _ = writeln!(
+        s,
+        "\n(paper): the paper's Table 1 (assets/paper_table1.csv names the source), its rows {}. Its caption \
+         describes the classes as transitions of successful trajectories (goals reachable) and the rest; pgser's \
+         are own goals and random goal swaps, Fig. 5's two classes. The paper does not give its classifiers' \
+         settings or its split.",
+        names.join(", ")
     );
     s += "\nSources:\n\n";
     for (i, path, _) in reports {

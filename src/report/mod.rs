@@ -12,13 +12,17 @@
 //!   its metrics file), averages it over seeds per (task, algorithm, variant) and tests whether
 //!   the `mem` variant differs from `baseline` and `swap` (Welch's t-test, unequal variances,
 //!   since the variants' spreads over seeds differ), marking a significant difference ▲ or ▼ by
-//!   its direction.
+//!   its direction. Each cell also has the spread of its evaluation episodes pooled over seeds,
+//!   and the same test over them ([`spread`]), the paper's likely terms; `table2` sets the
+//!   paper's own values and marks beside pgser's ([`paper`]) and says where they agree ([`agree`]).
 //!
 //! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
 
+mod agree;
 mod classify;
 mod fig5;
 mod negatives;
+mod paper;
 mod plot;
 mod qreport;
 mod results;

@@ -3,12 +3,18 @@
 //!
 //! A pipeline reports one task ([`super::results`]); the paper's table is six of them side by
 //! side: rows TD3BC-mem, TD3BC-swap, TD3BC, TD3-mem, TD3-swap, TD3, a column per task, and under
-//! each measured row the paper's own value for the same cell, from a reference file committed
-//! with its source (`assets/paper_table2.csv`, compiled in; `--reference` reads another).
+//! each measured row the same cell over pooled episodes and the paper's own value with its marks,
+//! from a reference committed with its source named ([`super::paper`]; `--reference` reads
+//! another). Lines per task then say where pgser and the paper agree on the ordering and on each
+//! significant difference ([`super::agree`]).
 //!
-//! The tests are recomputed here from each cell's (mean, std, seeds), which is all Welch's test
-//! needs, so the three comparisons the paper's ordering makes (mem vs swap, swap vs baseline, mem
-//! vs baseline) are all available, not only the two that results.csv carries.
+//! The tests are recomputed here from each cell's (mean, std, n), which is all Welch's test
+//! needs, so every comparison the paper marks (mem vs swap, swap vs baseline, mem vs baseline) is
+//! available, twice: over the seeds' mean scores, the test the marks of the (pgser) rows use, and
+//! over all evaluation episodes pooled ([`super::spread`]), the paper's likely terms. The pooled
+//! spread comes from the results.csv's own columns or, when a `scores.csv` lies beside it, from
+//! that file's per-run (or per-episode) scores, which must then agree with the results.csv; a
+//! results.csv written before pgser kept either has it "n/a", never estimated.
 //!
 //! Inputs are checked before anything is written, each fault a one-line error naming the file
 //! and line: a cell given twice (in one file or two), a task or agent the paper's table does not
@@ -22,10 +28,12 @@ use anyhow::{Result, anyhow, bail};
 use polars::prelude::{DataFrame, DataType};
 use serde::Serialize;
 
+use super::agree::{self, Agreement, Side};
+use super::paper::{self, PaperCell, paper_task};
 use super::results::{ALPHA, BETTER, WORSE, welch_from_summary};
+use super::spread::read_scores;
 use super::{ensure_dir, write_text};
 use crate::query::first_line;
-use crate::task::Task;
 
 /// The paper's columns: pgser's task name, and the paper's short header.
 pub const TASKS: [(&str, &str); 6] = [
@@ -47,9 +55,6 @@ pub const AGENTS: [(&str, &str, &str); 6] = [
     ("td3", "baseline", "TD3"),
 ];
 
-/// The paper's values, compiled in so the command works from any folder.
-const PAPER: &str = include_str!("../../assets/paper_table2.csv");
-
 #[derive(Debug, Clone)]
 pub struct Table2Options {
     /// `results.csv` files of pipelines (`pgser-etl pipeline run` writes one per pipeline).
@@ -68,15 +73,27 @@ pub struct Table2Cell {
     pub agent: String,
     pub seeds: usize,
     pub mean: f64,
-    /// Sample std over seeds; NaN with one seed.
+    /// Sample std over the seeds' mean scores; NaN with one seed.
     pub std: f64,
+    /// Evaluation episodes of all seeds pooled, and the sample std over them; None where the
+    /// input kept no per-run spread (a results.csv written before pgser kept them).
+    pub episodes: Option<usize>,
+    pub std_episodes: Option<f64>,
     pub paper_mean: Option<f64>,
     pub paper_std: Option<f64>,
-    /// Welch's two-sided p of this learner's mem against its baseline / swap (mem rows only).
+    /// The paper's marks in pgser's notation: `▲b` its pink box, `▲s` its bold.
+    pub paper_marks: String,
+    /// Welch's two-sided p over the seeds' means: mem and swap against the same learner's
+    /// baseline, mem against its swap (None on other rows).
     pub p_vs_baseline: Option<f64>,
     pub p_vs_swap: Option<f64>,
-    /// The mem row's significant differences: `▲b` (above baseline), `▼s` (below swap), …
+    /// The same tests over pooled episodes.
+    pub p_episodes_vs_baseline: Option<f64>,
+    pub p_episodes_vs_swap: Option<f64>,
+    /// The significant differences over seeds: `▲b` (above baseline), `▼s` (below swap), …
     pub marks: String,
+    /// The same over pooled episodes.
+    pub marks_episodes: String,
     /// Where the cell came from: `FILE:LINE`.
     pub source: String,
 }
@@ -86,21 +103,36 @@ pub struct Table2 {
     pub cells: Vec<Table2Cell>,
     /// Tasks of the paper with no results among the inputs (their columns say "not run").
     pub not_run: Vec<String>,
-    /// Per measured task, whether mem ≥ swap ≥ baseline holds for each learner, and which of
-    /// those comparisons are significant.
+    /// Cells of the paper's table the reference lacks (`TASK AGENT`; their (paper) cells say "—").
+    pub paper_missing: Vec<String>,
+    /// Per measured task, whether mem ≥ swap ≥ baseline holds for each learner here and in the
+    /// paper, each comparison's tests, and where pgser and the paper agree.
     pub orderings: Vec<String>,
+    /// How many orderings and marks agree with the paper's.
+    pub agreement: Agreement,
     pub markdown: PathBuf,
     pub csv: PathBuf,
 }
 
 /// A measured cell as read, before the table is assembled.
-struct Measured {
-    task: &'static str,
-    agent: usize,
-    seeds: usize,
-    mean: f64,
-    std: f64,
-    source: String,
+pub(super) struct Measured {
+    pub task: &'static str,
+    pub agent: usize,
+    pub seeds: usize,
+    pub mean: f64,
+    pub std: f64,
+    /// (episodes, mean, sample std) of all episodes pooled.
+    pub pooled: Option<(usize, f64, f64)>,
+    pub source: String,
+}
+
+impl Measured {
+    pub(super) fn seeds_side(&self) -> Side {
+        (self.mean, self.std, self.seeds)
+    }
+    pub(super) fn episodes_side(&self) -> Option<Side> {
+        self.pooled.map(|(n, m, s)| (m, s, n))
+    }
 }
 
 /// Writes `out_dir/table2.md` and `out_dir/table2.csv`.
@@ -141,66 +173,83 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
     let paper = match &opts.reference {
         Some(p) => {
             let text = crate::output::read_input_text(p)?;
-            read_reference(&text, &p.display().to_string())?
+            paper::read_table2(&text, &p.display().to_string())?
         }
-        None => read_reference(PAPER, "assets/paper_table2.csv")?,
+        None => paper::read_table2(paper::TABLE2, "assets/paper_table2.csv")?,
     };
 
     let find = |task: &str, agent: usize| measured.iter().find(|m| m.task == task && m.agent == agent);
     let mut cells = Vec::new();
-    for (a, (_, variant, name)) in AGENTS.iter().enumerate() {
+    for (a, (algo, variant, name)) in AGENTS.iter().enumerate() {
         for (task, _) in TASKS {
             let Some(m) = find(task, a) else { continue };
-            // Welch's two-sided p against the same learner's `other` variant, and the mark
-            // (direction and which) when it is significant.
-            let vs = |other: &str, letter: &str| -> (Option<f64>, String) {
-                if *variant != "mem" {
-                    return (None, String::new());
-                }
-                let o = AGENTS.iter().position(|x| x.0 == AGENTS[a].0 && x.1 == other).and_then(|o| find(task, o));
-                let Some(o) = o else { return (None, String::new()) };
-                let Some((_, _, p)) = welch_from_summary((m.mean, m.std, m.seeds), (o.mean, o.std, o.seeds)) else {
-                    return (None, String::new());
-                };
-                let mark = if p < ALPHA {
-                    format!("{}{letter}", if m.mean > o.mean { BETTER } else { WORSE })
-                } else {
-                    String::new()
-                };
-                (Some(p), mark)
+            let other = |v: &str| AGENTS.iter().position(|x| x.0 == *algo && x.1 == v).and_then(|o| find(task, o));
+            // The comparisons the paper marks on this row: against the baseline (mem and swap
+            // rows, letter b) and against swap (mem rows, letter s).
+            let against: Vec<(&Measured, &str)> = match *variant {
+                "mem" => [other("baseline").map(|o| (o, "b")), other("swap").map(|o| (o, "s"))]
+                    .into_iter()
+                    .flatten()
+                    .collect(),
+                "swap" => other("baseline").map(|o| (o, "b")).into_iter().collect(),
+                _ => Vec::new(),
             };
-            let ((p_b, mark_b), (p_s, mark_s)) = (vs("baseline", "b"), vs("swap", "s"));
-            let p = paper.iter().find(|r| r.0 == task && r.1 == a);
+            let (mut p_seeds, mut p_episodes) = ([None, None], [None, None]);
+            let (mut marks, mut marks_episodes) = (Vec::new(), Vec::new());
+            for (o, letter) in against {
+                let slot = usize::from(letter == "s");
+                let seeds = welch_from_summary(m.seeds_side(), o.seeds_side()).map(|t| t.2);
+                let episodes =
+                    m.episodes_side().zip(o.episodes_side()).and_then(|(x, y)| welch_from_summary(x, y)).map(|t| t.2);
+                p_seeds[slot] = seeds;
+                p_episodes[slot] = episodes;
+                marks.extend(mark(seeds, m.mean > o.mean, letter));
+                marks_episodes.extend(mark(episodes, m.mean > o.mean, letter));
+            }
+            let p = paper.iter().find(|r| r.task == task && r.agent == a);
             cells.push(Table2Cell {
                 task: task.to_string(),
                 agent: name.to_string(),
                 seeds: m.seeds,
                 mean: m.mean,
                 std: m.std,
-                paper_mean: p.map(|r| r.2),
-                paper_std: p.map(|r| r.3),
-                p_vs_baseline: p_b,
-                p_vs_swap: p_s,
-                marks: [mark_b, mark_s].into_iter().filter(|x| !x.is_empty()).collect::<Vec<_>>().join(" "),
+                episodes: m.pooled.map(|p| p.0),
+                std_episodes: m.pooled.map(|p| p.2),
+                paper_mean: p.map(|r| r.mean),
+                paper_std: p.map(|r| r.std),
+                paper_marks: p.map(PaperCell::marks).unwrap_or_default(),
+                p_vs_baseline: p_seeds[0],
+                p_vs_swap: p_seeds[1],
+                p_episodes_vs_baseline: p_episodes[0],
+                p_episodes_vs_swap: p_episodes[1],
+                marks: marks.join(" "),
+                marks_episodes: marks_episodes.join(" "),
                 source: m.source.clone(),
             });
         }
     }
     let not_run: Vec<String> =
         TASKS.iter().filter(|(t, _)| !measured.iter().any(|m| m.task == *t)).map(|(t, _)| t.to_string()).collect();
+    let paper_missing = TASKS
+        .iter()
+        .flat_map(|(t, short)| AGENTS.iter().enumerate().map(move |(a, agent)| (*t, *short, a, agent.2)))
+        .filter(|(t, _, a, _)| !paper.iter().any(|r| r.task == *t && r.agent == *a))
+        .map(|(_, short, _, name)| format!("{short} {name}"))
+        .collect();
+    let mut agreement = Agreement::default();
     let orderings = TASKS
         .iter()
         .filter(|(t, _)| !not_run.iter().any(|n| n == t))
-        .map(|(t, short)| {
-            ordering_line(t, short, &|task: &str, a: usize| find(task, a).map(|m| (m.mean, m.std, m.seeds)))
-        })
+        .map(|(t, short)| agree::task_line(t, short, &find, &paper, &mut agreement))
         .collect();
 
     ensure_dir(&opts.out_dir)?;
     let t = Table2 {
         cells,
         not_run,
+        paper_missing,
         orderings,
+        agreement,
         markdown: opts.out_dir.join("table2.md"),
         csv: opts.out_dir.join("table2.csv"),
     };
@@ -209,16 +258,13 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
     Ok(t)
 }
 
-/// A pgser or paper name of one of the six tasks.
-fn paper_task(name: &str) -> Option<&'static str> {
-    let canonical = Task::known(name).map(|t| t.name);
-    TASKS
-        .iter()
-        .find(|(t, short)| canonical.as_deref() == Some(*t) || short.eq_ignore_ascii_case(name.trim()))
-        .map(|(t, _)| *t)
+/// A significant difference's mark: its direction and the letter of what it is against.
+fn mark(p: Option<f64>, above: bool, letter: &str) -> Option<String> {
+    p.filter(|p| *p < ALPHA).map(|_| format!("{}{letter}", if above { BETTER } else { WORSE }))
 }
 
-/// The cells of one results.csv, each checked.
+/// The cells of one results.csv, each checked, with the pooled spread of its columns or of the
+/// scores.csv beside it.
 fn read_results(path: &Path) -> Result<Vec<Measured>> {
     let at = path.display();
     let df = crate::query::scan(path)?.collect().map_err(|e| anyhow!("{at}: {}", first_line(&e)))?;
@@ -228,8 +274,13 @@ fn read_results(path: &Path) -> Result<Vec<Measured>> {
         Ok(c.str()?.iter().map(|v| v.map(str::to_string)).collect())
     };
     let float = |name: &str| -> Result<Vec<Option<f64>>> { floats(&df, path, name) };
+    // Columns a results.csv has had since pgser kept the episodes' spread.
+    let optional = |name: &str| -> Result<Vec<Option<f64>>> {
+        if df.column(name).is_ok() { floats(&df, path, name) } else { Ok(vec![None; df.height()]) }
+    };
     let (task, algo, variant) = (text("task")?, text("algo")?, text("variant")?);
     let (seeds, mean, std) = (float("seeds")?, float("paper_score_mean")?, float("paper_score_std")?);
+    let (episodes, std_episodes) = (optional("episodes")?, optional("paper_score_std_episodes")?);
     let mut out = Vec::with_capacity(df.height());
     for i in 0..df.height() {
         let source = format!("{at}:{}", i + 2);
@@ -254,12 +305,79 @@ fn read_results(path: &Path) -> Result<Vec<Measured>> {
         if n > 1.0 && !(s.is_finite() && s >= 0.0) {
             bail!("{source}: paper_score_std must be a finite std ≥ 0 over {n} seeds");
         }
-        out.push(Measured { task, agent, seeds: n as usize, mean: m, std: s, source });
+        let pooled = match (episodes[i], std_episodes[i]) {
+            (None, None) => None,
+            (Some(e), Some(sd)) if e >= 1.0 && e.fract() == 0.0 && (sd.is_nan() || sd >= 0.0) => {
+                Some((e as usize, m, sd))
+            }
+            _ => bail!(
+                "{source}: episodes and paper_score_std_episodes must be a count ≥ 1 and a std ≥ 0, or both empty"
+            ),
+        };
+        out.push(Measured { task, agent, seeds: n as usize, mean: m, std: s, pooled, source });
     }
     if out.is_empty() {
         bail!("{at}: no rows (an empty results.csv)");
     }
+    let scores = path.with_file_name("scores.csv");
+    if scores.is_file() {
+        with_scores(&mut out, &scores)?;
+    }
     Ok(out)
+}
+
+/// Takes each cell's pooled spread from the per-run scores in `scores`, after checking that they
+/// are the runs the results.csv summarizes: the same seeds, mean and std over seeds, and pooled
+/// std where the results.csv has one.
+fn with_scores(cells: &mut [Measured], scores: &Path) -> Result<()> {
+    let at = scores.display();
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0) || (a.is_nan() && b.is_nan());
+    let mut seen = vec![false; cells.len()];
+    for c in read_scores(scores)? {
+        let pos = format!("{at}:{}", c.line);
+        let task =
+            paper_task(&c.task).ok_or_else(|| anyhow!("{pos}: task {} is not in the paper's Table 2", c.task))?;
+        let i = cells
+            .iter()
+            .position(|m| m.task == task && AGENTS[m.agent].0 == c.algo && AGENTS[m.agent].1 == c.variant)
+            .ok_or_else(|| {
+                anyhow!("{pos}: {} {} {} has no row in the results.csv beside it", c.task, c.algo, c.variant)
+            })?;
+        let m = &mut cells[i];
+        let (n, sm) = (c.seed_means.len(), c.seed_means.iter().sum::<f64>() / c.seed_means.len() as f64);
+        let ss = c.seed_means.iter().map(|x| (x - sm) * (x - sm)).sum::<f64>();
+        let sd = if n < 2 { f64::NAN } else { (ss / (n - 1) as f64).sqrt() };
+        let sd = if sd < 1e-12 * sm.abs().max(1.0) { 0.0 } else { sd };
+        let differs = |what: &str, ours: String, theirs: String| {
+            anyhow!(
+                "{pos}: {} {}: {what} {ours} here, {theirs} in {}: not the same runs",
+                c.task,
+                AGENTS[m.agent].2,
+                m.source
+            )
+        };
+        if n != m.seeds {
+            return Err(differs("seeds", n.to_string(), m.seeds.to_string()));
+        }
+        if !close(sm, m.mean) || (n > 1 && !close(sd, m.std)) {
+            return Err(differs("mean ± std over seeds", format!("{sm} ± {sd}"), format!("{} ± {}", m.mean, m.std)));
+        }
+        if let Some((e, _, s)) = m.pooled
+            && (e != c.pooled.episodes || !close(s, c.pooled.std))
+        {
+            return Err(differs(
+                "episodes and their std",
+                format!("{} {}", c.pooled.episodes, c.pooled.std),
+                format!("{e} {s}"),
+            ));
+        }
+        m.pooled = Some((c.pooled.episodes, c.pooled.mean, c.pooled.std));
+        seen[i] = true;
+    }
+    if let Some(i) = seen.iter().position(|s| !s) {
+        bail!("{at}: no scores for {} {} ({})", cells[i].task, AGENTS[cells[i].agent].2, cells[i].source);
+    }
+    Ok(())
 }
 
 fn floats(df: &DataFrame, path: &Path, name: &str) -> Result<Vec<Option<f64>>> {
@@ -274,123 +392,100 @@ fn no_column(path: &Path, name: &str) -> anyhow::Error {
     anyhow!("{}: no column {name} (is it a results.csv written by a pipeline or `pgser-etl results`?)", path.display())
 }
 
-/// The paper's (task, agent, mean, std) rows from the reference CSV: `#` lines are comments (the
-/// source), then `task,agent,mean,std` with the paper's task and row names.
-fn read_reference(text: &str, at: &str) -> Result<Vec<(&'static str, usize, f64, f64)>> {
-    let mut rows = Vec::new();
-    let mut header = false;
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if !header {
-            if f != ["task", "agent", "mean", "std"] {
-                bail!("{at}:{}: the header must be task,agent,mean,std", i + 1);
-            }
-            header = true;
-            continue;
-        }
-        let pos = format!("{at}:{}", i + 1);
-        let [task, agent, mean, std] = f[..] else { bail!("{pos}: expected 4 fields, got {}", f.len()) };
-        let task = paper_task(task).ok_or_else(|| anyhow!("{pos}: task {task} is not in the paper's Table 2"))?;
-        let agent =
-            AGENTS.iter().position(|a| a.2 == agent).ok_or_else(|| anyhow!("{pos}: no row {agent} in Table 2"))?;
-        let num = |s: &str| {
-            s.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| anyhow!("{pos}: {s} is not a number"))
-        };
-        if rows.iter().any(|r: &(&str, usize, f64, f64)| r.0 == task && r.1 == agent) {
-            bail!("{pos}: {task} {} is given twice", AGENTS[agent].2);
-        }
-        rows.push((task, agent, num(mean)?, num(std)?));
-    }
-    Ok(rows)
+fn fmt_cell(mean: f64, std: f64, marks: &str) -> String {
+    let cell = if std.is_finite() { format!("{mean:.2} ± {std:.2}") } else { format!("{mean:.2}") };
+    if marks.is_empty() { cell } else { format!("{cell} {marks}") }
 }
 
-/// One task's line: for each learner, whether mem ≥ swap ≥ baseline holds in the means, and the
-/// comparisons that are significant (Welch, two-sided, α = [`ALPHA`]).
-/// A cell's (mean, std, seeds) by learner variant and column.
-type Lookup<'a> = &'a dyn Fn(&str, usize) -> Option<(f64, f64, usize)>;
-
-fn ordering_line(task: &str, short: &str, find: Lookup) -> String {
-    let mut parts = Vec::new();
-    for (algo, learner) in [("td3bc", "TD3BC"), ("td3", "TD3")] {
-        let get = |v: &str| find(task, AGENTS.iter().position(|a| a.0 == algo && a.1 == v).expect("a known row"));
-        let (Some(m), Some(s), Some(b)) = (get("mem"), get("swap"), get("baseline")) else { continue };
-        let holds = m.0 >= s.0 && s.0 >= b.0;
-        let mut tests = Vec::new();
-        for (x, y, names) in [(m, s, "mem vs swap"), (s, b, "swap vs baseline"), (m, b, "mem vs baseline")] {
-            match welch_from_summary(x, y) {
-                Some((_, _, p)) if p < ALPHA => {
-                    tests.push(format!("{names} {} p = {}", if x.0 > y.0 { BETTER } else { WORSE }, fmt_p(p)))
-                }
-                Some((_, _, p)) => tests.push(format!("{names} not significant (p = {})", fmt_p(p))),
-                None => tests.push(format!("{names} untested (fewer than 2 seeds or no spread)")),
-            }
-        }
-        parts.push(format!(
-            "{learner}: mem ≥ swap ≥ baseline {} ({:.2} / {:.2} / {:.2}); {}",
-            if holds { "holds" } else { "does not hold" },
-            m.0,
-            s.0,
-            b.0,
-            tests.join(", ")
-        ));
-    }
-    format!("**{short}**: {}.", parts.join(". "))
+/// A number of the paper as it prints it: at least two decimals, more where it gave more.
+fn fmt_paper(x: f64) -> String {
+    let s = x.to_string();
+    if s.split_once('.').is_some_and(|(_, d)| d.len() >= 2) { s } else { format!("{x:.2}") }
 }
 
-fn fmt_p(p: f64) -> String {
-    if p < 1e-3 { format!("{p:.1e}") } else { format!("{p:.3}") }
-}
-
-fn fmt_cell(mean: f64, std: f64) -> String {
-    if std.is_finite() { format!("{mean:.2} ± {std:.2}") } else { format!("{mean:.2}") }
-}
-
-fn markdown(t: &Table2, paper: &[(&str, usize, f64, f64)]) -> String {
+fn markdown(t: &Table2, paper: &[PaperCell]) -> String {
     let mut s = String::from(
         "# Table 2: average cumulative reward (the paper score: the sum of {0, 1} rewards over an evaluation \
-         episode), mean ± std over seeds\n\n",
+         episode), mean ± std\n\n",
     );
     let head: Vec<&str> = TASKS.iter().map(|t| t.1).collect();
     let _ = writeln!(s, "| agent | {} |", head.join(" | "));
     let _ = writeln!(s, "|---|{}", "---:|".repeat(TASKS.len()));
     for (a, (_, _, name)) in AGENTS.iter().enumerate() {
-        let mut ours = Vec::new();
-        let mut theirs = Vec::new();
+        let (mut seeds, mut episodes, mut theirs) = (Vec::new(), Vec::new(), Vec::new());
         for (task, _) in TASKS {
-            let cell = t.cells.iter().find(|c| c.task == task && c.agent == *name);
-            ours.push(match cell {
-                Some(c) if c.marks.is_empty() => fmt_cell(c.mean, c.std),
-                Some(c) => format!("{} {}", fmt_cell(c.mean, c.std), c.marks),
-                None => "not run".to_string(),
-            });
-            theirs.push(match paper.iter().find(|r| r.0 == task && r.1 == a) {
-                Some(r) => fmt_cell(r.2, r.3),
+            match t.cells.iter().find(|c| c.task == task && c.agent == *name) {
+                Some(c) => {
+                    seeds.push(fmt_cell(c.mean, c.std, &c.marks));
+                    episodes.push(match c.std_episodes {
+                        Some(sd) => fmt_cell(c.mean, sd, &c.marks_episodes),
+                        None => "n/a".to_string(),
+                    });
+                }
+                None => {
+                    seeds.push("not run".to_string());
+                    episodes.push("not run".to_string());
+                }
+            }
+            theirs.push(match paper.iter().find(|r| r.task == task && r.agent == a) {
+                Some(r) => {
+                    let cell = format!("{} ± {}", fmt_paper(r.mean), fmt_paper(r.std));
+                    if r.marks().is_empty() { cell } else { format!("{cell} {}", r.marks()) }
+                }
                 None => "—".to_string(),
             });
         }
-        let _ = writeln!(s, "| {name} (pgser) | {} |", ours.join(" | "));
+        let _ = writeln!(s, "| {name} (pgser) | {} |", seeds.join(" | "));
+        let _ = writeln!(s, "| {name} (pgser, episodes) | {} |", episodes.join(" | "));
         let _ = writeln!(s, "| {name} (paper) | {} |", theirs.join(" | "));
     }
     let _ = write!(
         s,
-        "\nMarks on the mem rows: {BETTER} / {WORSE} mem's mean significantly above / below the same learner's \
-         baseline (b) or swap (s), by Welch's two-sided t-test (unequal variances) on the per-seed final scores, \
-         α = {ALPHA}; no mark: no significant difference. \"not run\": no results for that task among the inputs. \
-         The (paper) rows are the reference file's values of the paper's Table 2 (its source is named in the file).\n"
+        "\n(pgser): mean ± std over the seeds' mean scores (n = seeds); its marks are Welch's two-sided t-test \
+         (unequal variances) over those seed means, the test pgser's claims rest on. (pgser, episodes): the same \
+         mean ± std over every evaluation episode of every seed pooled (n = seeds × episodes), with the same test \
+         over the pooled episodes, which counts each episode as an independent sample: the paper's likely terms \
+         (it does not say over what its ± and tests are taken). \"n/a\": the input kept no per-run spread of its \
+         episodes (results written before pgser kept them), so the pooled std is not known and not estimated. \
+         Marks: {BETTER} / {WORSE} significantly above / below (α = {ALPHA}) the same learner's baseline (b, on \
+         mem and swap rows) or swap (s, on mem rows); no mark: no significant difference. \"not run\": no results \
+         for that task among the inputs.\n\n\
+         (paper): the reference file's values of the paper's Table 2 (its source is named in the file), with \
+         the paper's marks in the same notation: ▲b its pink box (the variant above the same learner's baseline \
+         by a t-test at p < 0.05), ▲s its bold (mem above swap, p < 0.05).\n"
     );
-    if paper.is_empty() {
-        s += "\n**The reference file holds none of the paper's values yet**, so every (paper) cell is \"—\": \
-              enter them in assets/paper_table2.csv, or give a filled copy with --reference FILE.\n";
+    if !t.paper_missing.is_empty() {
+        let _ = write!(
+            s,
+            "\n**The reference lacks {} of the paper's 36 cells** ({}), which print \"—\".\n",
+            t.paper_missing.len(),
+            t.paper_missing.join(", ")
+        );
     }
     if !t.orderings.is_empty() {
-        s += "\n## The paper's ordering, mem ≥ swap ≥ baseline, per task\n\n";
+        s += "\n## Per task: the paper's ordering, mem ≥ swap ≥ baseline, and its marks against pgser's tests\n\n";
         for line in &t.orderings {
             let _ = writeln!(s, "- {line}");
         }
+        let _ = writeln!(s, "\n{}", t.agreement.summary());
+        s += "\nA comparison agrees when pgser's test finds it significantly above exactly where the paper marks \
+              it: the paper marks only that, so pgser's ▼ (significantly below) counts as unmarked.\n";
+    }
+    if !paper.is_empty() {
+        let (n, e) = (paper::SEEDS, paper::SEEDS * paper::EPISODES);
+        let ((a, of), (b, _)) = (agree::paper_reproduced(paper, n), agree::paper_reproduced(paper, e));
+        let _ = writeln!(
+            s,
+            "\nThe paper's own marks recomputed by the same test from its printed mean ± std: {a} of {of} come out \
+             as it marks them with n = {n} a side (its seeds), {b} of {of} with n = {e} (its seeds × episodes \
+             pooled). {}",
+            if a == of || b == of {
+                "The paper does not say which it used."
+            } else {
+                "Neither reproduces all of them: its marks do not follow from its printed mean ± std by this test \
+                 at either n (the paper does not say which test it ran, or over what)."
+            }
+        );
     }
     s += "\n## Sources\n\n";
     for c in &t.cells {
@@ -400,30 +495,43 @@ fn markdown(t: &Table2, paper: &[(&str, usize, f64, f64)]) -> String {
 }
 
 /// Every cell of the paper's table, measured or not, with the paper's value beside it.
-fn csv(t: &Table2, paper: &[(&str, usize, f64, f64)]) -> String {
-    let mut s = String::from("task,agent,seeds,mean,std,marks,paper_mean,paper_std,p_vs_baseline,p_vs_swap,source\n");
+fn csv(t: &Table2, paper: &[PaperCell]) -> String {
+    let mut s = String::from(
+        "task,agent,seeds,mean,std,marks,episodes,std_episodes,marks_episodes,p_vs_baseline,p_vs_swap,\
+         p_episodes_vs_baseline,p_episodes_vs_swap,paper_mean,paper_std,paper_marks,source\n",
+    );
     let opt = |x: Option<f64>| x.map(|v| v.to_string()).unwrap_or_default();
     let num = |x: f64| if x.is_finite() { x.to_string() } else { String::new() };
     for (task, _) in TASKS {
         for (a, (_, _, name)) in AGENTS.iter().enumerate() {
-            let p = paper.iter().find(|r| r.0 == task && r.1 == a);
-            let (pm, ps) = (opt(p.map(|r| r.2)), opt(p.map(|r| r.3)));
+            let p = paper.iter().find(|r| r.task == task && r.agent == a);
+            let theirs = format!(
+                "{},{},{}",
+                opt(p.map(|r| r.mean)),
+                opt(p.map(|r| r.std)),
+                p.map(PaperCell::marks).unwrap_or_default()
+            );
             match t.cells.iter().find(|c| c.task == task && c.agent == *name) {
                 Some(c) => {
                     let _ = writeln!(
                         s,
-                        "{task},{name},{},{},{},{},{pm},{ps},{},{},{}",
+                        "{task},{name},{},{},{},{},{},{},{},{},{},{},{},{theirs},{}",
                         c.seeds,
                         num(c.mean),
                         num(c.std),
                         c.marks,
+                        c.episodes.map(|n| n.to_string()).unwrap_or_default(),
+                        opt(c.std_episodes.filter(|x| x.is_finite())),
+                        c.marks_episodes,
                         opt(c.p_vs_baseline),
                         opt(c.p_vs_swap),
+                        opt(c.p_episodes_vs_baseline),
+                        opt(c.p_episodes_vs_swap),
                         c.source.replace(',', ";")
                     );
                 }
                 None => {
-                    let _ = writeln!(s, "{task},{name},0,,,,{pm},{ps},,,not run");
+                    let _ = writeln!(s, "{task},{name},0,,,,,,,,,,,{theirs},not run");
                 }
             }
         }

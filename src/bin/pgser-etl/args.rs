@@ -149,7 +149,8 @@ pub enum Command {
         Each input is a table1.json of `pgser-etl report` (a pipeline's report step), or the folder holding it. \
         Panels follow the paper's task order, three to a row. Two reports of one task with the same numbers \
         (a task whose grid was split in two pipelines, one per learner) are drawn once; with other numbers, refused. Writes DIR/fig5_all.png and DIR/table1_all.md \
-        (each classifier's accuracy with the paper's negatives and with the controlled ones, per task)."
+        (each classifier's accuracy with the paper's negatives and with the controlled ones, per task, and beneath it \
+        the paper's own Table 1 accuracy for that classifier, compiled in from assets/paper_table1.csv)."
     )]
     Fig5 {
         /// Reports: table1.json files or their folders.
@@ -163,12 +164,15 @@ pub enum Command {
     #[command(
         after_help = "Examples:\n  pgser-etl table2 results/fetch_*_grid_cpu/results.csv results/hand_*_grid_cpu/results.csv -o table2/\n  \
         pgser-etl table2 out/fetch_push/results/results.csv -o table2/ --reference my_table2.csv\n\n\
-        Rows TD3BC-mem, TD3BC-swap, TD3BC, TD3-mem, TD3-swap, TD3, each with the paper's value beneath; a column per \
+        Rows TD3BC-mem, TD3BC-swap, TD3BC, TD3-mem, TD3-swap, TD3, each three times: mean +- std over the seeds' \
+        means, the same over all evaluation episodes pooled, and the paper's value with its marks; a column per \
         task of the paper (FetchReach, FetchPush, FetchPick, FetchSlide, HandBlock-Z, HandEgg-Rotate). A task with \
         no results is marked 'not run'; a cell given twice, a task or row the paper does not have, or a task with \
-        only some of its six agents is an error. Welch's t-test on the per-seed scores marks mem against baseline \
-        and swap, and a line per task says whether mem >= swap >= baseline holds. Writes DIR/table2.md and \
-        DIR/table2.csv."
+        only some of its six agents is an error. Welch's t-test marks mem and swap against the baseline and mem \
+        against swap, over seed means (the marks of the first row) and over pooled episodes (the second); the \
+        pooled spread comes from the results.csv or the scores.csv beside it, and is n/a for results that kept \
+        neither. A line per task says whether mem >= swap >= baseline holds here and in the paper, and where \
+        each test agrees with the paper's marks. Writes DIR/table2.md and DIR/table2.csv."
     )]
     Table2 {
         /// results.csv files (a pipeline's out folder has one under results/).
@@ -177,8 +181,8 @@ pub enum Command {
         /// Output folder (created if missing).
         #[arg(short, long)]
         output: PathBuf,
-        /// The paper's values (CSV: task,agent,mean,std; '#' lines name the source). Default: the copy
-        /// compiled in, from the paper's Table 2.
+        /// The paper's values (CSV: task,agent,mean,std[,significant_vs_baseline,significant_vs_swap];
+        /// '#' lines name the source). Default: the copy compiled in, from the paper's Table 2.
         #[arg(long)]
         reference: Option<PathBuf>,
         /// Print a JSON summary instead of the markdown table.
