@@ -38,7 +38,9 @@ mod net;
 #[cfg(test)]
 mod tests;
 
-pub(in crate::agent) use net::{ADAM_BETAS, AdamStep, Shape, adam_step, gemm_raw, unflatten};
+#[cfg(test)]
+pub(in crate::agent) use net::gemm_raw;
+pub(in crate::agent) use net::{ADAM_BETAS, AdamStep, Shape, adam_step, unflatten};
 use net::{MAX_PARTS, adam, backward, forward};
 pub use net::flatten;
 
