@@ -74,11 +74,20 @@ fn norm(x: &[f64]) -> f64 {
 /// CPU: it does where AVX-512 F, BW, DQ and VL are all there (measured on an AMD EPYC without
 /// them: OpenBLAS reports `Core: Haswell` and numpy's norm is the unfused sum for 20,000 of 20,000
 /// random 3- and 4-vectors, the fused one for 17,738). Elsewhere than x86_64 the fused sum is kept.
+///
+/// `OPENBLAS_CORETYPE`, when set, overrides OpenBLAS's own choice, and so ours: some machines set
+/// it to `Haswell` because older OpenBLAS builds misbehave on their AVX-512 (an AMD EPYC with
+/// AVX-512 and `OPENBLAS_CORETYPE=Haswell`, 2026-11-27: numpy's norm was the unfused sum, and
+/// env_parity failed at episode 1's reset until this was read). Only OpenBLAS's AVX-512 cores
+/// (SkylakeX, CooperLake, SapphireRapids) fuse.
 fn blas_dot_fuses() -> bool {
     static FUSES: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *FUSES.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
         {
+            if let Some(core) = std::env::var("OPENBLAS_CORETYPE").ok().filter(|c| !c.is_empty()) {
+                return matches!(core.to_ascii_lowercase().as_str(), "skylakex" | "cooperlake" | "sapphirerapids");
+            }
             std::arch::is_x86_feature_detected!("avx512f")
                 && std::arch::is_x86_feature_detected!("avx512bw")
                 && std::arch::is_x86_feature_detected!("avx512dq")
