@@ -220,11 +220,13 @@ case "${1:-}" in
           (cd "$tmp" && with_pinned "$render" pipeline step "pipelines/$(basename "$g")" $step --threads 1 >/dev/null)
         done
         # A grid's results.csv written before the pooled episodes' columns is compared on its own
-        # columns (the newer build appends its columns after them).
+        # columns (the newer build appends its columns after them); both sides go through `cut`,
+        # so a last line without its newline compares equal.
         cols=$(head -n 1 "$src/results.csv" | awk -F, '{ print NF }')
-        cmp -s <(cut -d, -f1-"$cols" "$tmp/out/$name/results.csv") "$src/results.csv" &&
-          cmp -s "$tmp/out/$name/report/table1.json" "$src/report/table1.json" ||
-          { echo "grids.sh: $name: $render computes another results.csv or table1.json than the grid's" >&2; exit 1; }
+        cmp -s <(cut -d, -f1-"$cols" "$tmp/out/$name/results.csv") <(cut -d, -f1-"$cols" "$src/results.csv") ||
+          { echo "grids.sh: $name: $render computes another results.csv than the grid's" >&2; exit 1; }
+        cmp -s "$tmp/out/$name/report/table1.json" "$src/report/table1.json" ||
+          { echo "grids.sh: $name: $render computes another table1.json than the grid's" >&2; exit 1; }
         drawn="$tmp/out/$name"
       fi
       mkdir -p "$results/$name"

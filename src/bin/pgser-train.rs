@@ -272,7 +272,8 @@ fn main() -> ExitCode {
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
                 } else {
-                    println!("NVRTC {} for {}: a cubin of {} bytes", r.nvrtc, r.arch, r.cubin_bytes);
+                    let what = if r.arch.starts_with("sm_") { "a cubin" } else { "PTX" };
+                    println!("NVRTC {} for {}: {what} of {} bytes", r.nvrtc, r.arch, r.cubin_bytes);
                     for (k, regs, stores, loads) in &r.kernels {
                         println!("  {k}: {regs} registers, spills {stores} B stored / {loads} B loaded");
                     }

@@ -195,6 +195,19 @@ def test_collect_stops_when_the_newer_build_computes_other_numbers(tmp_path, var
     assert not (root / "calls.release").exists()
 
 
+def test_collect_compares_an_older_results_csv_on_its_own_columns(tmp_path):
+    """A grid run by a build older than the pooled episodes' columns: the newer build's results.csv
+    has more columns, appended after the old ones, and collect compares the old ones only."""
+    root, results, newer, out, f, env = newer_build_layout(tmp_path)
+    env["RESULTS_CSV"] = "results.csv,pooled"
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert (results / "a_grid_cpu" / "results.csv").read_text() == "results.csv"
+    env["RESULTS_CSV"] = "other,pooled"
+    p = subprocess.run(["bash", str(SCRIPT), "collect", str(f)], capture_output=True, text=True, env=env)
+    assert p.returncode == 1 and "computes another results.csv than the grid's" in p.stderr
+
+
 def test_usage_prints_the_whole_header(tmp_path):
     p = grids(tmp_path)
     assert p.returncode == 2

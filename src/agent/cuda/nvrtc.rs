@@ -208,6 +208,7 @@ pub fn ptxas_report(log: &str) -> Vec<(String, u32, u32, u32)> {
 pub struct Report {
     pub nvrtc: String,
     pub arch: String,
+    /// The image's size: a cubin for `sm_XY`, PTX for `compute_XY`.
     pub cubin_bytes: usize,
     /// (kernel, registers, spill bytes stored, spill bytes loaded).
     pub kernels: Vec<(String, u32, u32, u32)>,
