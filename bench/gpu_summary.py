@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The GPU bundle's gpu.json, from the parts scripts/gpu_run.sh has written so far in WORK.
 
-  machine, correctness, correctness-fp32   as gpu_run.sh and gpu_compare.py wrote them;
+  machine, correctness, correctness-fp32, determinism, stacking
+            as gpu_run.sh and gpu_compare.py wrote them;
   grid      each bench_grid.py cell, by NAME-A<agents> (fp32, tf32, nograph, wgpu);
   pgser_over_jax   per cell: pgser's and JAX's agent-updates/s and their ratio, at the same
             precision (fp32: pgser `cuda` against JAX `highest`; tf32: `cuda-tf32` against
@@ -28,7 +29,7 @@ def rate(grid: dict, peer: str, agents) -> float | None:
 
 def main(out: str, work: str) -> None:
     doc: dict = {}
-    for name in ("machine", "correctness", "correctness-fp32"):
+    for name in ("machine", "correctness", "correctness-fp32", "determinism", "stacking"):
         path = os.path.join(work, name + ".json")
         if os.path.exists(path):
             doc[name] = json.load(open(path))

@@ -19,6 +19,7 @@
 #     10 updates, compared with the CPU's (bench/gpu_compare.py): `cuda` (FP32) must be within
 #     1e-5; the others are reported at 1e-4 (for `cuda-tf32` the distance is the measurement);
 #     with pgser-etl in the bundle, `score`'s Q too.
+#     The same seed twice on `cuda`, and seed 0 alone against seed 0 of the stack: bit for bit?
 #  3. speed: bench/bench_grid.py, agent-updates/s of pgser beside JAX and PyTorch (stacked, CUDA
 #     graphs) in the same run, at each precision: FP32 (pgser `cuda`, JAX `highest`, PyTorch TF32
 #     off) and TF32 (pgser `cuda-tf32`, JAX's default, PyTorch TF32 on); for A = 60, 1, 10, 30,
@@ -100,7 +101,7 @@ say "GPU: $gpu; libdevice from ${CUDA_PATH:-/usr/local/cuda (default)}"
 
 # ---- 2. correctness: every GPU engine against cpu -------------------------------------------------
 # The device a pgser run names in its log ("--device cuda: running on NVIDIA H200"), if any.
-running_on() { grep -m1 -- ": running on" "$1" | sed 's/.*running on //'; }
+running_on() { grep -m1 -- ": running on" "$1" 2>/dev/null | sed 's/.*running on //'; }
 # One command of the check: under a time limit, its output in logs/NAME.out and .log, a line in
 # run.log (with the device it names, if any), and its last lines there when it fails.
 step() {
@@ -109,7 +110,9 @@ step() {
   timeout 240 "$@" >"$logs/$name.out" 2>"$logs/$name.log"
   rc=$?
   on=$(running_on "$logs/$name.log")
-  say "${name/-/ --device }: rc $rc, $((SECONDS - t0)) s${on:+, on $on}"
+  local label=$name
+  case $name in train-* | score-*) label=${name/-/ --device };; esac
+  say "$label: rc $rc, $((SECONDS - t0)) s${on:+, on $on}"
   [ $rc -eq 0 ] || tail -3 "$logs/$name.log" | sed 's/^/    /' | tee -a "$out/run.log" >&2
 }
 devices="cpu cuda cuda-tf32"
@@ -139,6 +142,17 @@ esac
 sc() { if [ -x "$etl" ]; then echo "$work/score-$1.parquet"; else echo -; fi; }
 python3 "$here/bench/gpu_compare.py" --tol 1e-5 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" \
   --backend cuda "$work/train-cuda" "$(sc cuda)" --json "$work/correctness-fp32.json" 2>&1 | tee -a "$out/run.log"
+# The same seed, the same bytes (a second run), and an agent's bytes whatever stack it trains in
+# (seed 0 alone against seed 0 of the stack of three): what the CPU engine guarantees, checked on
+# the GPU with a tolerance of 0 (cuBLAS may pick another kernel for another batch count).
+step cuda-rerun "$train" --data "$data/scored.parquet" -o "$work/train-cuda-again" --seeds 0,1,2 --updates 50 \
+  --batch-size 256 --eval-episodes 0 --log-every 10 --device cuda
+step cuda-alone "$train" --data "$data/scored.parquet" -o "$work/train-cuda-alone" --seeds 0 --updates 50 \
+  --batch-size 256 --eval-episodes 0 --log-every 10 --device cuda
+python3 "$here/bench/gpu_compare.py" --tol 0 --cpu-train "$work/train-cuda" --backend cuda-rerun "$work/train-cuda-again" - \
+  --json "$work/determinism.json" 2>&1 | tee -a "$out/run.log"
+python3 "$here/bench/gpu_compare.py" --tol 0 --cpu-train "$work/train-cuda-alone" --backend cuda-in-a-stack "$work/train-cuda" - \
+  --json "$work/stacking.json" 2>&1 | tee -a "$out/run.log"
 others=(--backend cuda-tf32 "$work/train-cuda-tf32" "$(sc cuda-tf32)")
 [ -x "$burn" ] && others+=(--backend cuda-burn "$work/train-cuda-burn" "$(sc cuda-burn)" --backend wgpu "$work/train-wgpu" "$(sc wgpu)")
 python3 "$here/bench/gpu_compare.py" --tol 1e-4 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" "${others[@]}" \
