@@ -30,123 +30,29 @@
 //! `host.rs` (the shim). The engine never waits for the device inside an update; the trainer's
 //! logging steps read the sums back (`Engine::update`'s `stats`).
 
+mod device;
 mod driver;
 #[cfg(test)]
 mod host;
+mod net;
 pub mod nvrtc;
 #[cfg(test)]
 mod tests;
 
-use std::ffi::c_void;
 use std::sync::Mutex;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use rayon::prelude::*;
 
 use super::engine::{Batch, Engine, Net, Nets, State, Stats};
-use super::fused::{ADAM_BETAS, AdamStep, Shape, adam_step, parts};
+use super::fused::{AdamStep, Shape, adam_step, parts};
 use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
 
+pub use device::{Arg, Gemm, Gpu, Mat, Ptr, arg_pointers};
+use device::{Temp, at, download_f32, f32_bytes};
 pub use driver::{CudaGpu, driver_present, open};
-
-/// A device address (a host address on the shim).
-pub type Ptr = u64;
-
-/// `ptr` advanced by `elems` elements of 4 bytes (f32).
-fn at(ptr: Ptr, elems: usize) -> Ptr {
-    ptr + 4 * elems as u64
-}
-
-/// One operand of a product: a row-major matrix at `ptr` with row stride `ld`, read transposed
-/// when `trans`; batch item b's matrix starts `stride` elements after item b − 1's.
-#[derive(Debug, Clone, Copy)]
-pub struct Mat {
-    pub ptr: Ptr,
-    pub ld: usize,
-    pub trans: bool,
-    pub stride: usize,
-}
-
-/// C = A·B for each of `batch` items (row-major, `m × n`, inner dimension `k`), C dense with row
-/// stride `c.ld`. `parts`: the rows of A and C are a batch of n rows cut into parts, which the
-/// shim multiplies part by part as the CPU engine does (so that its bits are the CPU engine's);
-/// cuBLAS ignores it.
-#[derive(Debug, Clone, Copy)]
-pub struct Gemm {
-    pub m: usize,
-    pub n: usize,
-    pub k: usize,
-    pub a: Mat,
-    pub b: Mat,
-    pub c: Mat,
-    pub batch: usize,
-    pub parts: Option<usize>,
-}
-
-/// One kernel argument, typed as the kernel declares it.
-#[derive(Debug, Clone, Copy)]
-pub enum Arg {
-    /// `float*` / `double*` (0: null).
-    P(Ptr),
-    /// `int`.
-    I(i32),
-    /// `long long`.
-    L(i64),
-    /// `float`.
-    F(f32),
-}
-
-/// What the engine needs of a device: memory, the kernels of `kernels.cu` by name, and batched
-/// products. Calls are queued in order on one stream; `download` waits for what came before.
-pub trait Gpu: Send {
-    /// `bytes` of zeroed device memory, 256-byte aligned, owned by the device until it is dropped.
-    fn alloc(&mut self, bytes: usize) -> Result<Ptr>;
-    fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()>;
-    fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()>;
-    /// Returns memory from `alloc` (after the work queued before has finished with it).
-    fn free(&mut self, ptr: Ptr) -> Result<()>;
-    /// Runs kernel `name` over `items` independent items (a grid-stride loop: any grid is right).
-    fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()>;
-    fn gemm(&mut self, g: &Gemm) -> Result<()>;
-    /// Queues a copy of `len` f32 into `dst` from a host buffer that `fill` writes first: on a GPU
-    /// one of two pinned buffers, so that filling the next update's batch overlaps the copy and
-    /// the work of this one (the call waits only until that buffer's previous copy is done).
-    fn stage(&mut self, dst: Ptr, len: usize, fill: &mut dyn FnMut(&mut [f32])) -> Result<()>;
-    /// From here until `end_capture`, launches and products are recorded, not run.
-    fn begin_capture(&mut self) -> Result<()>;
-    /// Ends a capture; returns the recorded graph's id for `replay`.
-    fn end_capture(&mut self) -> Result<usize>;
-    /// Runs a captured graph: its launches and products, with the arguments they were captured
-    /// with (so every buffer a graph names must outlive it, and per-update values come from
-    /// device memory: `stage`).
-    fn replay(&mut self, graph: usize) -> Result<()>;
-}
-
-/// The kernel arguments as CUDA takes them: one pointer to each argument's value.
-pub fn arg_pointers(args: &[Arg]) -> Vec<*mut c_void> {
-    args.iter()
-        .map(|a| match a {
-            Arg::P(v) => v as *const u64 as *mut c_void,
-            Arg::I(v) => v as *const i32 as *mut c_void,
-            Arg::L(v) => v as *const i64 as *mut c_void,
-            Arg::F(v) => v as *const f32 as *mut c_void,
-        })
-        .collect()
-}
-
-fn f32_bytes(v: &[f32]) -> &[u8] {
-    // SAFETY: f32 has no padding and every byte pattern is a valid u8.
-    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), std::mem::size_of_val(v)) }
-}
-
-fn download_f32(gpu: &mut dyn Gpu, src: Ptr, len: usize) -> Result<Vec<f32>> {
-    let mut out = vec![0.0f32; len];
-    // SAFETY: as f32_bytes, mutably; the vector outlives the slice.
-    let bytes = unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<u8>(), 4 * len) };
-    gpu.download(src, bytes)?;
-    Ok(out)
-}
+use net::{View, adam, backward, forward, inputs};
 
 /// Per-(agent, part) sums (kernels.cu's PGSER_SUMS, in its order).
 const SUMS: usize = 6;
@@ -159,15 +65,6 @@ struct NetBufs {
     m: Ptr,
     v: Ptr,
     target: Ptr,
-}
-
-/// A view of `items` networks of one shape for a product: member b's parameters at
-/// `params + b·member_stride` (the critic 1 of each agent: the critics' buffer, stride K·len).
-#[derive(Clone, Copy)]
-struct View {
-    params: Ptr,
-    member_stride: usize,
-    items: usize,
 }
 
 /// The scratch of updates with batches of `n` rows.
@@ -703,75 +600,6 @@ impl<G: Gpu + 'static> Engine for CudaEngine<G> {
     }
 }
 
-/// Device buffers for one call, returned at its end.
-struct Temp<'a> {
-    gpu: &'a mut dyn Gpu,
-    bufs: Vec<Ptr>,
-}
-
-impl<'a> Temp<'a> {
-    fn new(gpu: &'a mut dyn Gpu) -> Temp<'a> {
-        Temp { gpu, bufs: Vec::new() }
-    }
-
-    fn zeros(&mut self, len: usize) -> Result<Ptr> {
-        let p = self.gpu.alloc(4 * len.max(1))?;
-        self.bufs.push(p);
-        Ok(p)
-    }
-
-    fn upload(&mut self, v: &[f32]) -> Result<Ptr> {
-        let p = self.zeros(v.len())?;
-        self.gpu.upload(p, f32_bytes(v))?;
-        Ok(p)
-    }
-
-    fn free(self) -> Result<()> {
-        for p in self.bufs {
-            self.gpu.free(p)?;
-        }
-        Ok(())
-    }
-}
-
-/// `pgser_inputs`: the normalized (s, g[, a]) rows of `agents` agents, `copies` times each
-/// (the critics' copies), into `out.0` (and (s', g) into `out.1` when `src.2`, next_obs, is set).
-/// `dims` = (obs, goal, action columns); `src` = (obs, goal, next_obs, action) pointers (0: none).
-#[allow(clippy::too_many_arguments)]
-fn inputs(
-    gpu: &mut dyn Gpu,
-    agents: usize,
-    copies: usize,
-    n: usize,
-    dims: (usize, usize, usize),
-    src: (Ptr, Ptr, Ptr, Ptr),
-    norm: (Ptr, Ptr, Ptr),
-    out: (Ptr, Ptr),
-) -> Result<()> {
-    let (od, gd, act) = dims;
-    gpu.launch(
-        "pgser_inputs",
-        agents * copies * n * (od + gd + act),
-        &[
-            Arg::I(agents as i32),
-            Arg::I(copies as i32),
-            Arg::I(n as i32),
-            Arg::I(od as i32),
-            Arg::I(gd as i32),
-            Arg::I(act as i32),
-            Arg::P(src.0),
-            Arg::P(src.1),
-            Arg::P(src.2),
-            Arg::P(src.3),
-            Arg::P(norm.0),
-            Arg::P(norm.1),
-            Arg::P(norm.2),
-            Arg::P(out.0),
-            Arg::P(out.1),
-        ],
-    )
-}
-
 /// Adam's constants for step `step` (the CPU engine's), and the Polyak weights when the targets
 /// move, in kernels.cu's PGSER_STEP_SIZE … order. Step 0 (a network that has not moved yet and
 /// does not move now) gets step 1's, which no kernel reads.
@@ -803,169 +631,4 @@ fn stats_from_sums(c: &AgentConfig, sums: &[f64], a: usize, p: usize, n: usize, 
             ((sum(0) / nf) as f32, (sum(1) / nf) as f32, actor_loss)
         })
         .collect()
-}
-
-/// Forward pass of `view.items` networks of `shape` on `n` rows each: `outs[l]` `[items, n, d]`
-/// gets layer l's output, ReLU'd below the top. `x` is the first layer's input.
-fn forward(gpu: &mut dyn Gpu, shape: &Shape, view: View, x: Mat, outs: &[Ptr], n: usize, p: usize) -> Result<()> {
-    let top = shape.layers() - 1;
-    for l in 0..shape.layers() {
-        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
-        let a = if l == 0 { x } else { Mat { ptr: outs[l - 1], ld: din, trans: false, stride: n * din } };
-        gpu.gemm(&Gemm {
-            m: n,
-            n: dout,
-            k: din,
-            a,
-            b: Mat { ptr: at(view.params, shape.weight(l).start), ld: dout, trans: false, stride: view.member_stride },
-            c: Mat { ptr: outs[l], ld: dout, trans: false, stride: n * dout },
-            batch: view.items,
-            parts: Some(p),
-        })?;
-        gpu.launch(
-            "pgser_bias_act",
-            view.items * n * dout,
-            &[
-                Arg::L((view.items * n) as i64),
-                Arg::I(dout as i32),
-                Arg::P(outs[l]),
-                Arg::P(view.params),
-                Arg::L(view.member_stride as i64),
-                Arg::L(shape.bias(l).start as i64),
-                Arg::I(n as i32),
-                Arg::I((l < top) as i32),
-            ],
-        )?;
-    }
-    Ok(())
-}
-
-/// Backward pass of `view.items` networks from G = ∂loss/∂(top layer's output) in `g.0`
-/// (`[items, n, out]`; `g.1` is scratch of the same size; both are overwritten). With `grad`,
-/// writes each (network, part)'s ∂W and ∂b into `grad` (`[items, p, len]`); with `dx = (ptr,
-/// from)`, the gradient of the input columns `from..` into `ptr` (`[items, n, in − from]`).
-#[allow(clippy::too_many_arguments)]
-fn backward(
-    gpu: &mut dyn Gpu,
-    shape: &Shape,
-    view: View,
-    x: Mat,
-    outs: &[Ptr],
-    g: (Ptr, Ptr),
-    grad: Option<Ptr>,
-    dx: Option<(Ptr, usize)>,
-    n: usize,
-    p: usize,
-) -> Result<()> {
-    let (mut g, mut tmp) = g;
-    let top = shape.layers() - 1;
-    let items = view.items;
-    let len = shape.len;
-    if let Some(grad) = grad {
-        let dout = shape.sizes[top + 1];
-        gpu.launch(
-            "pgser_bias_grad",
-            items * p * dout,
-            &[
-                Arg::L(items as i64),
-                Arg::I(n as i32),
-                Arg::I(p as i32),
-                Arg::I(dout as i32),
-                Arg::P(g),
-                Arg::P(grad),
-                Arg::L(len as i64),
-                Arg::L(shape.bias(top).start as i64),
-            ],
-        )?;
-    }
-    for l in (0..=top).rev() {
-        let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
-        let input = if l == 0 { x } else { Mat { ptr: outs[l - 1], ld: din, trans: false, stride: n * din } };
-        let w = at(view.params, shape.weight(l).start);
-        if let Some(grad) = grad {
-            // ∂W = inputᵀ·G, part by part (each part's its own, added by Adam in part order).
-            for q in 0..p {
-                let (start, end) = (n * q / p, n * (q + 1) / p);
-                gpu.gemm(&Gemm {
-                    m: din,
-                    n: dout,
-                    k: end - start,
-                    a: Mat { ptr: at(input.ptr, start * input.ld), ld: input.ld, trans: true, stride: input.stride },
-                    b: Mat { ptr: at(g, start * dout), ld: dout, trans: false, stride: n * dout },
-                    c: Mat { ptr: at(grad, q * len + shape.weight(l).start), ld: dout, trans: false, stride: p * len },
-                    batch: items,
-                    parts: None,
-                })?;
-            }
-        }
-        let g_rows = Mat { ptr: g, ld: dout, trans: false, stride: n * dout };
-        if l > 0 {
-            // G·Wᵀ, masked by the ReLU below, with that layer's ∂b in the same pass.
-            gpu.gemm(&Gemm {
-                m: n,
-                n: din,
-                k: dout,
-                a: g_rows,
-                b: Mat { ptr: w, ld: dout, trans: true, stride: view.member_stride },
-                c: Mat { ptr: tmp, ld: din, trans: false, stride: n * din },
-                batch: items,
-                parts: Some(p),
-            })?;
-            gpu.launch(
-                "pgser_relu_mask",
-                items * p * din,
-                &[
-                    Arg::L(items as i64),
-                    Arg::I(n as i32),
-                    Arg::I(p as i32),
-                    Arg::I(din as i32),
-                    Arg::P(tmp),
-                    Arg::P(outs[l - 1]),
-                    Arg::P(grad.unwrap_or(0)),
-                    Arg::L(len as i64),
-                    Arg::L(shape.bias(l - 1).start as i64),
-                ],
-            )?;
-            std::mem::swap(&mut g, &mut tmp);
-        } else if let Some((dx, from)) = dx {
-            // The input columns from..din only: rows from..din of W.
-            let cols = din - from;
-            gpu.gemm(&Gemm {
-                m: n,
-                n: cols,
-                k: dout,
-                a: g_rows,
-                b: Mat { ptr: at(w, from * dout), ld: dout, trans: true, stride: view.member_stride },
-                c: Mat { ptr: dx, ld: cols, trans: false, stride: n * cols },
-                batch: items,
-                parts: Some(p),
-            })?;
-        }
-    }
-    Ok(())
-}
-
-/// Adam and, when this update's constants say so, Polyak, on `members` networks of `len`.
-fn adam(gpu: &mut dyn Gpu, net: &NetBufs, members: usize, len: usize, p: usize, grad: Ptr, consts: Ptr) -> Result<()> {
-    gpu.launch(
-        "pgser_adam",
-        members * len,
-        &[
-            Arg::L(members as i64),
-            Arg::L(len as i64),
-            Arg::I(p as i32),
-            Arg::P(net.p),
-            Arg::P(net.m),
-            Arg::P(net.v),
-            Arg::P(net.target),
-            Arg::P(grad),
-            Arg::P(consts),
-            Arg::F(ADAM_BETAS.0),
-            Arg::F(ADAM_BETAS.1),
-            Arg::F(ADAM_BETAS.2),
-            Arg::F(ADAM_BETAS.3),
-            Arg::F(ADAM_BETAS.4),
-        ],
-    )
-    .context("Adam")
 }
