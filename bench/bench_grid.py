@@ -6,7 +6,8 @@ its own child process:
 
   pgser         `pgser-train bench --agents A` (--pgser, default target/release/pgser-train): the A
                 agents as one stack, on pgser's hand-written CPU update (`--device cpu`);
-                on --device cuda it runs with --pgser-device (wgpu, if pgser was built with it).
+                on --device cuda it runs with --pgser-device (default: cuda, pgser's CUDA engine;
+                cuda-tf32 with tensor cores; wgpu or cuda-burn for burn's GPU backends).
   pgser-burn    the same on burn's flex backend (`--device cpu-burn`), the reference engine (CPU).
   single        train_peer.py, one agent per update call; A agents are trained one after
                 another, so its agent-updates/s do not depend on A. On CPU it is measured two ways
@@ -181,7 +182,7 @@ def main(argv=None):
     ap.add_argument("--tf32", action="store_true", help="GPU: let stacked and JAX peers use TF32 matmuls")
     ap.add_argument("--pgser", default=str(REPO / "target" / "release" / "pgser-train"),
                     help="pgser-train binary (default target/release/pgser-train)")
-    ap.add_argument("--pgser-device", default=None, help="pgser's --device (default cpu; on cuda: wgpu)")
+    ap.add_argument("--pgser-device", default=None, help="pgser's --device (default cpu; on cuda: cuda, its CUDA engine)")
     ap.add_argument("--workdir", default=str(REPO / "bench-out"))
     ap.add_argument("--json", help="write all figures to this file")
     a = ap.parse_args(argv)
@@ -328,7 +329,7 @@ def main(argv=None):
 
     # ---- pgser: the stacked agent of pgser-train ----------------------------------------------------
     def run_pgser(cells, peer="pgser"):
-        dev = "cpu-burn" if peer == "pgser-burn" else a.pgser_device or ("wgpu" if gpu else "cpu")
+        dev = "cpu-burn" if peer == "pgser-burn" else a.pgser_device or ("cuda" if gpu else "cpu")
         for A in agents:
             if not Path(a.pgser).exists():
                 cells[peer][A] = {"ok": False, "why": f"{a.pgser} not built", "missing": True}
