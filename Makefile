@@ -21,10 +21,10 @@ NVRTC_VERSION := 13.0.88
 NVRTC_LIB := $(DEPS)/nvrtc/nvidia/cu13/lib/libnvrtc.so.13
 CARGO ?= cargo
 
-.PHONY: all build python test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
+.PHONY: all build nvrtc-deps python test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
-deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) $(NVRTC_LIB) hdf5-deps
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -53,8 +53,11 @@ $(ZIGGURAT): scripts/numpy_ziggurat.py
 	mv $@.tmp $@
 
 # NVRTC 13.0 (the nvidia-cuda-nvrtc wheel's two libraries and its licence), with which `make test`
-# compiles the CUDA engine's kernels for sm_90 on a machine without a GPU
-# (src/agent/cuda/nvrtc.rs). Pinned: NVRTC 13.5's PTX does not load on the GPU machines' driver 580.
+# compiles the CUDA engine's kernels for sm_90 on a machine without a GPU, and `make gpu-bundle`
+# builds the cubin it carries (src/agent/cuda/nvrtc.rs). Only those two targets need it (a 90 MB
+# download): a GPU machine brings its own. Pinned: NVRTC 13.5's PTX does not load on the GPU
+# machines' driver 580.
+nvrtc-deps: $(NVRTC_LIB)
 $(NVRTC_LIB):
 	@mkdir -p $(DEPS)/wheels
 	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: nvidia-cuda-nvrtc==$(NVRTC_VERSION) -d $(DEPS)/wheels
@@ -106,7 +109,7 @@ test-example: python bench-venv
 # them sits beside the checkout, `make test` also runs the round trip that needs them.
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
-test: deps venv check-gpu slurm-deps strace-deps
+test: deps nvrtc-deps venv check-gpu slurm-deps strace-deps
 	PGSER_REQUIRE_NVRTC=1 $(CARGO) test --release $(FEATURES)
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
@@ -204,7 +207,7 @@ build-cuda: deps llvm-deps
 # beside JAX and PyTorch at FP32 and TF32, and real training stacks. It needs only `make build`
 # (the CUDA engine is in every build); run `make build-cuda` first to add burn's cuda-burn and
 # wgpu. scripts/gpu_bundle.sh says what is in it; docs/gpu.md how to run it.
-gpu-bundle: build
+gpu-bundle: build nvrtc-deps
 	scripts/gpu_bundle.sh
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,

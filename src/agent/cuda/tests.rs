@@ -112,14 +112,14 @@ fn the_shim_refuses_an_operand_outside_its_buffers() {
 
 #[test]
 fn every_kernel_compiles_for_sm_90_with_no_register_spills() {
-    // NVRTC from the nvidia-cuda-nvrtc wheel that `make` unpacks into .deps/nvrtc. `make test`
+    // NVRTC from the nvidia-cuda-nvrtc wheel that `make test` unpacks into .deps/nvrtc. `make test`
     // sets PGSER_REQUIRE_NVRTC, so there a missing NVRTC fails; a bare `cargo test` says it skipped.
     if !nvrtc::available() {
         assert!(
             std::env::var_os("PGSER_REQUIRE_NVRTC").is_none(),
-            "PGSER_REQUIRE_NVRTC is set but NVRTC does not load: run `make deps`"
+            "PGSER_REQUIRE_NVRTC is set but NVRTC does not load: run `make nvrtc-deps`"
         );
-        eprintln!("SKIPPED: NVRTC (libnvrtc.so.13) not found: `make deps` installs it");
+        eprintln!("SKIPPED: NVRTC (libnvrtc.so.13) not found: `make nvrtc-deps` installs it");
         return;
     }
     let (major, minor) = nvrtc::version().unwrap();
