@@ -138,7 +138,11 @@ fn missing_or_foreign_pickles_an_unbuilt_device_and_an_unwritable_out_fail_first
     }
     // The hand-written CUDA engine is in every build: without the NVIDIA driver, one line says so.
     if !pgser::agent::cuda::driver_present() {
-        fails_before_any_work(&file, &["--device", "cuda"], "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load)");
+        fails_before_any_work(
+            &file,
+            &["--device", "cuda"],
+            "--device cuda: no NVIDIA driver here (libcuda.so.1 does not load)",
+        );
     }
 
     // Tests run as root, whom file modes do not stop: out under a regular file cannot be made.

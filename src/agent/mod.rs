@@ -34,9 +34,9 @@ use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
+pub use engine::{Batch, EngineKind, Precision};
 pub use host::HostActor;
 pub use shards::Shards;
-pub use engine::{Batch, EngineKind, Precision};
 pub use td3::{Agent, UpdateStats, net_sizes, td_target};
 
 use crate::nprandom::NpRandom;

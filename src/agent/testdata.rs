@@ -30,4 +30,3 @@ pub fn norms(task: &Task, a: usize) -> Vec<Normalizer> {
         })
         .collect()
 }
-

@@ -147,7 +147,9 @@ enum Command {
     /// Compile the CUDA engine's kernels (`--device cuda`) with NVRTC, here, with or without a
     /// GPU: the NVRTC version and each kernel's registers and spills; with --cubin, the image,
     /// for a GPU machine without NVRTC (PGSER_CUDA_CUBIN=FILE).
-    #[command(after_help = "Examples:\n  pgser-train cuda-kernels\n  pgser-train cuda-kernels --arch sm_90 --cubin kernels_sm90.cubin --json")]
+    #[command(
+        after_help = "Examples:\n  pgser-train cuda-kernels\n  pgser-train cuda-kernels --arch sm_90 --cubin kernels_sm90.cubin --json"
+    )]
     CudaKernels {
         /// Target: sm_XY (a cubin for compute capability X.Y).
         #[arg(long, default_value = "sm_90")]

@@ -90,7 +90,10 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
     LOGGED.call_once(|| {
         let kernels = match std::env::var_os("PGSER_CUDA_CUBIN") {
             Some(p) => format!("kernels from {}", std::path::Path::new(&p).display()),
-            None => format!("kernels compiled by NVRTC {}", nvrtc::version().map_or("?".into(), |(a, b)| format!("{a}.{b}"))),
+            None => format!(
+                "kernels compiled by NVRTC {}",
+                nvrtc::version().map_or("?".into(), |(a, b)| format!("{a}.{b}"))
+            ),
         };
         let device = if precision == Precision::Tf32 { "cuda-tf32" } else { "cuda" };
         eprintln!("--device {device}: running on {name}, {precision:?} products, {kernels}");
@@ -108,8 +111,17 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
     };
     // SAFETY: a live handle.
     unsafe { blas::cublasSetMathMode(*blas.handle(), mode) }.result().context("cublasSetMathMode")?;
-    let mut gpu =
-        CudaGpu { ctx, stream, blas, functions, allocs: Vec::new(), pinned: [None, None], turn: 0, graphs: Vec::new(), name };
+    let mut gpu = CudaGpu {
+        ctx,
+        stream,
+        blas,
+        functions,
+        allocs: Vec::new(),
+        pinned: [None, None],
+        turn: 0,
+        graphs: Vec::new(),
+        name,
+    };
     let workspace = gpu.alloc(BLAS_WORKSPACE)?;
     // SAFETY: a live handle and a device buffer of that size, owned by `gpu` as long as the handle.
     unsafe { blas::cublasSetWorkspace_v2(*gpu.blas.handle(), workspace as *mut _, BLAS_WORKSPACE) }

@@ -219,16 +219,11 @@ impl<G: Gpu> CudaEngine<G> {
                 download_f32(gpu, b.target, members * len)?,
             );
             let cut = |x: &[f32], j: usize| x[j * len..(j + 1) * len].to_vec();
-            Ok((0..members)
-                .map(|j| Net { p: cut(&p, j), m: cut(&m, j), v: cut(&v, j), target: cut(&t, j) })
-                .collect())
+            Ok((0..members).map(|j| Net { p: cut(&p, j), m: cut(&m, j), v: cut(&v, j), target: cut(&t, j) }).collect())
         };
         let actors = get(&self.actor_net, self.agents, la)?;
         let mut critics = get(&self.critic_net, self.agents * k, lc)?.into_iter();
-        Ok(actors
-            .into_iter()
-            .map(|actor| Nets { actor, critics: critics.by_ref().take(k).collect() })
-            .collect())
+        Ok(actors.into_iter().map(|actor| Nets { actor, critics: critics.by_ref().take(k).collect() }).collect())
     }
 
     /// Uploads the normalizers when they differ from the ones on the device.
@@ -341,9 +336,10 @@ impl<G: Gpu> CudaEngine<G> {
             for (dst, d, pick) in fields {
                 dst.par_chunks_mut(n * d).zip(batches).for_each(|(x, b)| x.copy_from_slice(pick(b)));
             }
-            weight.par_chunks_mut(n).zip(batches).for_each(|(x, b)| {
-                if b.weight.is_empty() { x.fill(1.0) } else { x.copy_from_slice(&b.weight) }
-            });
+            weight
+                .par_chunks_mut(n)
+                .zip(batches)
+                .for_each(|(x, b)| if b.weight.is_empty() { x.fill(1.0) } else { x.copy_from_slice(&b.weight) });
             if !ddpg {
                 noise.par_chunks_mut(n * act).zip(noise_rngs.par_iter_mut()).for_each(|(x, rng)| {
                     for v in x {
@@ -390,7 +386,14 @@ impl<G: Gpu> CudaEngine<G> {
 
     /// Every launch and product of one update, in order, on batches of `s.n` rows staged at
     /// `staged`'s offsets.
-    fn launches(&self, gpu: &mut dyn Gpu, c: &AgentConfig, s: &Scratch, staged: &Staged, actor_moves: bool) -> Result<()> {
+    fn launches(
+        &self,
+        gpu: &mut dyn Gpu,
+        c: &AgentConfig,
+        s: &Scratch,
+        staged: &Staged,
+        actor_moves: bool,
+    ) -> Result<()> {
         let (a, n, k, act) = (self.agents, s.n, self.k, self.act_dim());
         let (od, gd) = (self.obs_dim, self.goal_dim);
         let (ddpg, p) = (c.algo == Algo::Ddpg, parts(n));
@@ -469,13 +472,26 @@ impl<G: Gpu> CudaEngine<G> {
             gpu.launch(
                 "pgser_policy_input",
                 a * n * w,
-                &[Arg::I(ai), Arg::I(ki), Arg::I(ni), Arg::I(w as i32), Arg::I(act as i32), Arg::P(s.sa), Arg::P(pi_top), Arg::P(s.spi)],
+                &[
+                    Arg::I(ai),
+                    Arg::I(ki),
+                    Arg::I(ni),
+                    Arg::I(w as i32),
+                    Arg::I(act as i32),
+                    Arg::P(s.sa),
+                    Arg::P(pi_top),
+                    Arg::P(s.spi),
+                ],
             )?;
             let q1 = View { params: self.critic_net.p, member_stride: k * critic.len, items: a };
             let spi_rows = Mat { ptr: s.spi, ld: w, trans: false, stride: n * w };
             forward(gpu, critic, q1, spi_rows, &s.q1_out, n, p)?;
             let q1_top = *s.q1_out.last().expect("layers");
-            gpu.launch("pgser_pi_sums", a * p, &[Arg::I(ai), Arg::I(ni), Arg::I(p as i32), Arg::P(q1_top), Arg::P(s.sums)])?;
+            gpu.launch(
+                "pgser_pi_sums",
+                a * p,
+                &[Arg::I(ai), Arg::I(ni), Arg::I(p as i32), Arg::P(q1_top), Arg::P(s.sums)],
+            )?;
             gpu.launch("pgser_fill", a * n, &[Arg::L((a * n) as i64), Arg::F(-1.0 / n as f32), Arg::P(s.g)])?;
             let dx = Some((s.dpi, w - act));
             backward(gpu, critic, q1, spi_rows, &s.q1_out, (s.g, s.tmp), None, dx, n, p)?;
@@ -483,7 +499,15 @@ impl<G: Gpu> CudaEngine<G> {
             gpu.launch(
                 "pgser_lambdas",
                 a,
-                &[Arg::I(ai), Arg::I(p as i32), Arg::I(ni), Arg::F(c.alpha as f32), Arg::I(td3bc as i32), Arg::P(s.sums), Arg::P(s.lambda)],
+                &[
+                    Arg::I(ai),
+                    Arg::I(p as i32),
+                    Arg::I(ni),
+                    Arg::F(c.alpha as f32),
+                    Arg::I(td3bc as i32),
+                    Arg::P(s.sums),
+                    Arg::P(s.lambda),
+                ],
             )?;
             let (bc, l2) = (Arg::I(td3bc as i32), Arg::F(c.action_l2() as f32));
             let action = Arg::P(batch(staged.action));
@@ -508,10 +532,32 @@ impl<G: Gpu> CudaEngine<G> {
             gpu.launch(
                 "pgser_actor_sums",
                 a * p,
-                &[Arg::I(ai), Arg::I(ni), Arg::I(p as i32), Arg::I(act as i32), Arg::I(w as i32), Arg::P(s.spi), action, bc, l2, Arg::P(s.sums)],
+                &[
+                    Arg::I(ai),
+                    Arg::I(ni),
+                    Arg::I(p as i32),
+                    Arg::I(act as i32),
+                    Arg::I(w as i32),
+                    Arg::P(s.spi),
+                    action,
+                    bc,
+                    l2,
+                    Arg::P(s.sums),
+                ],
             )?;
             let grads = Some(s.actor_grad);
-            backward(gpu, actor, actors(self.actor_net.p), actor_in(s.sa), &s.actor_out, (s.g, s.tmp), grads, None, n, p)?;
+            backward(
+                gpu,
+                actor,
+                actors(self.actor_net.p),
+                actor_in(s.sa),
+                &s.actor_out,
+                (s.g, s.tmp),
+                grads,
+                None,
+                n,
+                p,
+            )?;
         }
         if ddpg {
             adam(gpu, &self.critic_net, a * k, critic.len, p, s.critic_grad, consts_critic)?;
@@ -552,7 +598,8 @@ impl<G: Gpu> CudaEngine<G> {
         let w = od + gd + act;
         let gpu = &mut *self.gpu.lock().expect("the device lock");
         let mut temp = Temp::new(gpu);
-        let (obs_d, goal_d, act_d) = (temp.upload(&obs[..n * od])?, temp.upload(&goal[..n * gd])?, temp.upload(&action[..n * act])?);
+        let (obs_d, goal_d, act_d) =
+            (temp.upload(&obs[..n * od])?, temp.upload(&goal[..n * gd])?, temp.upload(&action[..n * act])?);
         let x = temp.zeros(k * n * w)?;
         let outs = self.critic.sizes[1..].iter().map(|&d| temp.zeros(k * n * d)).collect::<Result<Vec<_>>>()?;
         let best = temp.zeros(n)?;
@@ -609,7 +656,15 @@ fn adam_consts(out: &mut [f32], lr: f64, step: u64, tau: Option<f64>) {
 }
 
 /// The per-agent losses from the per-(agent, part) sums, as `Fused::update` computes them.
-fn stats_from_sums(c: &AgentConfig, sums: &[f64], a: usize, p: usize, n: usize, act: usize, actor_moves: bool) -> Stats {
+fn stats_from_sums(
+    c: &AgentConfig,
+    sums: &[f64],
+    a: usize,
+    p: usize,
+    n: usize,
+    act: usize,
+    actor_moves: bool,
+) -> Stats {
     (0..a)
         .map(|i| {
             let sum = |j: usize| (0..p).map(|q| sums[(i * p + q) * SUMS + j]).sum::<f64>();

@@ -4,8 +4,8 @@
 
 use anyhow::{Context, Result};
 
-use super::device::{Arg, Gemm, Gpu, Mat, Ptr, at};
 use super::NetBufs;
+use super::device::{Arg, Gemm, Gpu, Mat, Ptr, at};
 use crate::agent::fused::{ADAM_BETAS, Shape};
 
 /// A view of `items` networks of one shape for a product: member b's parameters at
@@ -57,7 +57,15 @@ pub(super) fn inputs(
 
 /// Forward pass of `view.items` networks of `shape` on `n` rows each: `outs[l]` `[items, n, d]`
 /// gets layer l's output, ReLU'd below the top. `x` is the first layer's input.
-pub(super) fn forward(gpu: &mut dyn Gpu, shape: &Shape, view: View, x: Mat, outs: &[Ptr], n: usize, p: usize) -> Result<()> {
+pub(super) fn forward(
+    gpu: &mut dyn Gpu,
+    shape: &Shape,
+    view: View,
+    x: Mat,
+    outs: &[Ptr],
+    n: usize,
+    p: usize,
+) -> Result<()> {
     let top = shape.layers() - 1;
     for l in 0..shape.layers() {
         let (din, dout) = (shape.sizes[l], shape.sizes[l + 1]);
@@ -196,7 +204,15 @@ pub(super) fn backward(
 }
 
 /// Adam and, when this update's constants say so, Polyak, on `members` networks of `len`.
-pub(super) fn adam(gpu: &mut dyn Gpu, net: &NetBufs, members: usize, len: usize, p: usize, grad: Ptr, consts: Ptr) -> Result<()> {
+pub(super) fn adam(
+    gpu: &mut dyn Gpu,
+    net: &NetBufs,
+    members: usize,
+    len: usize,
+    p: usize,
+    grad: Ptr,
+    consts: Ptr,
+) -> Result<()> {
     gpu.launch(
         "pgser_adam",
         members * len,

@@ -185,7 +185,11 @@ pub fn ptxas_report(log: &str) -> Vec<(String, u32, u32, u32)> {
             current = rest.split('\'').next().map(str::to_string);
         } else if line.contains("bytes spill stores") {
             let num = |tag: &str| {
-                line.split(tag).next().and_then(|s| s.split_whitespace().last()).and_then(|s| s.parse().ok()).unwrap_or(0)
+                line.split(tag)
+                    .next()
+                    .and_then(|s| s.split_whitespace().last())
+                    .and_then(|s| s.parse().ok())
+                    .unwrap_or(0)
             };
             spills = (num(" bytes spill stores"), num(" bytes spill loads"));
         } else if line.contains("Used ") && line.contains("registers") {
@@ -242,4 +246,3 @@ pub fn cubin_for(arch: &str) -> Result<Vec<u8>> {
     }
     Ok(compile(arch, false)?.image)
 }
-

@@ -4,11 +4,11 @@
 use burn::tensor::Device;
 
 use super::host::HostGpu;
-use crate::agent::testdata::{batch, norms};
 use super::*;
-use crate::agent::fused::Fused;
-use crate::agent::{Agent, AgentConfig, Algo};
 use crate::agent::engine::Nets;
+use crate::agent::fused::Fused;
+use crate::agent::testdata::{batch, norms};
+use crate::agent::{Agent, AgentConfig, Algo};
 use crate::task::Task;
 
 /// A new stack of `seeds.len()` agents on the CPU engine, the same state on the shim's engine,
@@ -18,15 +18,26 @@ fn pair(cfg: &AgentConfig, task: &Task, seeds: &[u64]) -> (Fused, CudaEngine<Hos
     let s = agent.burn_state();
     let (actor, critic) = crate::agent::net_sizes(cfg, task);
     let fused = Fused::new(&actor, &critic, s.nets.clone(), s.actor_step, s.critic_step);
-    let engine = CudaEngine::new(HostGpu::default(), &actor, &critic, task.obs_dim, &s.nets, &agent.norms, s.actor_step, s.critic_step)
-        .expect("the shim's engine");
+    let engine = CudaEngine::new(
+        HostGpu::default(),
+        &actor,
+        &critic,
+        task.obs_dim,
+        &s.nets,
+        &agent.norms,
+        s.actor_step,
+        s.critic_step,
+    )
+    .expect("the shim's engine");
     (fused, engine, agent.norms, agent.noise_rngs)
 }
 
 /// Compares two stacks' every network, target and Adam moment: the largest difference relative
 /// to each buffer's scale.
 fn worst(x: &[Nets], y: &[Nets]) -> f32 {
-    let nets = |n: &[Nets]| n.iter().flat_map(|a| std::iter::once(a.actor.clone()).chain(a.critics.clone())).collect::<Vec<_>>();
+    let nets = |n: &[Nets]| {
+        n.iter().flat_map(|a| std::iter::once(a.actor.clone()).chain(a.critics.clone())).collect::<Vec<_>>()
+    };
     let mut worst = 0.0f32;
     for (a, b) in nets(x).iter().zip(nets(y)) {
         for (u, v) in [(&a.p, &b.p), (&a.m, &b.m), (&a.v, &b.v), (&a.target, &b.target)] {
@@ -131,8 +142,10 @@ fn every_kernel_compiles_for_sm_90_with_no_register_spills() {
         eprintln!("{k}: {regs} registers");
     }
     for k in nvrtc::KERNELS {
-        let (_, regs, stores, loads) =
-            report.iter().find(|r| r.0 == *k).unwrap_or_else(|| panic!("{k} missing from ptxas' report:\n{}", cubin.log));
+        let (_, regs, stores, loads) = report
+            .iter()
+            .find(|r| r.0 == *k)
+            .unwrap_or_else(|| panic!("{k} missing from ptxas' report:\n{}", cubin.log));
         assert_eq!((*stores, *loads), (0, 0), "{k} spills ({regs} registers)");
         assert!(*regs <= 64, "{k} uses {regs} registers: more than a full-occupancy block allows");
     }
@@ -149,9 +162,10 @@ fn a_broken_kernel_gives_the_compilers_log() {
         eprintln!("SKIPPED: NVRTC not found");
         return;
     }
-    let err = nvrtc::compile_source("extern \"C\" __global__ void k(float* x) { x[0] = undefined_name; }", "sm_90", false)
-        .unwrap_err()
-        .to_string();
+    let err =
+        nvrtc::compile_source("extern \"C\" __global__ void k(float* x) { x[0] = undefined_name; }", "sm_90", false)
+            .unwrap_err()
+            .to_string();
     assert!(err.contains("undefined_name") && err.contains("sm_90"), "{err}");
 }
 
@@ -159,11 +173,8 @@ fn a_broken_kernel_gives_the_compilers_log() {
 fn the_kernel_lists_agree() {
     // Three lists name the kernels: kernels.cu's definitions, shim.cpp's launch table and
     // `nvrtc::KERNELS` (what the GPU side loads). They must be one set.
-    let defined: Vec<&str> = nvrtc::SOURCE
-        .split("__global__ void ")
-        .skip(1)
-        .map(|s| s.split('(').next().unwrap().trim())
-        .collect();
+    let defined: Vec<&str> =
+        nvrtc::SOURCE.split("__global__ void ").skip(1).map(|s| s.split('(').next().unwrap().trim()).collect();
     let shim = include_str!("shim.cpp");
     let table: Vec<&str> = shim.split("PGSER_KERNEL(").skip(2).map(|s| s.split(')').next().unwrap()).collect();
     let mut listed = nvrtc::KERNELS.to_vec();

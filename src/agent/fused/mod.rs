@@ -38,11 +38,11 @@ mod net;
 #[cfg(test)]
 mod tests;
 
+pub use net::flatten;
 #[cfg(test)]
 pub(in crate::agent) use net::gemm_raw;
 pub(in crate::agent) use net::{ADAM_BETAS, AdamStep, Shape, adam_step, unflatten};
 use net::{MAX_PARTS, adam, backward, forward};
-pub use net::flatten;
 
 /// The parts a batch of `n` rows is cut into: about 256 rows each (a product of that height still
 /// runs near the micro-kernel's peak), at least one, at most four. A function of `n` only, so the
