@@ -36,16 +36,16 @@ mod driver;
 mod host;
 mod net;
 pub mod nvrtc;
+mod staging;
 #[cfg(test)]
 mod tests;
 
 use std::sync::Mutex;
 
 use anyhow::Result;
-use rayon::prelude::*;
 
 use super::engine::{Batch, Engine, Net, Nets, State, Stats};
-use super::fused::{AdamStep, Shape, adam_step, parts};
+use super::fused::{Shape, parts};
 use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
 
@@ -53,11 +53,10 @@ pub use device::{Arg, Gemm, Gpu, Mat, Ptr, arg_pointers};
 use device::{Temp, at, download_f32, f32_bytes};
 pub use driver::{CudaGpu, driver_present, open};
 use net::{View, adam, backward, forward, inputs};
+use staging::{CONSTS, Staged};
 
 /// Per-(agent, part) sums (kernels.cu's PGSER_SUMS, in its order).
 const SUMS: usize = 6;
-/// Adam's per-update constants of one network kind (kernels.cu's PGSER_STEP_SIZE …).
-const CONSTS: usize = 5;
 
 /// One stack of networks on the device: parameters, Adam moments and targets, `[members, len]`.
 struct NetBufs {
@@ -94,35 +93,6 @@ struct Scratch {
 
 /// What decides an update's launches: the batch size and whether the actor moves.
 type UpdateKind = (usize, bool);
-
-/// One array of a batch in the staging block: its slice there, its width, and the batch's field.
-type Field<'a> = (&'a mut [f32], usize, fn(&Batch) -> &[f32]);
-
-/// Offsets (in f32) of the batch's arrays inside the staging block.
-struct Staged {
-    obs: usize,
-    goal: usize,
-    next_obs: usize,
-    action: usize,
-    reward: usize,
-    weight: usize,
-    noise: usize,
-    len: usize,
-}
-
-impl Staged {
-    fn new(a: usize, n: usize, od: usize, gd: usize, act: usize) -> Staged {
-        let mut at = 2 * CONSTS;
-        let mut take = |d: usize| {
-            let o = at;
-            at += a * n * d;
-            o
-        };
-        let (obs, goal, next_obs, action) = (take(od), take(gd), take(od), take(act));
-        let (reward, weight, noise) = (take(1), take(1), take(act));
-        Staged { obs, goal, next_obs, action, reward, weight, noise, len: at }
-    }
-}
 
 /// The stack's training state on a device, and the scratch of its update.
 pub struct CudaEngine<G: Gpu> {
@@ -280,108 +250,8 @@ impl<G: Gpu> CudaEngine<G> {
         Ok(())
     }
 
-    /// One update of every agent, agent i on `batches[i]`, with its normalizer and noise stream;
-    /// `updates` is the count after this update (it decides the delayed actor and targets). With
-    /// `stats`, waits for the update and returns its losses (the trainer asks on logging steps).
-    pub fn update(
-        &mut self,
-        c: &AgentConfig,
-        batches: &[Batch],
-        norms: &[Normalizer],
-        noise_rngs: &mut [NpRandom],
-        updates: u64,
-        stats: bool,
-    ) -> Result<Option<Stats>> {
-        let (a, n, act) = (self.agents, batches[0].n, self.act_dim());
-        let ddpg = c.algo == Algo::Ddpg;
-        let p = parts(n);
-        self.set_norms(norms)?;
-        self.size_scratch(n)?;
-        let delayed = updates.is_multiple_of(c.policy_delay);
-        let actor_moves = ddpg || delayed;
-        let lr = c.lr();
-        let tau = delayed.then_some(c.tau);
-        let critic_step = self.critic_step + 1;
-        let actor_step = self.actor_step + u64::from(actor_moves);
-
-        // The host's part: Adam's constants and the batch (and TD3's target noise, drawn from
-        // each agent's stream in the CPU engine's order), written straight into the staging
-        // buffer and copied in one transfer.
-        let (od, gd) = (self.obs_dim, self.goal_dim);
-        let staged = Staged::new(a, n, od, gd, act);
-        let s = self.scratch.as_ref().expect("sized");
-        debug_assert_eq!(s.staging_len, staged.len);
-        let gpu = &mut *self.gpu.lock().expect("the device lock");
-        // Each array is filled agent by agent across the worker threads: at 60 agents a batch is
-        // 7 MB and 123k noise draws, which one thread would take longer to write than the GPU
-        // takes to train on it.
-        gpu.stage(s.staging, staged.len, &mut |host: &mut [f32]| {
-            let (consts, rest) = host.split_at_mut(2 * CONSTS);
-            adam_consts(&mut consts[..CONSTS], lr, actor_step, tau);
-            adam_consts(&mut consts[CONSTS..], lr, critic_step, tau);
-            let mut rest = rest;
-            let mut next = |d: usize| {
-                let (x, r) = std::mem::take(&mut rest).split_at_mut(a * n * d);
-                rest = r;
-                x
-            };
-            let fields: [Field; 5] = [
-                (next(od), od, |b| &b.obs),
-                (next(gd), gd, |b| &b.goal),
-                (next(od), od, |b| &b.next_obs),
-                (next(act), act, |b| &b.action),
-                (next(1), 1, |b| &b.reward),
-            ];
-            let (weight, noise) = (next(1), next(act));
-            for (dst, d, pick) in fields {
-                dst.par_chunks_mut(n * d).zip(batches).for_each(|(x, b)| x.copy_from_slice(pick(b)));
-            }
-            weight
-                .par_chunks_mut(n)
-                .zip(batches)
-                .for_each(|(x, b)| if b.weight.is_empty() { x.fill(1.0) } else { x.copy_from_slice(&b.weight) });
-            if !ddpg {
-                noise.par_chunks_mut(n * act).zip(noise_rngs.par_iter_mut()).for_each(|(x, rng)| {
-                    for v in x {
-                        *v = (rng.standard_normal() * c.policy_noise).clamp(-c.noise_clip, c.noise_clip) as f32;
-                    }
-                });
-            }
-        })?;
-
-        // The device's part: one captured graph per (batch size, whether the actor moves),
-        // replayed. The first update of a kind runs eagerly: cuBLAS and the driver load what they
-        // load lazily then, which a capture forbids; the second is captured. PGSER_CUDA_GRAPHS=0
-        // launches every kernel every time instead (to time what graphs save).
-        let key = (n, actor_moves);
-        let seen = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
-        match seen {
-            Some(Some(id)) => gpu.replay(id)?,
-            Some(None) if self.graphs => {
-                gpu.begin_capture()?;
-                let recorded = self.launches(gpu, c, s, &staged, actor_moves);
-                let id = gpu.end_capture()?;
-                recorded?;
-                s.graphs.lock().expect("graphs").iter_mut().find(|g| g.0 == key).expect("seen").1 = Some(id);
-                gpu.replay(id)?;
-            }
-            _ => {
-                self.launches(gpu, c, s, &staged, actor_moves)?;
-                if seen.is_none() {
-                    s.graphs.lock().expect("graphs").push((key, None));
-                }
-            }
-        }
-        self.critic_step = critic_step;
-        self.actor_step = actor_step;
-        if !stats {
-            return Ok(None);
-        }
-        let mut sums = vec![0.0f64; a * p * SUMS];
-        // SAFETY: f64 has no padding; the vector outlives the slice.
-        let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
-        gpu.download(s.sums, bytes)?;
-        Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+    fn norm_bufs(&self) -> (Ptr, Ptr, Ptr) {
+        (self.norm_mean, self.norm_std, self.norm_clip)
     }
 
     /// Every launch and product of one update, in order, on batches of `s.n` rows staged at
@@ -569,10 +439,81 @@ impl<G: Gpu> CudaEngine<G> {
     }
 }
 
-impl<G: Gpu> CudaEngine<G> {
+impl<G: Gpu + 'static> Engine for CudaEngine<G> {
+    /// One update of every agent, agent i on `batches[i]`, with its normalizer and noise stream;
+    /// `updates` is the count after this update (it decides the delayed actor and targets). With
+    /// `stats`, waits for the update and returns its losses (the trainer asks on logging steps).
+    fn update(
+        &mut self,
+        c: &AgentConfig,
+        batches: &[Batch],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        stats: bool,
+    ) -> Result<Option<Stats>> {
+        let (a, n, act) = (self.agents, batches[0].n, self.act_dim());
+        let ddpg = c.algo == Algo::Ddpg;
+        let p = parts(n);
+        self.set_norms(norms)?;
+        self.size_scratch(n)?;
+        let delayed = updates.is_multiple_of(c.policy_delay);
+        let actor_moves = ddpg || delayed;
+        let tau = delayed.then_some(c.tau);
+        let critic_step = self.critic_step + 1;
+        let actor_step = self.actor_step + u64::from(actor_moves);
+
+        // The host's part: Adam's constants and the batch (and TD3's target noise, drawn from
+        // each agent's stream in the CPU engine's order), written straight into the staging
+        // buffer and copied in one transfer.
+        let (od, gd) = (self.obs_dim, self.goal_dim);
+        let staged = Staged::new(a, n, od, gd, act);
+        let s = self.scratch.as_ref().expect("sized");
+        debug_assert_eq!(s.staging_len, staged.len);
+        let gpu = &mut *self.gpu.lock().expect("the device lock");
+        gpu.stage(s.staging, staged.len, &mut |host: &mut [f32]| {
+            staged.fill(host, c, batches, noise_rngs, (actor_step, critic_step), tau)
+        })?;
+
+        // The device's part: one captured graph per (batch size, whether the actor moves),
+        // replayed. The first update of a kind runs eagerly: cuBLAS and the driver load what they
+        // load lazily then, which a capture forbids; the second is captured. PGSER_CUDA_GRAPHS=0
+        // launches every kernel every time instead (to time what graphs save).
+        let key = (n, actor_moves);
+        let seen = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
+        match seen {
+            Some(Some(id)) => gpu.replay(id)?,
+            Some(None) if self.graphs => {
+                gpu.begin_capture()?;
+                let recorded = self.launches(gpu, c, s, &staged, actor_moves);
+                let id = gpu.end_capture()?;
+                recorded?;
+                s.graphs.lock().expect("graphs").iter_mut().find(|g| g.0 == key).expect("seen").1 = Some(id);
+                gpu.replay(id)?;
+            }
+            _ => {
+                self.launches(gpu, c, s, &staged, actor_moves)?;
+                if seen.is_none() {
+                    s.graphs.lock().expect("graphs").push((key, None));
+                }
+            }
+        }
+        self.critic_step = critic_step;
+        self.actor_step = actor_step;
+        if !stats {
+            return Ok(None);
+        }
+        let mut sums = vec![0.0f64; a * p * SUMS];
+        // SAFETY: f64 has no padding; the vector outlives the slice.
+        let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
+        gpu.download(s.sums, bytes)?;
+        Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+    }
+
     /// Every agent's policy, agent i on `rows[i]` (raw observations and goals, `n` rows each),
     /// as `Fused::act_all` computes it (one product over all rows, no parts).
-    pub fn act_all(&self, rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
+    fn act_all(&self, norms: &[Normalizer], rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
+        anyhow::ensure!(norms == self.norms, "the CUDA engine holds other normalizers than the agent's");
         let (a, od, gd, act) = (self.agents, self.obs_dim, self.goal_dim, self.act_dim());
         let sg = od + gd;
         let obs: Vec<f32> = rows.iter().flat_map(|(o, _)| o[..n * od].iter().copied()).collect();
@@ -593,7 +534,8 @@ impl<G: Gpu> CudaEngine<G> {
     }
 
     /// The smallest of agent 0's critics' values for `n` rows (raw s, g, a), as `Fused::q`.
-    pub fn q(&self, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Result<Vec<f32>> {
+    fn q(&self, norm: &Normalizer, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Result<Vec<f32>> {
+        anyhow::ensure!(norm == &self.norms[0], "the CUDA engine holds another normalizer than agent 0's");
         let (k, od, gd, act) = (self.k, self.obs_dim, self.goal_dim, self.act_dim());
         let w = od + gd + act;
         let gpu = &mut *self.gpu.lock().expect("the device lock");
@@ -614,45 +556,9 @@ impl<G: Gpu> CudaEngine<G> {
         Ok(out)
     }
 
-    fn norm_bufs(&self) -> (Ptr, Ptr, Ptr) {
-        (self.norm_mean, self.norm_std, self.norm_clip)
-    }
-}
-
-impl<G: Gpu + 'static> Engine for CudaEngine<G> {
-    fn update(
-        &mut self,
-        c: &AgentConfig,
-        batches: &[Batch],
-        norms: &[Normalizer],
-        noise_rngs: &mut [NpRandom],
-        updates: u64,
-        stats: bool,
-    ) -> Result<Option<Stats>> {
-        CudaEngine::update(self, c, batches, norms, noise_rngs, updates, stats)
-    }
-
-    fn act_all(&self, norms: &[Normalizer], rows: &[(&[f32], &[f32])], n: usize) -> Result<Vec<Vec<f32>>> {
-        anyhow::ensure!(norms == self.norms, "the CUDA engine holds other normalizers than the agent's");
-        CudaEngine::act_all(self, rows, n)
-    }
-
-    fn q(&self, norm: &Normalizer, obs: &[f32], goal: &[f32], action: &[f32], n: usize) -> Result<Vec<f32>> {
-        anyhow::ensure!(norm == &self.norms[0], "the CUDA engine holds another normalizer than agent 0's");
-        CudaEngine::q(self, obs, goal, action, n)
-    }
-
     fn state(&self) -> Result<State> {
         Ok(State { nets: self.nets()?, actor_step: self.actor_step, critic_step: self.critic_step })
     }
-}
-
-/// Adam's constants for step `step` (the CPU engine's), and the Polyak weights when the targets
-/// move, in kernels.cu's PGSER_STEP_SIZE … order. Step 0 (a network that has not moved yet and
-/// does not move now) gets step 1's, which no kernel reads.
-fn adam_consts(out: &mut [f32], lr: f64, step: u64, tau: Option<f64>) {
-    let AdamStep { step_size, bc2_sqrt, keep, take } = adam_step(lr, step.max(1), tau);
-    out.copy_from_slice(&[step_size, bc2_sqrt, keep, take, if tau.is_some() { 1.0 } else { 0.0 }]);
 }
 
 /// The per-agent losses from the per-(agent, part) sums, as `Fused::update` computes them.

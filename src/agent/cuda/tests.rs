@@ -78,11 +78,11 @@ fn the_cuda_engine_on_the_host_shim_is_the_cpu_engine_bit_for_bit() {
         // Acting and scoring: every agent's policy, and agent 0's min Q.
         let rows: Vec<Batch> = (0..3).map(|i| batch(&task, 37, 77 + i, false)).collect();
         let pairs: Vec<(&[f32], &[f32])> = rows.iter().map(|b| (&b.obs[..], &b.goal[..])).collect();
-        assert_eq!(f.act_all(&norms, &pairs, 37), engine.act_all(&pairs, 37).unwrap(), "{algo:?}: act_all");
+        assert_eq!(f.act_all(&norms, &pairs, 37), engine.act_all(&norms, &pairs, 37).unwrap(), "{algo:?}: act_all");
         let r = &rows[0];
         assert_eq!(
             f.q(&norms[0], &r.obs, &r.goal, &r.action, 37),
-            engine.q(&r.obs, &r.goal, &r.action, 37).unwrap(),
+            engine.q(&norms[0], &r.obs, &r.goal, &r.action, 37).unwrap(),
             "{algo:?}: q"
         );
     }
