@@ -211,7 +211,7 @@ fn controlled_negatives_are_swapped_rows_of_the_positive_transitions() {
     }
     scored_stub(&path, &rows);
     let keys: Vec<(i64, i32)> = (0..4).flat_map(|e| (0..t1).map(move |s| (e, s))).filter(|k| k.1 != 2).collect();
-    let n = report::negatives(&path, &keys, keys.len(), 5).unwrap();
+    let n = report::negatives(&path, &keys, keys.len(), 5, &mut |_| {}).unwrap();
     assert_eq!(n.controlled.len(), keys.len());
     assert_eq!(n.controlled_available, keys.len() * swaps as usize);
     assert_eq!(n.paper.len(), keys.len());
@@ -231,13 +231,13 @@ fn controlled_negatives_are_swapped_rows_of_the_positive_transitions() {
     assert!(picked.iter().all(|&c| c > 0), "every swap index drawn at least once: {picked:?}");
     assert!(n.paper.iter().all(|&q| q < 0.0), "original rows are not negatives");
     assert!(n.paper.iter().any(|&q| decode(q).0 >= 4), "the paper's negatives come from the whole table");
-    assert_eq!(report::negatives(&path, &keys, keys.len(), 5).unwrap(), n, "same seed, same draw");
-    assert_ne!(report::negatives(&path, &keys, keys.len(), 6).unwrap().controlled, n.controlled);
+    assert_eq!(report::negatives(&path, &keys, keys.len(), 5, &mut |_| {}).unwrap(), n, "same seed, same draw");
+    assert_ne!(report::negatives(&path, &keys, keys.len(), 6, &mut |_| {}).unwrap().controlled, n.controlled);
 
     // A positive without swapped rows, and positives out of order, are refused in one line.
-    let e = report::negatives(&path, &[(0, 0), (11, 0)], 2, 5).unwrap_err().to_string();
+    let e = report::negatives(&path, &[(0, 0), (11, 0)], 2, 5, &mut |_| {}).unwrap_err().to_string();
     assert!(e.contains("scored.parquet") && e.contains("episode 11, step 0") && !e.contains('\n'), "{e}");
-    let e = report::negatives(&path, &[(1, 0), (0, 3)], 2, 5).unwrap_err().to_string();
+    let e = report::negatives(&path, &[(1, 0), (0, 3)], 2, 5, &mut |_| {}).unwrap_err().to_string();
     assert!(e.contains("scored.parquet") && e.contains("episode 0, step 3"), "{e}");
 }
 
@@ -270,7 +270,12 @@ fn controlled_table1_is_at_chance_where_only_the_data_source_separates() {
         }
         let path = dir.path().join(format!("scored_{goal_matters}.parquet"));
         scored_stub(&path, &rows);
-        let t = report::table1(&path, &positives, &keys, &opts).unwrap();
+        let t = report::table1(&path, &positives, &keys, 0.98, &opts).unwrap();
+        // The shares count every row once, against the positives' median.
+        let s = &t.shares;
+        assert_eq!(s.rows, rows.len());
+        assert_eq!(s.above, rows.iter().filter(|r| f64::from(r.3) > s.threshold).count());
+        assert!(s.settings[0].share_above > s.uniform, "q priorities favour the rows above: {s:?}");
         assert_eq!(t.negatives.controlled_available, keys.len() * swaps as usize);
         for (paper, controlled) in t.paper.iter().zip(&t.controlled) {
             assert_eq!((paper.test, controlled.test), (600, 600));

@@ -40,6 +40,9 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
         }
         Data::Pickles { .. } => None,
     };
+    if let Some(q) = p.q_checkpoint.as_ref().filter(|q| q.exists()) {
+        check_q(q, &p.task).with_context(|| format!("[pretrain] checkpoint = {:?}", q.display().to_string()))?;
+    }
     for step in steps {
         let name = &step.name;
         match &step.action {
@@ -117,6 +120,17 @@ fn positive_episodes(given: Option<usize>, sources: &[(PathBuf, usize)]) -> Resu
             total
         ),
     }
+}
+
+/// A given Q must be a pgser checkpoint of the pipeline's task: `score` would refuse it only
+/// after the data were collected.
+fn check_q(q: &Path, task: &str) -> Result<()> {
+    let (agent, _) = crate::agent::checkpoint::load(q, Backend::Cpu.device()?)?;
+    let want = Task::known(task).context("task")?;
+    if agent.task.name != want.name {
+        bail!("a critic trained on {}, not on the pipeline's task {}", agent.task.name, want.name);
+    }
+    Ok(())
 }
 
 /// The settings `train` refuses before any work, and those that would only fail (or give

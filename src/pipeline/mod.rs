@@ -237,8 +237,16 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         }),
     });
 
-    let q = out.join("q.ckpt");
-    steps.push(train_step("pretrain", &traj, &q, p.pretrain_config()?));
+    // The Q: the one `[pretrain] checkpoint` names when that file exists (keyed by its bytes, so
+    // a copy elsewhere is the same Q), else the `pretrain` step's.
+    let q = match &p.q_checkpoint {
+        Some(given) if given.exists() => given.clone(),
+        _ => {
+            let q = out.join("q.ckpt");
+            steps.push(train_step("pretrain", &traj, &q, p.pretrain_config()?));
+            q
+        }
+    };
     let scored = out.join("scored.parquet");
     let s = &p.score;
     steps.push(Step {
@@ -262,13 +270,13 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     });
     let mut runs = Vec::new();
     for &algo in &p.agents.algos {
-        for &variant in &p.agents.variants {
+        for arm in &p.agents.variants {
             for &seed in &p.agents.seeds {
-                let id = format!("{}_{}_s{seed}", algo.name(), variant.name());
+                let id = format!("{}_{}_s{seed}", algo.name(), arm.name);
                 let ckpt = out.join(format!("agents/{id}.ckpt"));
-                let data = if variant == Variant::Mem { &scored } else { &traj };
-                let mut step = train_step(&format!("agent {id}"), data, &ckpt, p.agent_config(algo, variant, seed)?);
-                if variant == Variant::Mem {
+                let data = if arm.variant == Variant::Mem { &scored } else { &traj };
+                let mut step = train_step(&format!("agent {id}"), data, &ckpt, p.agent_config(algo, arm, seed)?);
+                if arm.variant == Variant::Mem {
                     // The scored table names β; training reads it too.
                     step.inputs.push(traj.clone());
                 }
@@ -276,7 +284,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                 runs.push(report::Run {
                     task: p.task.clone(),
                     algo: algo.name().into(),
-                    variant: variant.name().into(),
+                    variant: arm.name.clone(),
                     seed,
                     metrics: metrics_path(&ckpt),
                 });
@@ -284,17 +292,29 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         }
     }
     let report_dir = out.join("report");
+    // The report measures how sharply each -mem arm's priority draws what Q calls reachable.
+    let mut priorities = Vec::new();
+    for arm in p.agents.variants.iter().filter(|a| a.variant == Variant::Mem) {
+        let c = p.agent_config(p.agents.algos[0], arm, p.agents.seeds[0])?.priority;
+        if !priorities.contains(&c) {
+            priorities.push(c);
+        }
+    }
+    if priorities.is_empty() {
+        priorities.push(Default::default());
+    }
     let r = report::QReportOptions {
         scored: scored.clone(),
         out_dir: report_dir.clone(),
         positive_episodes: p.report.positive_episodes,
         seed: p.report.seed,
+        priorities,
         ..report::QReportOptions::default()
     };
     steps.push(Step {
         name: "report".into(),
         params: json!({"positive_episodes": r.positive_episodes, "seed": r.seed, "test_fraction": r.test_fraction,
-                       "max_samples": r.max_samples, "svm_max_train": r.svm_max_train}),
+                       "max_samples": r.max_samples, "svm_max_train": r.svm_max_train, "priorities": r.priorities}),
         inputs: vec![scored.clone(), traj.clone(), q.clone()],
         outputs: ["fig5_q_hist.png", "table1.md", "table1.json"].iter().map(|f| report_dir.join(f)).collect(),
         action: Action::Report(r),

@@ -38,6 +38,18 @@ impl Variant {
     }
 }
 
+/// One arm of the grid: a variant, under its own name when `[agents.arms.NAME]` gives it settings
+/// of its own (an ablation: `-mem` at another `priority_alpha`, with `priority = "rank"`, …).
+/// The three plain variants are arms named after themselves with no settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Arm {
+    /// What the cell ids, records and results call it: `mem`, or the arm's own name.
+    pub name: String,
+    pub variant: Variant,
+    /// Training settings of this arm, applied over `[agents]`'s.
+    pub train: toml::Table,
+}
+
 /// A parsed pipeline file with its paths resolved.
 #[derive(Debug, Clone)]
 pub struct Pipeline {
@@ -50,6 +62,10 @@ pub struct Pipeline {
     pub train: toml::Table,
     /// `[pretrain]`: the Q of Alg. 2 step 1 (TD3+BC with random swapping unless overridden).
     pub pretrain: toml::Table,
+    /// `[pretrain] checkpoint`: a Q trained elsewhere, scored with instead of pre-training one
+    /// (keyed by its bytes, not its path). When the file is absent the `pretrain` step trains
+    /// one into `out/q.ckpt` as `[pretrain]` says, as `expert_checkpoint` does for the expert.
+    pub q_checkpoint: Option<PathBuf>,
     pub score: ScoreSpec,
     pub report: ReportSpec,
     pub agents: Agents,
@@ -98,11 +114,12 @@ pub struct ReportSpec {
     pub seed: u64,
 }
 
-/// `[agents]`: the grid algos × variants × seeds, and training settings for all of them.
+/// `[agents]`: the grid algos × arms × seeds, and training settings for all of them.
 #[derive(Debug, Clone)]
 pub struct Agents {
     pub algos: Vec<Algo>,
-    pub variants: Vec<Variant>,
+    /// `variants`, in the file's order: the plain variants and the named arms of `[agents.arms]`.
+    pub variants: Vec<Arm>,
     pub seeds: Vec<u64>,
     /// Agents trained at once as one stack of networks (`[agents] batch`, default: all the
     /// cells of a learner). 1 trains them one after another.
@@ -199,14 +216,15 @@ impl Pipeline {
 
         let mut agents = f.agents;
         let algos: Vec<Algo> = take(&mut agents, "algos")?.unwrap_or(vec![Algo::Td3bc]);
-        let variants: Vec<Variant> =
-            take(&mut agents, "variants")?.unwrap_or(vec![Variant::Baseline, Variant::Swap, Variant::Mem]);
+        let arms: toml::Table = take(&mut agents, "arms")?.unwrap_or_default();
+        let names: Vec<String> =
+            take(&mut agents, "variants")?.unwrap_or_else(|| ["baseline", "swap", "mem"].map(String::from).to_vec());
         let seeds: Vec<u64> = take(&mut agents, "seeds")?.unwrap_or(vec![0]);
         let batch: Option<usize> = take(&mut agents, "batch")?;
         if batch == Some(0) {
             bail!("[agents] batch = 0: must be at least 1 (1 trains the agents one after another)");
         }
-        if algos.is_empty() || variants.is_empty() || seeds.is_empty() {
+        if algos.is_empty() || names.is_empty() || seeds.is_empty() {
             bail!("[agents]: algos, variants and seeds must not be empty");
         }
         // A repeated entry would name two cells of the grid alike: both would claim one agent's
@@ -214,19 +232,27 @@ impl Pipeline {
         if let Some(a) = repeated(&algos) {
             bail!("[agents] algos: {:?} is listed twice; each cell of the grid is one agent", a.name());
         }
-        if let Some(v) = repeated(&variants) {
-            bail!("[agents] variants: {:?} is listed twice; each cell of the grid is one agent", v.name());
+        if let Some(v) = repeated(&names) {
+            bail!("[agents] variants: {v:?} is listed twice; each cell of the grid is one agent");
         }
         if let Some(s) = repeated(&seeds) {
             bail!("[agents] seeds: {s} is listed twice; each cell of the grid is one agent");
         }
+        let variants = arms_of(&names, arms)?;
+        let mut pretrain = f.pretrain;
+        let q_checkpoint = match pretrain.remove("checkpoint") {
+            None => None,
+            Some(toml::Value::String(c)) => Some(resolve(&c)),
+            Some(v) => bail!("[pretrain] checkpoint = {v}: must be a path (a string)"),
+        };
         let p = Pipeline {
             name: f.name,
             task: f.task,
             out: resolve(&f.out),
             data,
             train: f.train,
-            pretrain: f.pretrain,
+            pretrain,
+            q_checkpoint,
             score: f.score,
             report: f.report,
             agents: Agents { algos, variants, seeds, batch, train: agents },
@@ -234,7 +260,9 @@ impl Pipeline {
         };
         // Fail now, not after an hour of training, on a misspelt setting.
         p.pretrain_config()?;
-        p.agent_config(p.agents.algos[0], p.agents.variants[0], p.agents.seeds[0])?;
+        for arm in &p.agents.variants {
+            p.agent_config(p.agents.algos[0], arm, p.agents.seeds[0])?;
+        }
         Ok(p)
     }
 
@@ -247,14 +275,57 @@ impl Pipeline {
         train_config(&[&base, &self.train, &self.pretrain]).context("[pretrain]")
     }
 
-    /// One grid cell's settings.
-    pub fn agent_config(&self, algo: Algo, variant: Variant, seed: u64) -> Result<TrainConfig> {
+    /// One grid cell's settings: `[train]` ← `[agents]` ← the arm's ← the cell's algo, seed and
+    /// the swapping its variant means.
+    pub fn agent_config(&self, algo: Algo, arm: &Arm, seed: u64) -> Result<TrainConfig> {
         let mut cell = toml::Table::new();
         cell.insert("algo".into(), serde_json::to_value(algo)?.as_str().unwrap_or_default().into());
         cell.insert("seed".into(), toml::Value::Integer(seed as i64));
-        cell.insert("swap".into(), if variant == Variant::Swap { "random" } else { "none" }.into());
-        train_config(&[&self.train, &self.agents.train, &cell]).context("[agents]")
+        cell.insert("swap".into(), if arm.variant == Variant::Swap { "random" } else { "none" }.into());
+        let section = if arm.train.is_empty() { "[agents]".to_string() } else { format!("[agents.arms.{}]", arm.name) };
+        train_config(&[&self.train, &self.agents.train, &arm.train, &cell]).context(section)
     }
+}
+
+/// The arms `names` lists, each a plain variant or a key of `[agents.arms]` (a table with a
+/// `variant` and training settings). An arm that no name lists is an error, as a misspelt key
+/// would be: its cells would silently not run.
+fn arms_of(names: &[String], mut arms: toml::Table) -> Result<Vec<Arm>> {
+    let mut out = Vec::new();
+    for name in names {
+        let arm = match arms.remove(name) {
+            Some(toml::Value::Table(mut t)) => {
+                if matches!(name.as_str(), "baseline" | "swap" | "mem") {
+                    bail!("[agents.arms.{name}]: an arm cannot take a variant's name; call it e.g. \"{name}_2\"");
+                }
+                if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+                    bail!("[agents.arms.{name:?}]: an arm's name is letters, digits and _ only (it names files)");
+                }
+                let variant: Variant = match t.remove("variant") {
+                    Some(v) => v.try_into().with_context(|| format!("[agents.arms.{name}] variant"))?,
+                    None => bail!("[agents.arms.{name}]: give its variant (baseline, swap or mem)"),
+                };
+                if let Some(k) = ["algo", "seed", "swap"].iter().find(|k| t.contains_key(**k)) {
+                    bail!("[agents.arms.{name}] {k}: set by the grid (algos, seeds) and the variant, not by an arm");
+                }
+                Arm { name: name.clone(), variant, train: t }
+            }
+            Some(v) => bail!("[agents.arms] {name} = {v}: must be a table ([agents.arms.{name}])"),
+            None => {
+                let variant: Variant = toml::Value::String(name.clone()).try_into().map_err(|_| {
+                    anyhow::anyhow!(
+                        "[agents] variants: {name:?} is neither baseline, swap, mem nor an arm of [agents.arms]"
+                    )
+                })?;
+                Arm { name: name.clone(), variant, train: toml::Table::new() }
+            }
+        };
+        out.push(arm);
+    }
+    if let Some(name) = arms.keys().next() {
+        bail!("[agents.arms.{name}] is not listed in [agents] variants, so it would never train");
+    }
+    Ok(out)
 }
 
 fn take<T: serde::de::DeserializeOwned>(t: &mut toml::Table, key: &str) -> Result<Option<T>> {
@@ -338,6 +409,7 @@ pub fn normalize(p: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampler::priority::PriorityKind;
 
     const MIN: &str = r#"
         name = "t"
@@ -366,7 +438,7 @@ mod tests {
             }
             d => panic!("{d:?}"),
         }
-        let c = p.agent_config(Algo::Td3, Variant::Swap, 1).unwrap();
+        let c = p.agent_config(Algo::Td3, &p.agents.variants[1], 1).unwrap();
         assert_eq!((c.batch_size, c.updates, c.seed), (64, 300, 1));
         assert_eq!(c.agent.lr, Some(0.001));
         assert_eq!(c.agent.algo, Algo::Td3);
@@ -374,7 +446,46 @@ mod tests {
         assert_eq!(c.priority.priority_alpha, 0.5);
         let q = p.pretrain_config().unwrap();
         assert_eq!((q.agent.algo, q.sampler.swap, q.updates), (Algo::Td3bc, crate::sampler::Swap::Random, 500_000));
-        assert_eq!(p.agents.variants, [Variant::Baseline, Variant::Swap, Variant::Mem]);
+        let variants: Vec<_> = p.agents.variants.iter().map(|a| (a.name.as_str(), a.variant)).collect();
+        assert_eq!(variants, [("baseline", Variant::Baseline), ("swap", Variant::Swap), ("mem", Variant::Mem)]);
+        assert_eq!(p.q_checkpoint, None);
+    }
+
+    /// Named arms: `-mem` twice with other priority settings, in the order `variants` lists
+    /// them, each cell with its arm's settings over `[agents]`'s; and a Q given by path.
+    #[test]
+    fn named_arms_and_a_given_q() {
+        let text = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"mem\", \"mem_a3\", \"rank\"]")
+            + "[agents.arms.mem_a3]\nvariant = \"mem\"\npriority_alpha = 3.0\n\
+               [agents.arms.rank]\nvariant = \"mem\"\npriority = \"rank\"\n\
+               [pretrain]\ncheckpoint = \"../q/q.ckpt\"\nupdates = 10\n";
+        let p = Pipeline::parse(&text, Path::new("pipes/t.toml")).unwrap();
+        let names: Vec<_> = p.agents.variants.iter().map(|a| (a.name.as_str(), a.variant)).collect();
+        assert_eq!(names, [("mem", Variant::Mem), ("mem_a3", Variant::Mem), ("rank", Variant::Mem)]);
+        let cfg = |i: usize| p.agent_config(Algo::Td3bc, &p.agents.variants[i], 0).unwrap();
+        assert_eq!((cfg(0).priority.priority_alpha, cfg(0).priority.priority), (0.5, PriorityKind::Q));
+        assert_eq!((cfg(1).priority.priority_alpha, cfg(1).priority.priority), (3.0, PriorityKind::Q));
+        assert_eq!((cfg(2).priority.priority_alpha, cfg(2).priority.priority), (0.5, PriorityKind::Rank));
+        assert_eq!(cfg(1).sampler.swap, crate::sampler::Swap::None);
+        assert_eq!(p.q_checkpoint.as_deref(), Some(Path::new("q/q.ckpt")));
+        assert_eq!(p.pretrain_config().unwrap().updates, 10, "checkpoint is not a training setting");
+
+        let err = |text: &str| format!("{:#}", Pipeline::parse(text, Path::new("t.toml")).unwrap_err());
+        let arm = |body: &str| {
+            MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"mem\", \"a\"]") + "[agents.arms.a]\n" + body
+        };
+        assert!(err(&arm("priority_alpha = 3.0")).contains("[agents.arms.a]: give its variant"));
+        assert!(err(&arm("variant = \"best\"")).contains("[agents.arms.a] variant"));
+        assert!(err(&arm("variant = \"mem\"\npriority_alpha = \"x\"")).contains("[agents.arms.a]"));
+        assert!(err(&arm("variant = \"mem\"\nprioirty = \"rank\"")).contains("prioirty"));
+        assert!(err(&arm("variant = \"mem\"\nseed = 3")).contains("[agents.arms.a] seed: set by the grid"));
+        let unlisted = MIN.to_string() + "[agents.arms.b]\nvariant = \"mem\"\n";
+        assert!(err(&unlisted).contains("[agents.arms.b] is not listed"), "{}", err(&unlisted));
+        let named_mem = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"mem\"]")
+            + "[agents.arms.mem]\nvariant = \"mem\"\n";
+        assert!(err(&named_mem).contains("cannot take a variant's name"));
+        let bad_q = MIN.to_string() + "[pretrain]\ncheckpoint = 3\n";
+        assert!(err(&bad_q).contains("[pretrain] checkpoint = 3: must be a path"));
     }
 
     #[test]

@@ -26,6 +26,7 @@ mod paper;
 mod plot;
 mod qreport;
 mod results;
+mod share;
 mod spread;
 mod table2;
 
@@ -42,6 +43,7 @@ pub use results::{
     ALPHA, BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_from_summary, welch_greater,
     welch_t_test,
 };
+pub use share::{PriorityShares, Share, parse_setting};
 pub use spread::{Block, Pooled, ScoreCell, pool, read_scores};
 pub use table2::{Table2, Table2Cell, Table2Options, table2};
 

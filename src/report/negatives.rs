@@ -44,7 +44,15 @@ pub struct Negatives {
 
 /// Reads `scored` once and draws both samples. `keys` are the positive transitions as (episode,
 /// step), strictly increasing; every one must have at least one swapped row in the table.
-pub fn negatives(scored: &Path, keys: &[(i64, i32)], k: usize, seed: u64) -> Result<Negatives> {
+/// `each_q` sees every row's q in table order (the priority shares, [`super::share`], come from
+/// the same pass).
+pub fn negatives(
+    scored: &Path,
+    keys: &[(i64, i32)],
+    k: usize,
+    seed: u64,
+    each_q: &mut dyn FnMut(f64),
+) -> Result<Negatives> {
     let at = scored.display();
     if let Some(w) = keys.windows(2).find(|w| w[0] >= w[1]) {
         bail!("{at}: positive transitions out of order at (episode {}, step {}); they must increase", w[1].0, w[1].1);
@@ -86,14 +94,15 @@ pub fn negatives(scored: &Path, keys: &[(i64, i32)], k: usize, seed: u64) -> Res
             .with_context(|| format!("{at}: no float32 column q"))?;
         for i in 0..batch.num_rows() {
             row += 1;
-            if goal_step.value(i) < 0 {
-                continue;
-            }
             let v = q.value(i);
             if !v.is_finite() {
                 bail!("{at}: row {} has q = {v}; the table is damaged", row - 1);
             }
             let v = f64::from(v);
+            each_q(v);
+            if goal_step.value(i) < 0 {
+                continue;
+            }
             // Algorithm R over all swapped rows.
             if paper.len() < k {
                 paper.push(v);

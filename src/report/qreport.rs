@@ -22,10 +22,12 @@ use serde::Serialize;
 use super::classify::{ClassifierScore, classify};
 use super::negatives::{Negatives, negatives};
 use super::plot::{self, HistSeries, PALETTE};
+use super::share::{PriorityShares, ShareCounter, median, shares_markdown};
 use super::{FIG_SIZE, ensure_dir, write_text};
 use crate::agent::{Backend, checkpoint};
 use crate::nprandom::NpRandom;
 use crate::output::sha256_file;
+use crate::sampler::priority::PriorityConfig;
 use crate::score::{self, Q_BATCH};
 use crate::trajectory::{self, Episodes};
 
@@ -53,6 +55,9 @@ pub struct QReportOptions {
     /// 2000 overlapping rows take ≈ 12 s on one core, well separated ones well under 1 s.
     pub svm_max_train: usize,
     pub seed: u64,
+    /// Priority settings whose share of draws above the own-goal median the report gives
+    /// ([`super::share`]): the `-mem` arms' (the pipeline passes them), `q` at α = 1 by default.
+    pub priorities: Vec<PriorityConfig>,
 }
 
 impl Default for QReportOptions {
@@ -65,6 +70,7 @@ impl Default for QReportOptions {
             max_samples: 20_000,
             svm_max_train: 2_000,
             seed: 0,
+            priorities: vec![PriorityConfig::default()],
         }
     }
 }
@@ -88,6 +94,8 @@ pub struct QReport {
     pub classifiers: Vec<ClassifierScore>,
     /// Table 1 with controlled negatives: the positive transitions with swapped goals.
     pub controlled: ControlledTable1,
+    /// How much of each priority setting's draws lies above the positives' median Q.
+    pub priority: PriorityShares,
     /// Fig. 5's two histograms as drawn, so a figure across tasks (`pgser-etl fig5`) is drawn
     /// from the reports' table1.json alone, without their scored tables and checkpoints.
     pub fig5_hist: Fig5Hist,
@@ -122,6 +130,8 @@ pub struct ControlledTable1 {
 #[derive(Debug, Clone)]
 pub struct Table1 {
     pub negatives: Negatives,
+    /// The priority shares of `o.priorities` over the same pass.
+    pub shares: PriorityShares,
     /// Classifiers of positives vs the paper's negatives.
     pub paper: Vec<ClassifierScore>,
     /// Classifiers of positives vs the controlled negatives.
@@ -131,14 +141,16 @@ pub struct Table1 {
 /// Draws both sets of negatives from `scored` for the positive transitions `keys` (episode,
 /// step; strictly increasing) whose Q is `positives`, as many of each as there are positives,
 /// and runs the classifiers on each with `o`'s seed, split and SVC size.
-pub fn table1(scored: &Path, positives: &[f64], keys: &[(i64, i32)], o: &QReportOptions) -> Result<Table1> {
+/// `gamma` is the critic's discount (the `q` priorities' scale).
+pub fn table1(scored: &Path, positives: &[f64], keys: &[(i64, i32)], gamma: f64, o: &QReportOptions) -> Result<Table1> {
     if positives.len() != keys.len() {
         bail!("{}: {} positive Q values for {} transitions", scored.display(), positives.len(), keys.len());
     }
-    let negatives = negatives(scored, keys, positives.len(), o.seed)?;
+    let mut shares = ShareCounter::new(median(positives), gamma, &o.priorities)?;
+    let negatives = negatives(scored, keys, positives.len(), o.seed, &mut |q| shares.add(q))?;
     let paper = classify(positives, &negatives.paper, o.test_fraction, o.svm_max_train, o.seed)?;
     let controlled = classify(positives, &negatives.controlled, o.test_fraction, o.svm_max_train, o.seed)?;
-    Ok(Table1 { negatives, paper, controlled })
+    Ok(Table1 { negatives, shares: shares.finish(), paper, controlled })
 }
 
 /// Writes `out_dir/fig5_q_hist.png`, `out_dir/table1.md` and `out_dir/table1.json`.
@@ -181,7 +193,7 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     }
 
     // Negatives: the table's q of its swapped rows, as many as positives, both ways.
-    let t = table1(&o.scored, &positives, &keys, o)?;
+    let t = table1(&o.scored, &positives, &keys, footer.gamma, o)?;
     let negatives = &t.negatives.paper;
 
     ensure_dir(&o.out_dir)?;
@@ -228,6 +240,7 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
             negative_q_mean: mean(&t.negatives.controlled),
             classifiers: t.controlled,
         },
+        priority: t.shares,
         fig5_hist: Fig5Hist {
             lo,
             hi: 0.0,
@@ -271,6 +284,7 @@ pub fn table1_markdown(r: &QReport) -> String {
           (s, a) from random (s, a); the controlled negatives are the positives' own transitions with another goal, \
           so the controlled accuracy is what Q knows about the goal alone, and the gap between the two tables is \
           what the data source adds.\n";
+    s += &shares_markdown(&r.priority);
     s
 }
 

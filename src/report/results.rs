@@ -55,8 +55,8 @@ pub struct ResultRow {
     /// Sample std over seeds; NaN (JSON null) with one seed.
     pub paper_score_std: f64,
     pub success_mean: f64,
-    /// Welch's two-sided p of `mem` against `baseline` / `swap` of the same task and algorithm;
-    /// None for other variants, a missing counterpart, or fewer than 2 seeds on either side.
+    /// Welch's two-sided p of `mem` (or a named arm) against `baseline` / `swap` of the same task
+    /// and algorithm; None for baseline and swap themselves, a missing counterpart, or fewer than 2 seeds on either side.
     pub p_vs_baseline: Option<f64>,
     pub p_vs_swap: Option<f64>,
     /// Welch's one-sided p of the same pairs for H1: mem's mean > the reference's (near 1 when
@@ -127,7 +127,7 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
     for g in &groups {
         // (two-sided p, one-sided p of H1: mem > other).
         let p_vs = |other: &str| -> Option<(f64, f64)> {
-            if g.variant != "mem" {
+            if !tested(&g.variant) {
                 return None;
             }
             let theirs = &group_of(&g.task, &g.algo, other)?.scores;
@@ -137,7 +137,7 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
         let (m, s) = mean_std(&g.scores);
         let pooled = pooled_episodes(g);
         let p_episodes_vs = |other: &str| -> Option<f64> {
-            if g.variant != "mem" {
+            if !tested(&g.variant) {
                 return None;
             }
             let (mine, theirs) = (pooled?, pooled_episodes(group_of(&g.task, &g.algo, other)?)?);
@@ -417,7 +417,7 @@ pub fn results_markdown(r: &Results) -> String {
 fn legend() -> String {
     format!(
         "\np: Welch's two-sided t-test (unequal variances) of the per-seed final paper scores of mem against \
-         baseline / swap; {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
+         baseline / swap (and of each named arm, an ablation of mem); {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
          worse (lower mean); no mark: no significant difference. results.csv adds the paper's one-sided test, \
          mem outperforms the reference (Welch, H1: mem mean > reference mean), as p_one_sided_vs_baseline and \
          p_one_sided_vs_swap.\n"
@@ -582,6 +582,12 @@ fn algo_rank(algo: &str) -> u32 {
         "td3bc" => 1,
         _ => 2,
     }
+}
+
+/// Whether a group is tested against baseline and swap: mem, and every named arm of a pipeline
+/// (`[agents.arms]`: -mem at another α, with rank priorities, …), which are ablations of it.
+fn tested(variant: &str) -> bool {
+    !matches!(variant, "baseline" | "swap")
 }
 
 /// Table order: baseline, swap, mem, then anything else by name.

@@ -67,6 +67,12 @@ impl PriorityConfig {
         Ok(())
     }
 
+    /// `--priority q`'s priority of a row with critic value `q`, for Q's lower bound `lo`
+    /// = −1/(1−γ): (clip(q, lo, 0) − lo + ε)^α.
+    pub fn q_priority(&self, q: f64, lo: f64) -> f64 {
+        (q.clamp(lo, 0.0) - lo + self.priority_eps).powf(self.priority_alpha)
+    }
+
     /// Priorities of rows with critic values `q`, for a critic trained with discount `gamma`,
     /// computed in place: a scored table of 80M rows must not need a second array of them.
     /// Fails on invalid settings, on a q that is not a number (naming its row), and when no row
@@ -81,7 +87,7 @@ impl PriorityConfig {
             PriorityKind::Q => {
                 let lo = -1.0 / (1.0 - gamma);
                 for x in q.iter_mut() {
-                    *x = ((*x as f64).clamp(lo, 0.0) - lo + self.priority_eps).powf(a) as f32;
+                    *x = self.q_priority(*x as f64, lo) as f32;
                 }
             }
             PriorityKind::Rank => {

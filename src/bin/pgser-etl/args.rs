@@ -120,7 +120,9 @@ pub enum Command {
         Positives: the transitions of the first N episodes of the scored table's source with their own goals, \
         scored with the checkpoint its footer names (N defaults to the episodes taken from the first source \
         file, the expert one in `convert expert.pkl random.pkl`). Negatives: as many goal-swapped rows of the \
-        table. Writes DIR/fig5_q_hist.png, DIR/table1.md and DIR/table1.json.")]
+        table. Writes DIR/fig5_q_hist.png, DIR/table1.md and DIR/table1.json. Beneath Table 1: for each --share \
+        setting, the share of the -mem sampler's draws whose Q lies above the positives' median, against uniform \
+        drawing's.")]
     Report {
         /// A transition table from `pgser-etl score`.
         scored: PathBuf,
@@ -139,6 +141,10 @@ pub enum Command {
         /// At most this many training rows for the SVC (its training time grows as n² or faster).
         #[arg(long, default_value_t = 2_000)]
         svm_max_train: usize,
+        /// A priority setting KIND[:ALPHA[:EPS]] (q:1, q:3, rank:1, uniform) whose share of draws
+        /// above the own-goal median Q to report; repeat for several [default: q:1].
+        #[arg(long = "share", value_parser = parse_share)]
+        shares: Vec<pgser::sampler::priority::PriorityConfig>,
         /// Print the report as JSON instead of the markdown table.
         #[arg(long)]
         json: bool,
@@ -373,4 +379,8 @@ pub enum PipelineCommand {
         #[arg(long)]
         json: bool,
     },
+}
+
+fn parse_share(s: &str) -> Result<pgser::sampler::priority::PriorityConfig, String> {
+    pgser::report::parse_setting(s).map_err(|e| e.to_string())
 }

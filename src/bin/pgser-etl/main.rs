@@ -205,7 +205,8 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Report { scored, output, positive_episodes, seed, max_samples, svm_max_train, json } => {
+        Command::Report { scored, output, positive_episodes, seed, max_samples, svm_max_train, shares, json } => {
+            let defaults = report::QReportOptions::default();
             let opts = report::QReportOptions {
                 scored,
                 out_dir: output,
@@ -213,7 +214,8 @@ fn main() -> ExitCode {
                 max_samples,
                 svm_max_train,
                 seed,
-                ..Default::default()
+                priorities: if shares.is_empty() { defaults.priorities.clone() } else { shares },
+                ..defaults
             };
             let r = report::q_report(&opts)?;
             if json {
