@@ -468,3 +468,108 @@ fn pipeline_files_the_fuzzer_found_fail_in_one_line() {
     }
     assert!(n > 0, "no inputs in tests/fixtures/fuzz/pipeline");
 }
+
+/// A Q given by path (`[pretrain] checkpoint`) replaces the pre-training, and named arms train
+/// beside -mem: each arm's cells are its own, tested against baseline in results.csv, and the
+/// report gives each -mem arm's share of draws above the own-goal median. A study joins them.
+#[test]
+fn named_arms_train_from_a_given_q_and_a_study_joins_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = pipeline(dir.path(), 20, 4);
+    run(&first, &["--until", "score"]);
+    let given = dir.path().join("given_q.ckpt");
+    std::fs::copy(dir.path().join("out/q.ckpt"), &given).unwrap();
+
+    let arms = dir.path().join("arms");
+    std::fs::create_dir(&arms).unwrap();
+    let rest = format!(
+        r#"[train]
+batch_size = 64
+eval_every = 0
+eval_episodes = 4
+save_every = 0
+[pretrain]
+checkpoint = "{}"
+updates = 40
+[agents]
+variants = ["baseline", "mem", "mem_a3", "mem_rank"]
+seeds = [0, 1]
+updates = 20
+[agents.arms.mem_a3]
+variant = "mem"
+priority_alpha = 3.0
+[agents.arms.mem_rank]
+variant = "mem"
+priority = "rank"
+"#,
+        given.display()
+    );
+    let file = common::sample_pipeline(&arms, "arms.toml", "arms", &rest);
+    let steps = run(&file, &[]);
+    assert!(!steps.contains_key("pretrain"), "a given Q is not trained again: {steps:?}");
+    for id in ["baseline_s0", "mem_s1", "mem_a3_s0", "mem_rank_s1"] {
+        assert_eq!(steps.get(&format!("agent td3bc_{id}")).map(String::as_str), Some("ran"), "{steps:?}");
+    }
+    let out = arms.join("out");
+    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    for arm in ["mem_a3", "mem_rank"] {
+        let row = csv
+            .lines()
+            .find(|l| l.starts_with(&format!("FetchReach,td3bc,{arm},2,")))
+            .unwrap_or_else(|| panic!("{csv}"));
+        let p_vs_baseline = row.split(',').nth(7).unwrap();
+        assert!(p_vs_baseline.parse::<f64>().is_ok_and(|p| (0.0..=1.0).contains(&p)), "{row}");
+    }
+    let t1: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report/table1.json")).unwrap()).unwrap();
+    let settings: Vec<(String, f64)> = t1["priority"]["settings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["priority"].as_str().unwrap().to_string(), s["priority_alpha"].as_f64().unwrap()))
+        .collect();
+    assert_eq!(settings, [("q".to_string(), 1.0), ("q".to_string(), 3.0), ("rank".to_string(), 1.0)]);
+    assert_eq!(t1["priority"]["rows"].as_u64(), t1["negatives_available"].as_u64());
+
+    // The same Q at another path is another scored table's footer: score runs again, and only
+    // the steps whose inputs then change follow it.
+    let moved = dir.path().join("moved_q.ckpt");
+    std::fs::rename(&given, &moved).unwrap();
+    std::fs::write(&file, std::fs::read_to_string(&file).unwrap().replace("given_q.ckpt", "moved_q.ckpt")).unwrap();
+    let again = run(&file, &[]);
+    assert_eq!(again["score"], "ran", "{again:?}");
+    assert_eq!(again["agent td3bc_baseline_s0"], "up to date");
+
+    // A study of the arms against the baseline.
+    let study = dir.path().join("study.toml");
+    let arm = |label: &str, variant: &str, x: &str, priority: &str| {
+        format!(
+            "[[arm]]\nlabel = \"{label}\"\nresults = \"arms/out\"\nvariant = \"{variant}\"\n{x}{priority}report = \"arms/out/report\"\n"
+        )
+    };
+    std::fs::write(
+        &study,
+        format!(
+            "name = \"s\"\ntitle = \"arms\"\nout = \"study\"\ntask = \"FetchReach\"\nalgo = \"td3bc\"\nx_label = \"α\"\n\
+             [[arm]]\nlabel = \"baseline\"\nresults = \"arms/out\"\nvariant = \"baseline\"\n{}{}",
+            arm("q α=1", "mem", "x = 1\nseries = \"q\"\n", ""),
+            arm("q α=3", "mem_a3", "x = 3\nseries = \"q\"\n", "priority = \"q:3\"\n"),
+        ),
+    )
+    .unwrap();
+    let o = etl().args(["study"]).arg(&study).arg("--json").output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let s = last_json(&text(&o.stdout));
+    let rows = s["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    assert_eq!(rows[2]["share_above"], t1["priority"]["settings"][1]["share_above"]);
+    assert!(rows[1]["p"][0].as_f64().is_some() && rows[0]["p"].as_array().unwrap().is_empty(), "{s}");
+    for f in ["study.md", "study.csv", "study.png"] {
+        assert!(dir.path().join("study").join(f).exists(), "{f}");
+    }
+    // An arm whose report lacks its priority is named.
+    std::fs::write(&study, std::fs::read_to_string(&study).unwrap().replace("q:3", "q:2")).unwrap();
+    let o = etl().args(["study"]).arg(&study).output().unwrap();
+    let e = text(&o.stderr);
+    assert!(!o.status.success() && e.contains("arm 3") && e.contains("no share for priority q:2"), "{e}");
+}

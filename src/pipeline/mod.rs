@@ -237,10 +237,12 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         }),
     });
 
-    // The Q: the one `[pretrain] checkpoint` names when that file exists (keyed by its bytes, so
-    // a copy elsewhere is the same Q), else the `pretrain` step's.
-    let q = match &p.q_checkpoint {
-        Some(given) if given.exists() => given.clone(),
+    // The Q: the one `[pretrain] checkpoint` names when that file exists, else the `pretrain`
+    // step's. The scored table's footer names the Q's path, and the report reads the Q from there,
+    // so a given Q's path is part of the score step's key as well as its bytes.
+    let given_q = p.q_checkpoint.as_ref().filter(|q| q.exists());
+    let q = match given_q {
+        Some(given) => given.clone(),
         _ => {
             let q = out.join("q.ckpt");
             steps.push(train_step("pretrain", &traj, &q, p.pretrain_config()?));
@@ -251,8 +253,12 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     let s = &p.score;
     steps.push(Step {
         name: "score".into(),
-        params: json!({"swaps": s.swaps, "seed": s.seed, "include_original": s.include_original,
-                       "chunk_episodes": s.chunk_episodes}),
+        params: match given_q {
+            None => json!({"swaps": s.swaps, "seed": s.seed, "include_original": s.include_original,
+                           "chunk_episodes": s.chunk_episodes}),
+            Some(q) => json!({"swaps": s.swaps, "seed": s.seed, "include_original": s.include_original,
+                              "chunk_episodes": s.chunk_episodes, "q": q}),
+        },
         inputs: vec![q.clone(), traj.clone()],
         outputs: vec![scored.clone()],
         action: Action::Score(score::ScoreOptions {

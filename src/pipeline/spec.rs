@@ -63,7 +63,7 @@ pub struct Pipeline {
     /// `[pretrain]`: the Q of Alg. 2 step 1 (TD3+BC with random swapping unless overridden).
     pub pretrain: toml::Table,
     /// `[pretrain] checkpoint`: a Q trained elsewhere, scored with instead of pre-training one
-    /// (keyed by its bytes, not its path). When the file is absent the `pretrain` step trains
+    /// (keyed by its bytes and its path, which the scored table names). When the file is absent the `pretrain` step trains
     /// one into `out/q.ckpt` as `[pretrain]` says, as `expert_checkpoint` does for the expert.
     pub q_checkpoint: Option<PathBuf>,
     pub score: ScoreSpec,

@@ -28,6 +28,7 @@ mod qreport;
 mod results;
 mod share;
 mod spread;
+mod study;
 mod table2;
 
 use std::io::Write;
@@ -45,6 +46,7 @@ pub use results::{
 };
 pub use share::{PriorityShares, Share, parse_setting};
 pub use spread::{Block, Pooled, ScoreCell, pool, read_scores};
+pub use study::{Study, StudyRow, study};
 pub use table2::{Table2, Table2Cell, Table2Options, table2};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.

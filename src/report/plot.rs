@@ -58,6 +58,19 @@ fn frame<'a, 'b>(
     y: std::ops::Range<f64>,
     margin_right: u32,
 ) -> Result<Chart<'a, 'b>> {
+    frame_with(root, title, (x_label, y_label), x, y, margin_right, &|x| format!("{x:.0}"))
+}
+
+/// [`frame`] with the x axis's labels written by `x_fmt`.
+fn frame_with<'a, 'b>(
+    root: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    title: &str,
+    (x_label, y_label): (&str, &str),
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    margin_right: u32,
+    x_fmt: &dyn Fn(&f64) -> String,
+) -> Result<Chart<'a, 'b>> {
     let mut chart = ChartBuilder::on(root)
         .caption(title, (FAMILY, 22))
         .margin(15)
@@ -68,7 +81,7 @@ fn frame<'a, 'b>(
         .map_err(|e| anyhow!("{e}"))?;
     chart
         .configure_mesh()
-        .x_label_formatter(&|x| format!("{x:.0}"))
+        .x_label_formatter(x_fmt)
         .x_desc(x_label)
         .y_desc(y_label)
         .label_style((FAMILY, 14))
@@ -337,6 +350,95 @@ pub fn mean_std_curves(
         }
         let spans: Vec<Span> = curves.iter().flat_map(curve_spans).collect();
         legend(&mut chart, &spans, curves.iter().map(|c| c.label.as_str()))
+    })
+}
+
+/// Points of one series: (x, mean, std), joined in x order.
+pub struct PointSeries {
+    pub label: String,
+    pub points: Vec<(f64, f64, f64)>,
+}
+
+/// A study's figure: each series as points with ±std error bars joined by a line, and each
+/// reference `(label, mean, std)` as a band across the whole x range (a result that does not
+/// depend on x: the baseline, `-swap`). `log_x` labels the axis 10^x (x given as log10).
+pub fn points_and_bands(
+    path: &Path,
+    size: (u32, u32),
+    title: &str,
+    (x_label, log_x): (&str, bool),
+    y_label: &str,
+    series: &[PointSeries],
+    bands: &[(String, f64, f64)],
+) -> Result<()> {
+    let xs = series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
+    let (x0, x1) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    let (x0, x1) = if x0.is_finite() { (x0, x1) } else { (0.0, 1.0) };
+    let pad = if x1 > x0 { 0.08 * (x1 - x0) } else { 0.5 };
+    let (x0, x1) = (x0 - pad, x1 + pad);
+    let ys = series.iter().flat_map(|s| s.points.iter().flat_map(|(_, m, d)| [m - d.max(0.0), m + d.max(0.0)]));
+    let ys = ys.chain(bands.iter().flat_map(|(_, m, d)| [m - d.max(0.0), m + d.max(0.0)]));
+    let (y0, y1) =
+        ys.filter(|y| y.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+    let ypad = if y1 > y0 { 0.08 * (y1 - y0) } else { 1.0 };
+    let (y0, y1) = if y0.is_finite() { (y0 - ypad, y1 + ypad) } else { (0.0, 1.0) };
+    let fmt = move |x: &f64| {
+        if !log_x {
+            return format!("{x}");
+        }
+        let v = 10f64.powf(*x);
+        match v {
+            v if v >= 1e6 => format!("{}M", (v / 1e6 * 10.0).round() / 10.0),
+            v if v >= 1e3 => format!("{}k", (v / 1e3).round()),
+            v => format!("{v:.0}"),
+        }
+    };
+    save_png(path, size, |root| {
+        let mut chart = frame_with(root, title, (x_label, y_label), x0..x1, y0..y1, 40, &fmt)?;
+        let mut spans: Vec<Span> = Vec::new();
+        for (i, (label, m, d)) in bands.iter().enumerate() {
+            let color = PALETTE[(series.len() + i) % PALETTE.len()];
+            let d = if d.is_finite() { *d } else { 0.0 };
+            chart
+                .draw_series(std::iter::once(Rectangle::new([(x0, m - d), (x1, m + d)], color.mix(0.15).filled())))
+                .map_err(|e| anyhow!("{e}"))?;
+            chart
+                .draw_series(LineSeries::new([(x0, *m), (x1, *m)], color.stroke_width(2)))
+                .map_err(|e| anyhow!("{e}"))?
+                .label(label.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+            let steps = 16;
+            spans.extend((0..=steps).map(|k| (x0 + (x1 - x0) * k as f64 / steps as f64, m - d, m + d)));
+        }
+        for (i, s) in series.iter().enumerate() {
+            let color = PALETTE[i % PALETTE.len()];
+            let mut points = s.points.clone();
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let dx = 0.01 * (x1 - x0);
+            for &(x, m, d) in &points {
+                let d = if d.is_finite() { d } else { 0.0 };
+                let bar = [
+                    vec![(x, m - d), (x, m + d)],
+                    vec![(x - dx, m - d), (x + dx, m - d)],
+                    vec![(x - dx, m + d), (x + dx, m + d)],
+                ];
+                chart
+                    .draw_series(bar.into_iter().map(|p| PathElement::new(p, color.stroke_width(2))))
+                    .map_err(|e| anyhow!("{e}"))?;
+                spans.push((x, m - d, m + d));
+            }
+            chart
+                .draw_series(points.iter().map(|&(x, m, _)| Circle::new((x, m), 5, color.filled())))
+                .map_err(|e| anyhow!("{e}"))?;
+            chart
+                .draw_series(LineSeries::new(points.iter().map(|&(x, m, _)| (x, m)), color.stroke_width(2)))
+                .map_err(|e| anyhow!("{e}"))?
+                .label(s.label.clone())
+                .legend(move |(x, y)| Circle::new((x + 9, y), 5, color.filled()));
+        }
+        let labels: Vec<&str> =
+            bands.iter().map(|b| b.0.as_str()).chain(series.iter().map(|s| s.label.as_str())).collect();
+        legend(&mut chart, &spans, labels.into_iter())
     })
 }
 

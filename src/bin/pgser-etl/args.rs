@@ -166,6 +166,19 @@ pub enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// A study across pipelines: arms that differ in one thing (Q's budget, the priority), in one table and one figure.
+    #[command(after_help = "Example:\n  pgser-etl study pipelines/fetch_push_qbudget_study.toml\n\n\
+        The file lists [[arm]]s, each a pipeline's results folder (its results.csv) and the variant or named arm to \
+        take from it, optionally the report of the Q it sampled with (table1.json) and the priority it drew with. \
+        Arms with x are the study's points, joined by series; arms without are references, each point tested \
+        against each (Welch, two-sided, over seed means). Writes OUT/study.md, study.csv and study.png.")]
+    Study {
+        /// The study file (TOML).
+        file: PathBuf,
+        /// Print the rows as JSON instead of the markdown table.
+        #[arg(long)]
+        json: bool,
+    },
     /// The paper's Table 2 across tasks: several pipelines' results.csv in one table, the paper's values beside.
     #[command(
         after_help = "Examples:\n  pgser-etl table2 results/fetch_*_grid_cpu/results.csv results/hand_*_grid_cpu/results.csv -o table2/\n  \

@@ -226,6 +226,20 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
+        Command::Study { file, json } => {
+            let s = report::study(&file)?;
+            if json {
+                println!("{}", serde_json::to_string(&s)?);
+            } else {
+                print!(
+                    "{}",
+                    std::fs::read_to_string(&s.markdown)
+                        .with_context(|| format!("{}: cannot read", s.markdown.display()))?
+                );
+                eprintln!("wrote {}, {} and {}", s.markdown.display(), s.csv.display(), s.figure.display());
+            }
+            Ok(())
+        }
         Command::Fig5 { inputs, output } => {
             let f = report::fig5_all(&report::Fig5Options { inputs, out_dir: output })?;
             print!(
