@@ -97,13 +97,19 @@ fn is_identifier(s: &str) -> bool {
     c.next().is_some_and(|f| f.is_ascii_alphabetic() || f == '_') && c.all(|x| x.is_ascii_alphanumeric() || x == '_')
 }
 
-/// A lazy scan of one input by its extension: Parquet (see [`scan_parquet`]), or CSV with a
+/// A lazy scan of one input by its extension: Parquet (see [`scan_parquet`]) once every column
+/// chunk matches its checksum ([`crate::table::open_checked`]: polars decodes the file's pages
+/// unchecked, so a flipped bit would otherwise come back as another number), or CSV with a
 /// header and types inferred from every row (a results.csv has p columns that are empty on
 /// most rows).
 pub fn scan(path: &Path) -> Result<LazyFrame> {
     let at = path.display();
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-        Some("parquet" | "pq") => scan_parquet(path),
+        Some("parquet" | "pq") => {
+            // polars reads what it is given: the checksums are checked here, before it does.
+            crate::table::open_checked(path, None)?;
+            scan_parquet(path)
+        }
         Some("csv") => {
             let p = source(path)?;
             LazyCsvReader::new(p)

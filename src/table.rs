@@ -17,6 +17,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use arrow_array::RecordBatch;
 use arrow_schema::{DataType, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::arrow::arrow_writer::{ArrowColumnChunk, ArrowRowGroupWriterFactory, compute_leaves};
 use parquet::basic::{Compression, Encoding, ZstdLevel};
 use parquet::file::metadata::KeyValue;
@@ -387,10 +388,33 @@ pub fn footer_text(meta: &parquet::file::metadata::FileMetaData) -> Option<&str>
     meta.key_value_metadata()?.iter().find(|e| e.key == FOOTER_KEY)?.value.as_deref()
 }
 
-/// The `pgser` footer of a Parquet file, parsed.
+/// Opens a table with its checksums checked first: the column chunks of the top-level
+/// `columns` (None: all of them) against the footer's CRC-32s, and the footer against its own.
+/// Every door that hands a table's data on without decoding it through pgser (pyarrow through
+/// `pgser.read_table`, polars through `pgser-etl query`) comes through here, so a flipped bit
+/// gets the one-line error `pgser-etl verify` gives, never other numbers.
+pub fn open_checked(
+    path: &Path,
+    columns: Option<&[&str]>,
+) -> Result<(ParquetRecordBatchReaderBuilder<File>, Verifier)> {
+    let file = crate::output::open_input(path)?;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| {
+        format!("{}: not a readable Parquet file (its footer is corrupt or it was cut short)", path.display())
+    })?;
+    let verifier = Verifier::new(path, builder.metadata())?;
+    match columns {
+        None => verifier.check_all()?,
+        Some(names) => verifier.check(&verifier.columns_of(names))?,
+    }
+    Ok((builder, verifier))
+}
+
+/// The `pgser` footer of a Parquet file, parsed, after checking it against its checksum (a
+/// table without checksums is taken as it is).
 pub fn read_footer(path: &Path) -> Result<serde_json::Value> {
     let file = crate::output::open_input(path)?;
     let reader = SerializedFileReader::new(file).with_context(|| format!("{}: not a Parquet file", path.display()))?;
+    Verifier::new(path, reader.metadata())?;
     let text = footer_text(reader.metadata().file_metadata())
         .with_context(|| format!("{}: no `{FOOTER_KEY}` footer: not written by pgser", path.display()))?;
     serde_json::from_str(text)

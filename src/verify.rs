@@ -14,11 +14,9 @@ use std::io::Read;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde::Serialize;
 
 use crate::agent::checkpoint;
-use crate::table::Verifier;
 
 /// What `verify` found in one file.
 #[derive(Debug, Clone, Serialize)]
@@ -64,11 +62,7 @@ pub fn verify(path: &Path) -> Result<Report> {
 
 fn table(path: &Path) -> Result<Report> {
     let at = path.display();
-    let file = crate::output::open_input(path)?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-        .with_context(|| format!("{at}: not a readable Parquet file (its footer is corrupt or it was cut short)"))?;
-    let verifier = Verifier::new(path, builder.metadata())?;
-    verifier.check_all()?;
+    let (builder, verifier) = crate::table::open_checked(path, None)?;
     let footer = crate::table::footer_text(builder.metadata().file_metadata());
     let kind = footer
         .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())

@@ -96,6 +96,46 @@ fn a_flipped_bit_in_a_table_is_detected_or_harmless() {
     }
 }
 
+/// `pgser-etl query` hands a table to polars, which decodes its pages unchecked: at every flipped
+/// bit where `verify` refuses the file for its checksums (or cannot open it), the query's scan
+/// refuses it with the same line; elsewhere the query reads the written values, or fails in one
+/// line where polars' stricter footer parser refuses what arrow-rs reads past.
+#[test]
+fn query_refuses_what_verify_refuses_at_every_flipped_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (table, _) = reach_tables(tmp.path());
+    let all = |p: &Path| -> anyhow::Result<polars::prelude::DataFrame> {
+        let lf = pgser::query::scan(p)?;
+        pgser::query::collect(lf).map_err(|e| anyhow::anyhow!("{}", pgser::query::first_line(&e)))
+    };
+    let want = all(&table).unwrap();
+    let bad = tmp.path().join("bad.parquet");
+    let len = std::fs::metadata(&table).unwrap().len() as usize;
+    let (mut same_error, mut same_values) = (0, 0);
+    for (i, at) in positions(len, 200).into_iter().enumerate() {
+        flipped(&table, &bad, at, (i % 8) as u8);
+        let verified = pgser::verify::verify(&bad).map_err(|e| format!("{e:#}"));
+        let checked = pgser::table::open_checked(&bad, None).map(|_| ()).map_err(|e| format!("{e:#}"));
+        match (checked, all(&bad)) {
+            (Err(door), Err(e)) => {
+                assert_eq!(format!("{e:#}"), door, "byte {at}");
+                assert_eq!(verified.as_ref().unwrap_err(), &door, "byte {at}: verify says otherwise");
+                same_error += 1;
+            }
+            (Err(door), Ok(_)) => panic!("byte {at}: {door}, yet the query read the file"),
+            (Ok(()), Ok(got)) => {
+                assert!(got.equals_missing(&want), "byte {at}: the query read other values, unrefused ({verified:?})");
+                same_values += 1;
+            }
+            // A flip in the footer's Thrift that arrow-rs reads past and polars refuses (a
+            // ColumnOrder union with no variant): an error, never other values.
+            (Ok(()), Err(e)) => assert!(!format!("{e:#}").contains('\n'), "byte {at}: {e:#}"),
+        }
+    }
+    eprintln!("{len} bytes: {same_error} flips refused as verify refuses them, {same_values} read as written");
+    assert!(same_error > same_values, "most flips land in checked bytes");
+}
+
 #[test]
 fn a_flipped_bit_in_a_checkpoint_is_detected_or_harmless() {
     let tmp = tempfile::tempdir().unwrap();

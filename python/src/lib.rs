@@ -20,7 +20,6 @@ use arrow_array::RecordBatch;
 use arrow_array::RecordBatchReader;
 use arrow_pyarrow::IntoPyArrow;
 use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use pyo3::exceptions::{PyFileNotFoundError, PyValueError};
 use pyo3::prelude::*;
 
@@ -85,7 +84,9 @@ pub(crate) fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResul
 }
 
 /// Any pgser table (trajectory, transition, batches) as a `pyarrow.Table`, optionally only
-/// `columns`. The Parquet reader's Arrow buffers are handed to pyarrow as they are; the footer
+/// `columns`, once their column chunks match the footer's checksums (a corrupt file raises
+/// `ValueError` with `pgser-etl verify`'s line). The Parquet reader's Arrow buffers are handed to
+/// pyarrow as they are; the footer
 /// stays in the schema's metadata under `pgser` (`read_footer` parses it).
 #[pyfunction]
 #[pyo3(signature = (path, columns=None))]
@@ -104,8 +105,9 @@ type Batches = (arrow_schema::SchemaRef, Vec<RecordBatch>);
 fn read_batches(path: &Path, columns: Option<&[String]>) -> anyhow::Result<Batches> {
     use anyhow::Context;
     let at = path.display();
-    let file = std::fs::File::open(path).with_context(|| format!("{at}: cannot open"))?;
-    let mut b = ParquetRecordBatchReaderBuilder::try_new(file).with_context(|| format!("{at}: not a Parquet file"))?;
+    // pyarrow gets the decoded buffers as they are: the chunks it will get are checked first.
+    let names: Option<Vec<&str>> = columns.map(|c| c.iter().map(String::as_str).collect());
+    let (mut b, _) = pgser::table::open_checked(path, names.as_deref())?;
     if let Some(cols) = columns {
         let names: Vec<&str> = b.schema().fields().iter().map(|f| f.name().as_str()).collect();
         if let Some(bad) = cols.iter().find(|c| !names.contains(&c.as_str())) {

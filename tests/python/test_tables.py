@@ -23,6 +23,42 @@ def test_read_table_round_trips_with_pyarrow(tables):
     assert sub.column("q").equals(pq.read_table(scored, columns=["q"]).column("q"))
 
 
+def test_a_flipped_bit_raises_what_verify_says(tables, tmp_path):
+    """One flipped bit in a page's data, a page's header or the footer: `pgser.read_table`,
+    `pgser.read_footer` (for the footer) and `pgser-etl query` refuse the file with the line
+    `pgser-etl verify` prints, never returning other values."""
+    import subprocess
+
+    traj, _, _ = tables
+    raw = traj.read_bytes()
+    chunk = pq.ParquetFile(traj).metadata.row_group(0).column(0)
+    start = chunk.dictionary_page_offset or chunk.data_page_offset
+    where = {
+        "page header": start + 1,
+        "page data": start + chunk.total_compressed_size // 2,
+        "footer": raw.rindex(b'"kind"') + 2,
+    }
+    for what, at in where.items():
+        bad = tmp_path / f"{what.replace(' ', '_')}.parquet"
+        flipped = bytearray(raw)
+        flipped[at] ^= 0x04
+        bad.write_bytes(bytes(flipped))
+        v = subprocess.run([BIN / "pgser-etl", "verify", bad], capture_output=True, text=True)
+        assert v.returncode == 1 and v.stdout.startswith("CORRUPT "), (what, v.stdout, v.stderr)
+        line = v.stdout.strip().removeprefix("CORRUPT ")
+        assert "\n" not in line and str(bad) in line, line
+        with pytest.raises(ValueError) as e:
+            pgser.read_table(bad)
+        assert str(e.value) == line, what
+        if what == "footer":
+            with pytest.raises(ValueError) as e:
+                pgser.read_footer(bad)
+            assert str(e.value) == line
+        q = subprocess.run([BIN / "pgser-etl", "query", "SELECT count(*) AS n FROM t", f"t={bad}"],
+                           capture_output=True, text=True)
+        assert q.returncode == 1 and q.stderr.strip() == f"pgser-etl: error: {line}", (what, q.stderr)
+
+
 def test_convert_equals_the_cli(tables, tmp_path):
     traj, _, _ = tables
     cli = tmp_path / "cli.parquet"
@@ -58,7 +94,7 @@ def test_bad_inputs_raise_with_one_line_and_leave_no_file(tables, tmp_path):
         pgser.read_footer(missing)
     not_parquet = tmp_path / "x.parquet"
     not_parquet.write_bytes(b"not a parquet file at all")
-    with pytest.raises(ValueError, match="x.parquet: not a Parquet file"):
+    with pytest.raises(ValueError, match="x.parquet: not a readable Parquet file"):
         pgser.read_table(not_parquet)
     with pytest.raises(ValueError, match="no column nope"):
         pgser.read_table(traj, columns=["nope"])
