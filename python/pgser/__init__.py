@@ -10,7 +10,17 @@ Shadow Hand environments, from the same Rust library as the `pgser-etl` / `pgser
 docs/python.md in the repository describes each, with the settings they share with the CLI.
 """
 
-from . import _pgser
+import os as _os
+from pathlib import Path as _Path
+
+# An installed wheel carries the model assets and numpy's ziggurat tables in the package; the
+# compiled module finds them through these variables (its own executable is python, so the
+# binaries' lookup beside the executable does not apply). A variable already set wins.
+for _var, _rel in (("PGSER_ASSETS", "assets"), ("PGSER_ZIGGURAT", "data/numpy_ziggurat.bin")):
+    if not _os.environ.get(_var) and (_Path(__file__).parent / _rel).exists():
+        _os.environ[_var] = str(_Path(__file__).parent / _rel)
+
+from . import _pgser  # noqa: E402
 from ._pgser import Sampler, Policy, convert, read_footer, read_table, score, task_info
 
 # Registers the pgser/<task> ids with gymnasium on import, so gymnasium.make("pgser/FetchPush-v4")

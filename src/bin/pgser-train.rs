@@ -183,7 +183,7 @@ enum Command {
     },
 }
 
-fn main() -> ExitCode {
+pub(crate) fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-train", || {
         if let Some(n) = args.run.threads {

@@ -95,13 +95,10 @@ pub fn make(task_name: &str) -> Result<Box<dyn GoalEnv + Send>> {
     })
 }
 
-/// Where the gymnasium-robotics assets are: `$PGSER_ASSETS` if set, else the folder
-/// `make deps` fills (baked in by build.rs, so binaries need no environment variable).
+/// Where the gymnasium-robotics assets are: `$PGSER_ASSETS` if set, else an installed wheel's
+/// `pgser/assets`, else the folder `make deps` fills (baked in by build.rs): [`crate::install`].
 pub fn assets_dir() -> PathBuf {
-    match std::env::var_os("PGSER_ASSETS") {
-        Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => PathBuf::from(env!("PGSER_FETCH_ASSETS")),
-    }
+    crate::install::data_path("PGSER_ASSETS", "assets", env!("PGSER_FETCH_ASSETS"))
 }
 
 /// A model file under the assets folder, or an error that says how to get it.

@@ -28,12 +28,11 @@ pub struct Ziggurat {
     fi: [f64; LAYERS],
 }
 
-/// Where `make deps` writes the tables: `$PGSER_ZIGGURAT` if set, else the path build.rs bakes in.
+/// Where the tables are: `$PGSER_ZIGGURAT` if set, else an installed wheel's
+/// `pgser/data/numpy_ziggurat.bin`, else where `make deps` writes them (baked in by build.rs):
+/// [`crate::install`].
 pub fn tables_path() -> PathBuf {
-    match std::env::var_os("PGSER_ZIGGURAT") {
-        Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => PathBuf::from(env!("PGSER_ZIGGURAT")),
-    }
+    crate::install::data_path("PGSER_ZIGGURAT", "data/numpy_ziggurat.bin", env!("PGSER_ZIGGURAT"))
 }
 
 /// The tables, read once per process.

@@ -24,7 +24,7 @@ fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn main() -> ExitCode {
+pub(crate) fn main() -> ExitCode {
     let args = Args::parse();
     cli::main_with("pgser-etl", || match args.command {
         Command::Convert(mut opts) => {

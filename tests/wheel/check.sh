@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# The wheel as a user gets it (make test-wheel; make test runs it): installed with pip into a new
+# venv outside the clone, it must work without the clone. The commands it installs convert the
+# sample data, train on it with evaluation in MuJoCo, and run a hand task; the module makes every
+# task, reads tables and samples batches; tests/python's environment-parity (against
+# gymnasium-robotics), table and Sampler tests pass against it. Each of the wheel's own runs is
+# traced (strace), and none may open or even look for a file under the clone's .deps, target or
+# python folders: what the wheel needs, it carries.
+#
+#   tests/wheel/check.sh target/wheels/pgser-VERSION-cpXY-cpXY-manylinux_*.whl
+set -euo pipefail
+REPO=$(cd "$(dirname "$0")/../.." && pwd)
+[ $# -eq 1 ] && [ -f "$1" ] || { echo "usage: tests/wheel/check.sh WHEEL (one file; make wheel builds it)" >&2; exit 2; }
+WHEEL=$(realpath "$1")
+WORK=$(mktemp -d "${TMPDIR:-/tmp}/pgser-wheel.XXXXXX")
+trap 'rm -rf "$WORK"' EXIT
+PYTHON=${PYTHON:-python3}
+t0=$(date +%s)
+
+"$PYTHON" -m venv "$WORK/venv"
+V=$WORK/venv/bin
+"$V/python" -m pip install --quiet --upgrade pip
+"$V/python" -m pip install --quiet "$WHEEL" "pytest>=8" "mujoco==3.17.0" "gymnasium-robotics==1.4.2"
+t1=$(date +%s)
+cd "$WORK"
+unset PGSER_ASSETS PGSER_ZIGGURAT LD_LIBRARY_PATH PYTHONPATH
+
+traced() {  # traced NAME COMMAND...: run it under strace into $WORK/trace.NAME, checked below
+  local name=$1; shift
+  if command -v strace >/dev/null 2>&1; then
+    strace -f -qq -e trace=open,openat,execve -o "$WORK/trace.$name" "$@"
+  else
+    "$@"
+  fi
+}
+
+echo "check.sh: the installed commands"
+traced version "$V/pgser-etl" --version | tee version.txt
+grep -q "^pgser-etl [0-9.]* (MuJoCo 3.17.0)$" version.txt
+traced version-train "$V/pgser-train" --version | grep -q "^pgser-train [0-9.]* (MuJoCo 3.17.0)$"
+traced convert "$V/pgser-etl" convert "$REPO/data/fetch_reach_expert_50.pkl" "$REPO/data/fetch_reach_random_200.pkl" \
+  --episodes 12,24 -o traj.parquet
+traced verify "$V/pgser-etl" verify traj.parquet
+traced train "$V/pgser-train" --data traj.parquet -o agent.ckpt --updates 100 --hidden 32 --batch-size 64 \
+  --eval-episodes 2 --threads 2
+traced score "$V/pgser-etl" score --q agent.ckpt --data traj.parquet -o scored.parquet --swaps 2
+traced hand "$V/pgser-train" eval --random --task HandManipulateEggRotate --episodes 1 --json > hand.json
+grep -q '"episodes":1' hand.json
+
+echo "check.sh: the module"
+traced module "$V/python" - <<'PY'
+import pathlib, sys
+import pgser
+venv = pathlib.Path(sys.prefix)
+assert pathlib.Path(pgser.__file__).is_relative_to(venv), f"pgser from {pgser.__file__}, not the venv {venv}"
+for task in pgser.TASKS:
+    env = pgser.make(task)
+    obs, _ = env.reset(seed=0)
+    env.step(env.action_space.sample())
+t = pgser.read_table("traj.parquet")
+assert t.num_rows == 36 * 50, t.num_rows
+s = pgser.Sampler("scored.parquet", batch_size=32, seed=0)
+b = next(iter(s))
+assert b["obs"].shape[0] == 32
+print("module ok:", pgser.long_version)
+PY
+
+traces=("$WORK"/trace.*)
+if [ -e "${traces[0]}" ]; then
+  echo "check.sh: ${#traces[@]} traces: no file of the clone's .deps, target or python folders looked for"
+  if grep -hE "\"$REPO/(\.deps|target|python)/" "${traces[@]}" | head -5 | grep .; then
+    echo "check.sh: FAIL: the wheel looked for files in the clone it was built in (above)" >&2; exit 1
+  fi
+else
+  echo "check.sh: strace is missing: the runs were not traced (make strace-deps installs it)"
+fi
+
+echo "check.sh: tests/python (environment parity, tables, Sampler) against the installed module"
+"$V/python" -m pytest -q -p no:cacheprovider "$REPO/tests/python/test_envs.py" "$REPO/tests/python/test_tables.py" \
+  "$REPO/tests/python/test_sampler.py"
+t2=$(date +%s)
+echo "check.sh: ok ($(du -m "$WHEEL" | cut -f1) MB wheel; install $((t1 - t0)) s, checks $((t2 - t1)) s)"
