@@ -1,8 +1,8 @@
 //! `pgser-etl convert`: any dataset a trajectory table can be made from → that table.
 //!
-//! Two readers make trajectory tables from other people's files: WGCSL pickles
-//! ([`crate::trajectory::convert`], beside the table writer it feeds) and Minari datasets
-//! ([`crate::minari`], which builds on that writer). This module only chooses between them by
+//! Three readers make trajectory tables from other people's files: WGCSL pickles
+//! ([`crate::trajectory::convert`], beside the table writer it feeds), Minari datasets
+//! ([`crate::minari`], which builds on that writer) and OGBench's `.npz` files ([`crate::ogbench`]). This module only chooses between them by
 //! the kind of input, and every caller (the CLI, a pipeline's `convert` step and its dry-run
 //! check) comes through it.
 //!
@@ -17,12 +17,13 @@ use anyhow::{Result, bail};
 use indicatif::ProgressBar;
 
 pub use crate::trajectory::{ConvertOptions, ConvertPlan, ConvertSummary};
-use crate::{minari, trajectory};
+use crate::{minari, ogbench, trajectory};
 
 /// What `convert` would write, read and validated as `convert` does, without writing anything.
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     match input(opts)? {
         Input::Minari(dir) => minari::check(opts, dir),
+        Input::Ogbench(file) => ogbench::check(opts, file),
         Input::Pickles => trajectory::check_convert(opts),
     }
 }
@@ -31,6 +32,7 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
     match input(opts)? {
         Input::Minari(dir) => minari::convert(opts, dir, bar),
+        Input::Ogbench(file) => ogbench::convert(opts, file, bar),
         Input::Pickles => trajectory::convert(opts, bar),
     }
 }
@@ -41,10 +43,25 @@ enum Input<'a> {
     Pickles,
     /// A Minari dataset folder (`data/` with `main_data.hdf5` or Arrow storage, `metadata.json`).
     Minari(&'a Path),
+    /// An OGBench dataset file (`pointmaze-medium-navigate-v0.npz`).
+    Ogbench(&'a Path),
 }
 
-/// A folder is a Minari dataset, converted on its own; files are pickles.
+/// A folder is a Minari dataset and a `.npz` file an OGBench dataset, each converted on its own;
+/// other files are pickles.
 fn input(opts: &ConvertOptions) -> Result<Input<'_>> {
+    let npz = |p: &Path| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz"));
+    if let Some(i) = opts.inputs.iter().position(|p| npz(p)) {
+        if opts.inputs.len() > 1 {
+            bail!(
+                "{}: an OGBench dataset among {} inputs: convert takes pickles, or one dataset (an OGBench .npz file, \
+                 a Minari folder)",
+                opts.inputs[i].display(),
+                opts.inputs.len()
+            );
+        }
+        return Ok(Input::Ogbench(&opts.inputs[0]));
+    }
     match opts.inputs.iter().position(|p| p.is_dir()) {
         None => Ok(Input::Pickles),
         Some(_) if opts.inputs.len() == 1 => Ok(Input::Minari(&opts.inputs[0])),

@@ -32,6 +32,7 @@ pub mod inspect;
 pub mod install;
 pub mod minari;
 pub mod nprandom;
+pub mod ogbench;
 pub mod output;
 pub mod pickle;
 pub mod pipeline;

@@ -34,6 +34,8 @@ pub enum ExportFormat {
     Minari,
     /// A WGCSL pickle (dict of float64 arrays o, ag, u, g; protocol 3).
     Wgcsl,
+    /// An OGBench dataset file `NAME.npz` (observations, actions, terminals; src/ogbench/export.rs).
+    Ogbench,
 }
 
 #[derive(Debug, Clone)]
@@ -66,6 +68,8 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
     let dataset_id = match opts.format {
         ExportFormat::Minari => Some(dataset_id(out)?),
         ExportFormat::Wgcsl => None,
+        // Streamed a batch at a time by its own writer, not through the table in memory below.
+        ExportFormat::Ogbench => return crate::ogbench::export_npz(&opts.table, out),
     };
     let table = read_table(&opts.table)?;
     match dataset_id {

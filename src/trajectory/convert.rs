@@ -24,7 +24,7 @@ use crate::task::Task;
 #[derive(Debug, Clone, clap::Args)]
 pub struct ConvertOptions {
     /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
-    /// Minari dataset folder (ID/ or ID/data/).
+    /// Minari dataset folder (ID/ or ID/data/), or one OGBench dataset file (NAME.npz).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Output Parquet file (written atomically).

@@ -261,7 +261,8 @@ pub enum Command {
         /// What to write.
         #[arg(long, value_enum)]
         format: minari::ExportFormat,
-        /// The dataset folder (minari: its name is the dataset id, NAME-vN) or pickle (wgcsl) to create.
+        /// The dataset folder (minari: its name is the dataset id, NAME-vN), pickle (wgcsl) or
+        /// .npz file (ogbench: named after the dataset, NAME.npz) to create.
         #[arg(short, long)]
         output: PathBuf,
     },

@@ -1,0 +1,430 @@
+//! OGBench's datasets (Park et al., ICLR 2025; the `ogbench` package) in and out of pgser.
+//!
+//! An OGBench dataset is one `.npz` file (`np.savez_compressed`) named after the dataset,
+//! `pointmaze-medium-navigate-v0.npz`, with a `-val.npz` beside it: `observations` and `actions`
+//! (float32, one row per step), `terminals` (bool, true on each episode's last row), and `qpos`,
+//! `qvel` (and `button_states` for the manipulation scenes), which pgser leaves out. Episodes are
+//! contiguous and of one length M; there are no rewards and no goals. Each episode's last row has
+//! an action but no next state: OGBench's own loader drops it, and so does pgser. So an episode of
+//! M rows is a pgser episode of T = M observations and T − 1 actions, exactly a WGCSL episode.
+//!
+//! Files saved from what `ogbench.load_dataset` returns are read too: compact
+//! (`compact_dataset=True`: every row kept, `valids` 0 on each episode's last row) and regular
+//! (each episode's last row dropped, its observation kept as the last row's
+//! `next_observations`). All three layouts of one dataset give one table.
+//!
+//! The goal is the agent's position, as OGBench's success test uses it: `achieved_goal` is the
+//! observation's first two values (x, y) in the locomotion mazes (pointmaze, antmaze,
+//! humanoidmaze, whose observations start with the agent's x, y), and success is a distance of
+//! at most OGBench's `goal_tol` (1.0 for the point, 0.5 for the ant and humanoid). The data have
+//! no goals: each transition's `desired_goal` is its episode's last position (its own hindsight
+//! goal); pgser's samplers relabel from there (HER) and swap goals between episodes (PGSER).
+//! docs/ogbench.md is the user's side of this.
+
+mod export;
+pub mod npz;
+
+use std::io::Read;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use indicatif::ProgressBar;
+
+pub use export::export_npz;
+use npz::{Dtype, Member};
+
+use crate::task::Task;
+use crate::trajectory::{
+    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, FloatArray, FloatType, Footer, SourceFile,
+    TrajectoryWriter,
+};
+
+/// The dataset families pgser reads, their goal tolerance (OGBench's `goal_tol`), and the
+/// observation values that are the goal (the agent's x, y).
+const FAMILIES: [(&str, f64); 3] = [("pointmaze", 1.0), ("antmaze", 0.5), ("humanoidmaze", 0.5)];
+const GOAL: std::ops::Range<usize> = 0..2;
+
+/// Which of OGBench's layouts a file holds (the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// The distributed files: `terminals` (bool) on each episode's last row.
+    Dataset,
+    /// `load_dataset(compact_dataset=True)`'s arrays: `valids` 0 on each episode's last row.
+    Compact,
+    /// `load_dataset()`'s arrays: each episode's last row dropped, `next_observations` holds it.
+    Regular,
+}
+
+impl Layout {
+    fn format_name(self) -> &'static str {
+        match self {
+            Layout::Dataset => "ogbench-npz",
+            Layout::Compact => "ogbench-npz-compact",
+            Layout::Regular => "ogbench-npz-regular",
+        }
+    }
+}
+
+/// A dataset file as its name and headers describe it, with its episodes found.
+pub struct Dataset {
+    pub path: std::path::PathBuf,
+    /// The dataset's name (`pointmaze-medium-navigate-v0`; a `-val` file names its dataset).
+    pub name: String,
+    /// The environment OGBench evaluates it in (`pointmaze-medium-v0`).
+    pub env: String,
+    pub layout: Layout,
+    pub observations: Member,
+    pub actions: Member,
+    /// Rows per episode in the file (M: M − 1 for the regular layout) and the episode count.
+    pub rows_per_episode: usize,
+    pub episodes: usize,
+    /// The members pgser leaves out (qpos, qvel, …).
+    pub skipped: Vec<String>,
+    threshold: f64,
+}
+
+/// `pointmaze-medium-navigate-v0` → `pointmaze-medium-v0`: OGBench drops the dataset type (the
+/// second-to-last word) to name the environment.
+pub fn env_name(dataset: &str) -> Option<String> {
+    let words: Vec<&str> = dataset.split('-').collect();
+    if words.len() < 4 || !words.last()?.starts_with('v') {
+        return None;
+    }
+    let mut env = words[..words.len() - 2].to_vec();
+    env.push(words[words.len() - 1]);
+    Some(env.join("-"))
+}
+
+impl Dataset {
+    /// Opens the file; its environment comes from its name, or from `task` (`--task
+    /// pointmaze-medium-v0`) for a file named otherwise.
+    pub fn open(path: &Path, task: Option<&str>) -> Result<Dataset> {
+        let at = path.display();
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+        let name = stem.strip_suffix("-val").unwrap_or(stem).to_string();
+        let env = match (task, env_name(&name)) {
+            (Some(t), _) => t.to_string(),
+            (None, Some(env)) => env,
+            (None, None) => bail!(
+                "{at}: an OGBench dataset is named after itself (pointmaze-medium-navigate-v0.npz), and {stem:?} names \
+                 no environment: give it with --task (pointmaze-medium-v0)"
+            ),
+        };
+        let family = env.split('-').next().unwrap_or_default();
+        let Some(&(_, threshold)) = FAMILIES.iter().find(|f| f.0 == family) else {
+            bail!(
+                "{at}: {family} datasets: pgser reads OGBench's locomotion mazes ({}), whose goal is the agent's x, y",
+                FAMILIES.map(|f| f.0).join(", ")
+            );
+        };
+        let members = npz::members(path)?;
+        let get = |key: &str| members.iter().find(|m| m.key == key);
+        let need =
+            |key: &str| get(key).cloned().with_context(|| format!("{at}: no {key} array: not an OGBench dataset"));
+        let observations = need("observations")?;
+        let actions = need("actions")?;
+        for m in [&observations, &actions] {
+            if m.shape.len() != 2 || !matches!(m.dtype, Dtype::F32 | Dtype::F64) {
+                bail!("{at}: {}: a {:?} array of shape {:?}; pgser reads float rows [N, dim]", m.key, m.dtype, m.shape);
+            }
+        }
+        if observations.row_len() < GOAL.end {
+            bail!("{at}: observations have {} values; the goal is the first {}", observations.row_len(), GOAL.end);
+        }
+        let layout = match (get("next_observations"), get("valids")) {
+            (Some(_), _) => Layout::Regular,
+            (None, Some(_)) => Layout::Compact,
+            (None, None) => Layout::Dataset,
+        };
+        let n = observations.rows();
+        for m in members.iter().filter(|m| m.key != "observations") {
+            if m.rows() != n && ["actions", "terminals", "valids", "next_observations"].contains(&m.key.as_str()) {
+                bail!("{at}: {} has {} rows and observations {n}", m.key, m.rows());
+            }
+        }
+        if let Some(next) = get("next_observations")
+            && next.shape != observations.shape
+        {
+            bail!("{at}: next_observations {:?} and observations {:?} differ in shape", next.shape, observations.shape);
+        }
+        let ends = episode_ends(path, layout, n)?;
+        let rows_per_episode = ends[0] + 1;
+        for (e, w) in ends.windows(2).enumerate() {
+            if w[1] - w[0] != rows_per_episode {
+                bail!(
+                    "{at}: episode {} has {} rows where episode 0 has {rows_per_episode}: a pgser table holds episodes of one length",
+                    e + 1,
+                    w[1] - w[0]
+                );
+            }
+        }
+        let used = ["observations", "actions", "terminals", "valids", "next_observations"];
+        let skipped = members.iter().filter(|m| !used.contains(&m.key.as_str())).map(|m| m.key.clone()).collect();
+        let min = if layout == Layout::Regular { 1 } else { 2 };
+        if rows_per_episode < min {
+            bail!("{at}: episodes of {rows_per_episode} rows: a pgser episode needs at least one transition");
+        }
+        Ok(Dataset {
+            path: path.to_path_buf(),
+            name,
+            env,
+            layout,
+            observations,
+            actions,
+            rows_per_episode,
+            episodes: ends.len(),
+            skipped,
+            threshold,
+        })
+    }
+
+    /// Observations per episode in the table (T).
+    pub fn t(&self) -> usize {
+        if self.layout == Layout::Regular { self.rows_per_episode + 1 } else { self.rows_per_episode }
+    }
+
+    /// The task: OGBench's environment, T from the data, goal (x, y), and the success threshold
+    /// (`--threshold`, else OGBench's `goal_tol`).
+    pub fn task(&self, threshold: Option<f64>) -> Result<Task> {
+        let dims = (self.t(), self.observations.row_len(), GOAL.len(), self.actions.row_len());
+        let keys = ["observations", "observations[:2]", "actions"];
+        let at = self.path.display().to_string();
+        crate::trajectory::task_for(&at, dims, keys, "rows", Some(&self.env), threshold.or(Some(self.threshold)))
+    }
+}
+
+/// Each episode's last row, from `terminals` (the distributed files; bool, or 0/1 floats) or
+/// `valids` (compact: 0 on the last row), read in chunks. A file whose last row ends no episode
+/// was cut, and is refused.
+fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
+    let at = path.display();
+    let (key, end_when) = match layout {
+        Layout::Compact => ("valids", false),
+        _ => ("terminals", true),
+    };
+    npz::with_member(path, key, |r, m| {
+        if m.rows() != n || m.row_len() != 1 {
+            bail!("{at}: {key} has shape {:?}; one value per observation ({n}) expected", m.shape);
+        }
+        let size = m.dtype.size();
+        let mut ends = Vec::new();
+        let mut buf = vec![0u8; 65_536 * size];
+        let mut row = 0;
+        while row < n {
+            let k = (n - row).min(65_536);
+            r.read_exact(&mut buf[..k * size]).with_context(|| format!("{at}: {key} is cut short at row {row}"))?;
+            for (i, v) in buf[..k * size].chunks_exact(size).enumerate() {
+                let flag = match m.dtype {
+                    Dtype::Bool => v[0] != 0,
+                    Dtype::F32 => f32::from_le_bytes(v.try_into().expect("4 bytes")) != 0.0,
+                    Dtype::F64 => f64::from_le_bytes(v.try_into().expect("8 bytes")) != 0.0,
+                    Dtype::I32 | Dtype::I64 => v.iter().any(|&b| b != 0),
+                };
+                if flag == end_when {
+                    ends.push(row + i);
+                }
+            }
+            row += k;
+        }
+        Ok(ends)
+    })
+    .and_then(|ends: Vec<usize>| {
+        if ends.last() != Some(&(n - 1)) {
+            bail!(
+                "{at}: the last row ({}) ends no episode ({key}): the file is cut short or not an OGBench dataset",
+                n - 1
+            );
+        }
+        Ok(ends)
+    })
+}
+
+/// `convert`'s plan for an OGBench file, from its headers and episode ends.
+pub fn check(opts: &ConvertOptions, path: &Path) -> Result<ConvertPlan> {
+    let d = Dataset::open(path, opts.task.as_deref())?;
+    let take = take(opts, &d)?;
+    Ok(ConvertPlan {
+        task: d.task(opts.threshold)?,
+        float_type: float_type(&d, opts.float32),
+        episodes_in_file: vec![d.episodes],
+        episodes_taken: vec![take],
+    })
+}
+
+fn take(opts: &ConvertOptions, d: &Dataset) -> Result<usize> {
+    match opts.episodes.as_deref() {
+        None => Ok(d.episodes),
+        Some([0]) => bail!("{}: no episodes to write (--episodes 0)", d.path.display()),
+        Some([k]) if *k > d.episodes => {
+            bail!("{}: --episodes asks for {k} episodes but the file has {}", d.path.display(), d.episodes)
+        }
+        Some([k]) => Ok(*k),
+        Some(ks) => bail!("--episodes has {} values for 1 input: give one count", ks.len()),
+    }
+}
+
+fn float_type(d: &Dataset, float32: bool) -> FloatType {
+    if float32 || (d.observations.dtype == Dtype::F32 && d.actions.dtype == Dtype::F32) {
+        FloatType::Float32
+    } else {
+        FloatType::Float64
+    }
+}
+
+/// `pgser-etl convert DATASET.npz -o traj.parquet`: a window of episodes at a time, observations
+/// and actions (and a regular file's next observations) streamed side by side, so memory holds a
+/// window, not the dataset.
+pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
+    crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
+    let d = Dataset::open(path, opts.task.as_deref())?;
+    let episodes = take(opts, &d)?;
+    let task = d.task(opts.threshold)?;
+    let float = float_type(&d, opts.float32);
+    let sha256 = crate::output::sha256_file(path)?;
+    let mut writer = TrajectoryWriter::create(&opts.output, &task, float, opts.row_group_rows, opts.allow_nonfinite)?;
+    let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
+    bar.set_length(episodes as u64);
+    let at = path.display().to_string();
+    let mut run = |obs: &mut dyn Read, act: &mut dyn Read, mut next: Option<&mut dyn Read>| -> Result<()> {
+        let mut w = Window::new(&d);
+        for start in (0..episodes).step_by(window) {
+            let k = window.min(episodes - start);
+            w.read(obs, act, &mut next, k).with_context(|| format!("{at}: episodes {start}..{}", start + k))?;
+            writer.append(&w.view(&at, k), 0, k)?;
+            crate::progress::advance(bar, k as u64)?;
+        }
+        Ok(())
+    };
+    npz::with_member(path, "observations", |obs, _| {
+        npz::with_member(path, "actions", |act, _| match d.layout {
+            Layout::Regular => npz::with_member(path, "next_observations", |n, _| run(obs, act, Some(n))),
+            _ => run(obs, act, None),
+        })
+    })?;
+    let mut footer = Footer::new(&task, float, episodes, opts.command.clone());
+    footer.sources = vec![SourceFile {
+        path: at.clone(),
+        sha256,
+        format: d.layout.format_name().into(),
+        episodes_in_file: d.episodes,
+        episodes_taken: episodes,
+        steps_dropped: 0,
+    }];
+    let bytes = writer.finish(&footer)?;
+    let mut notes = vec![format!(
+        "{at}: OGBench's {} (environment {}): goal = the agent's x, y (observations[:2]), success within {}; each \
+         transition's desired goal is its episode's last position (the data have no goals)",
+        d.name, d.env, task.threshold
+    )];
+    if d.layout != Layout::Regular {
+        notes.push(format!(
+            "{at}: each episode's last action has no next state and is left out, as OGBench's loader does"
+        ));
+    }
+    Ok(ConvertSummary {
+        task,
+        float_type: float,
+        episodes,
+        rows: episodes * footer.t,
+        bytes,
+        skipped_keys: d.skipped.iter().map(|k| format!("{at}: {k}")).collect(),
+        notes,
+    })
+}
+
+/// One window of episodes as the four WGCSL arrays, in the file's float types.
+struct Window {
+    t: usize,
+    layout: Layout,
+    obs: (usize, usize),
+    act: (usize, usize),
+    arrays: [Vec<u8>; 4],
+    raw_obs: Vec<u8>,
+    raw_act: Vec<u8>,
+    raw_next: Vec<u8>,
+}
+
+impl Window {
+    fn new(d: &Dataset) -> Window {
+        Window {
+            t: d.t(),
+            layout: d.layout,
+            obs: (d.observations.row_len(), d.observations.dtype.size()),
+            act: (d.actions.row_len(), d.actions.dtype.size()),
+            arrays: Default::default(),
+            raw_obs: Vec::new(),
+            raw_act: Vec::new(),
+            raw_next: Vec::new(),
+        }
+    }
+
+    /// Reads the next `k` episodes from the streams.
+    fn read(
+        &mut self,
+        obs: &mut dyn Read,
+        act: &mut dyn Read,
+        next: &mut Option<&mut dyn Read>,
+        k: usize,
+    ) -> Result<()> {
+        let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
+        let file_rows = if self.layout == Layout::Regular { t - 1 } else { t };
+        self.raw_obs.resize(k * file_rows * od * os, 0);
+        self.raw_act.resize(k * file_rows * ad * asz, 0);
+        obs.read_exact(&mut self.raw_obs).context("observations are cut short")?;
+        act.read_exact(&mut self.raw_act).context("actions are cut short")?;
+        if let Some(n) = next.as_mut() {
+            self.raw_next.resize(self.raw_obs.len(), 0);
+            n.read_exact(&mut self.raw_next).context("next_observations are cut short")?;
+        }
+        let (orow, arow, grow) = (od * os, ad * asz, GOAL.len() * os);
+        self.arrays.iter_mut().for_each(Vec::clear);
+        for e in 0..k {
+            let o = &self.raw_obs[e * file_rows * orow..(e + 1) * file_rows * orow];
+            let a = &self.raw_act[e * file_rows * arow..(e + 1) * file_rows * arow];
+            let start = self.arrays[0].len();
+            self.arrays[0].extend_from_slice(o);
+            if self.layout == Layout::Regular {
+                // The episode's last observation is its last row's next observation.
+                let n = &self.raw_next[e * file_rows * orow..(e + 1) * file_rows * orow];
+                self.arrays[0].extend_from_slice(&n[(file_rows - 1) * orow..]);
+            }
+            let ep_obs = &self.arrays[0][start..];
+            let goal = |row: &[u8]| row[GOAL.start * os..GOAL.end * os].to_vec();
+            let ag: Vec<u8> = ep_obs.chunks_exact(orow).flat_map(goal).collect();
+            let last = ag[(t - 1) * grow..].to_vec();
+            self.arrays[1].extend_from_slice(&ag);
+            self.arrays[2].extend_from_slice(&a[..(t - 1) * arow]);
+            for _ in 0..t - 1 {
+                self.arrays[3].extend_from_slice(&last);
+            }
+        }
+        Ok(())
+    }
+
+    fn view<'a>(&'a self, at: &str, k: usize) -> EpisodeArrays<'a> {
+        let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
+        let g = GOAL.len();
+        let spec = [(t, od, os), (t, g, os), (t - 1, ad, asz), (t - 1, g, os)];
+        let arrays = std::array::from_fn(|i| FloatArray {
+            data: &self.arrays[i],
+            size: spec[i].2,
+            steps: spec[i].0,
+            dim: spec[i].1,
+        });
+        EpisodeArrays { origin: at.to_string(), arrays, episodes: k }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn environments_are_named_as_ogbench_names_them() {
+        assert_eq!(env_name("pointmaze-medium-navigate-v0").as_deref(), Some("pointmaze-medium-v0"));
+        assert_eq!(env_name("antmaze-giant-stitch-v0").as_deref(), Some("antmaze-giant-v0"));
+        assert_eq!(env_name("humanoidmaze-large-navigate-v0").as_deref(), Some("humanoidmaze-large-v0"));
+        assert_eq!(env_name("traj"), None);
+        assert_eq!(env_name("a-b-c"), None);
+    }
+}

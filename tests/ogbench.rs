@@ -1,0 +1,210 @@
+//! OGBench datasets in and out (`pgser-etl convert DATASET.npz`, `export --format ogbench`), on
+//! files written by OGBench's own code (tests/fixtures/ogbench, made by
+//! tests/py/make_ogbench_fixtures.py in ogbench 1.2.2's PointMaze with its data generator's
+//! oracle): the distributed layout, and what `ogbench.load_dataset` returns regular and compact.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::*;
+
+fn fixture(rel: &str) -> PathBuf {
+    repo().join("tests/fixtures/ogbench").join(rel)
+}
+
+fn convert_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
+    let o = etl().arg("convert").arg(input).arg("-o").arg(out).args(extra).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    text(&o.stderr)
+}
+
+/// The three layouts of one dataset make one table: T = 101 observations per episode, the goal
+/// the point's x, y, each transition's desired goal its episode's last position, and the rows
+/// those of the file (observations all, actions but each episode's last).
+#[test]
+fn every_layout_of_a_dataset_makes_the_same_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let tables: Vec<_> = [
+        "pointmaze-medium-navigate-v0.npz",
+        "compact/pointmaze-medium-navigate-v0.npz",
+        "regular/pointmaze-medium-navigate-v0.npz",
+    ]
+    .iter()
+    .enumerate()
+    .map(|(i, f)| {
+        let out = dir.path().join(format!("t{i}.parquet"));
+        let notes = convert_ok(&fixture(f), &out, &[]);
+        assert!(notes.contains("environment pointmaze-medium-v0") && notes.contains("success within 1"), "{notes}");
+        read_table(&out)
+    })
+    .collect();
+    let (t, _) = &tables[0];
+    assert_eq!(t.num_rows(), 404);
+    for (other, _) in &tables[1..] {
+        assert_eq!(other.columns(), t.columns(), "a layout converts to other values");
+    }
+    let footer = pgser::table::read_footer(&dir.path().join("t0.parquet")).unwrap();
+    assert_eq!(
+        (footer["task"].as_str(), footer["T"].as_u64(), footer["success_threshold"].as_f64()),
+        (Some("pointmaze-medium-v0"), Some(101), Some(1.0))
+    );
+    assert_eq!(footer["sources"][0]["format"], "ogbench-npz");
+
+    // Against the file itself, read by the .npz reader.
+    let read = |key: &str| -> Vec<f32> {
+        pgser::ogbench::npz::with_member(&fixture("pointmaze-medium-navigate-v0.npz"), key, |r, _| {
+            let mut b = Vec::new();
+            r.read_to_end(&mut b)?;
+            Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
+        })
+        .unwrap()
+    };
+    let (obs, act) = (read("observations"), read("actions"));
+    let col = |name: &str, row: usize| -> Option<Vec<f32>> {
+        use arrow_array::Array;
+        use arrow_array::cast::AsArray;
+        let list = t.column_by_name(name).unwrap().as_fixed_size_list();
+        (!list.is_null(row))
+            .then(|| list.value(row).as_primitive::<arrow_array::types::Float32Type>().values().to_vec())
+    };
+    for row in [0, 57, 100, 101, 250, 403] {
+        let (e, s) = (row / 101, row % 101);
+        assert_eq!(col("obs", row).unwrap(), obs[row * 2..row * 2 + 2], "row {row}");
+        assert_eq!(col("achieved_goal", row).unwrap(), obs[row * 2..row * 2 + 2], "row {row}");
+        if s < 100 {
+            assert_eq!(col("action", row).unwrap(), act[row * 2..row * 2 + 2], "row {row}");
+            let last = e * 101 + 100;
+            assert_eq!(col("desired_goal", row).unwrap(), obs[last * 2..last * 2 + 2], "row {row}");
+        } else {
+            assert_eq!(
+                (col("action", row), col("desired_goal", row)),
+                (None, None),
+                "row {row}: the last observation's"
+            );
+        }
+    }
+}
+
+/// A table exported as an OGBench file loads in ogbench as the original does: every array of
+/// the train and val datasets, regular and compact (but the compact actions of each episode's
+/// last row, which a table does not hold), equal value for value.
+#[test]
+fn an_exported_file_loads_in_ogbench_as_the_original() {
+    let dir = tempfile::tempdir().unwrap();
+    let (exported, original) = (dir.path().join("ours"), dir.path().join("theirs"));
+    for d in [&exported, &original] {
+        std::fs::create_dir(d).unwrap();
+    }
+    for split in ["", "-val"] {
+        let name = format!("pointmaze-medium-navigate-v0{split}.npz");
+        std::fs::copy(fixture(&name), original.join(&name)).unwrap();
+        let table = dir.path().join(format!("t{split}.parquet"));
+        convert_ok(&fixture(&name), &table, &[]);
+        let o = etl()
+            .args(["export"])
+            .arg(&table)
+            .args(["--format", "ogbench", "-o"])
+            .arg(exported.join(&name))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        // Converted back, the same table.
+        let back = dir.path().join(format!("back{split}.parquet"));
+        convert_ok(&exported.join(&name), &back, &[]);
+        assert_eq!(read_table(&back).0.columns(), read_table(&table).0.columns());
+    }
+    let file = |d: &Path| d.join("pointmaze-medium-navigate-v0.npz").display().to_string();
+    let o = py_ok("check_ogbench.py", &["same", "pointmaze-medium-navigate-v0", &file(&original), &file(&exported)]);
+    let out = text(&o.stdout);
+    for k in ["train/observations", "val/next_observations", "train/valids/compact", "train/actions/compact"] {
+        assert!(out.contains(k), "{out}");
+    }
+}
+
+/// Bad inputs: one line naming the file and the fault, and no output file.
+#[test]
+fn bad_files_fail_in_one_line_and_leave_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.parquet");
+    let fails = |input: &Path, extra: &[&str], want: &str| {
+        let o = etl().arg("convert").arg(input).arg("-o").arg(&out).args(extra).output().unwrap();
+        let e = text(&o.stderr);
+        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
+        assert!(e.contains(&*input.file_name().unwrap().to_string_lossy()), "{e}");
+        assert!(!out.exists(), "{want}: an output was left");
+    };
+    let bytes = std::fs::read(fixture("pointmaze-medium-navigate-v0.npz")).unwrap();
+    // Not a zip archive at all.
+    let junk = dir.path().join("pointmaze-medium-navigate-v0.npz");
+    std::fs::write(&junk, b"not a zip").unwrap();
+    fails(&junk, &[], "not a .npz file");
+    // Cut short: the archive's directory is at its end.
+    std::fs::write(&junk, &bytes[..bytes.len() / 2]).unwrap();
+    fails(&junk, &[], "not a .npz file");
+    // A name that says no environment, then the same file with --task.
+    let odd = dir.path().join("mydata.npz");
+    std::fs::write(&odd, &bytes).unwrap();
+    fails(&odd, &[], "names no environment: give it with --task");
+    convert_ok(&odd, &out, &["--task", "pointmaze-medium-v0"]);
+    std::fs::remove_file(&out).unwrap();
+    // A family whose goal is not the agent's position.
+    let cube = dir.path().join("cube-single-play-v0.npz");
+    std::fs::write(&cube, &bytes).unwrap();
+    fails(&cube, &[], "cube datasets: pgser reads OGBench's locomotion mazes");
+    // Episodes of two lengths, and a missing key: written with the npz writer.
+    let write = |path: &Path, keys: &[(&str, npz::Dtype, Vec<usize>, Vec<u8>)]| {
+        let mut w = npz::NpzWriter::new(std::fs::File::create(path).unwrap(), true);
+        for (k, dt, shape, data) in keys {
+            w.start(k, *dt, shape).unwrap();
+            w.write(data).unwrap();
+        }
+        w.finish().unwrap();
+    };
+    use pgser::ogbench::npz;
+    let f32s = |n: usize| vec![0u8; n * 4];
+    let uneven = dir.path().join("pointmaze-large-navigate-v0.npz");
+    let mut term = vec![0u8; 7];
+    term[2] = 1;
+    term[6] = 1;
+    write(
+        &uneven,
+        &[
+            ("observations", npz::Dtype::F32, vec![7, 2], f32s(14)),
+            ("actions", npz::Dtype::F32, vec![7, 2], f32s(14)),
+            ("terminals", npz::Dtype::Bool, vec![7], term.clone()),
+        ],
+    );
+    fails(&uneven, &[], "episode 1 has 4 rows where episode 0 has 3");
+    write(
+        &uneven,
+        &[("observations", npz::Dtype::F32, vec![7, 2], f32s(14)), ("terminals", npz::Dtype::Bool, vec![7], term)],
+    );
+    fails(&uneven, &[], "no actions array");
+    let open = vec![0u8; 6];
+    write(
+        &uneven,
+        &[
+            ("observations", npz::Dtype::F32, vec![6, 2], f32s(12)),
+            ("actions", npz::Dtype::F32, vec![6, 2], f32s(12)),
+            ("terminals", npz::Dtype::Bool, vec![6], open),
+        ],
+    );
+    fails(&uneven, &[], "the last row (5) ends no episode");
+    // Export: not a .npz name.
+    let table = dir.path().join("t.parquet");
+    convert_ok(&fixture("pointmaze-medium-navigate-v0.npz"), &table, &[]);
+    let o = etl()
+        .arg("export")
+        .arg(&table)
+        .args(["--format", "ogbench", "-o"])
+        .arg(dir.path().join("x.pkl"))
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success() && text(&o.stderr).contains("is a .npz file named after the dataset"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert!(!dir.path().join("x.pkl").exists());
+}
