@@ -107,6 +107,8 @@ fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackP
             let live = &mut envs[..gm * n];
             let mut obs: Vec<Obs> =
                 live.par_iter_mut().enumerate().map(|(k, e)| e.restart(seed + (e0 + k % n) as u64)).collect();
+            // Episodes that ended at their success (OGBench's mazes): stepped no further.
+            let mut done = vec![false; live.len()];
             for _ in 0..task.t {
                 let flat = |f: fn(&Obs) -> &Vec<f64>| {
                     obs.iter().flat_map(|o| f(o).iter().map(|&x| x as f32)).collect::<Vec<f32>>()
@@ -124,13 +126,19 @@ fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackP
                 let steps: Vec<_> = live
                     .par_iter_mut()
                     .zip(actions.par_chunks(task.act_dim))
-                    .map(|(e, a)| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>()))
+                    .zip(done.par_iter())
+                    .map(|((e, a), &d)| (!d).then(|| e.step(&a.iter().map(|&x| x as f64).collect::<Vec<f64>>())))
                     .collect();
                 for (k, s) in steps.into_iter().enumerate() {
+                    let Some(s) = s else { continue };
                     let j = (g0 + k / n) * episodes + e0 + k % n;
                     returns[j] += s.reward;
                     success[j] = s.success;
+                    done[k] = s.success && live[k].ends_at_success();
                     obs[k] = s.obs;
+                }
+                if done.iter().all(|&d| d) {
+                    break;
                 }
             }
         }

@@ -224,3 +224,64 @@ fn random_hand_episodes_succeed_as_in_python() {
         assert_eq!((s.mean_return * 100.0).round(), py_return, "{task}: summed rewards");
     }
 }
+
+/// OGBench's PointMaze, replayed: per maze and seed, an episode of a given task after
+/// `np.random.seed(seed)` and one of a random task continuing numpy's global generator, each of
+/// 200 noisy straight-line steps toward the goal, so the point runs into walls (MuJoCo's contacts
+/// push it back) and, in the teleport maze, onto the pads. Starts, goals, positions and
+/// successes are equal to Python's bit for bit.
+#[test]
+fn pointmaze_envs_match_python() {
+    use pgser::env::pointmaze::PointMazeEnv;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("pointmaze.json");
+    let mazes = ["pointmaze-medium-v0", "pointmaze-large-v0", "pointmaze-giant-v0", "pointmaze-teleport-v0"];
+    let args = ["pointmaze", "--mazes", &mazes.join(","), "--seeds", "0,1,7", "--steps", "200"];
+    common::py_ok("env_parity.py", &[&args[..], &["--out", path.to_str().unwrap()]].concat());
+    let runs: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    for maze in mazes {
+        let mut env = PointMazeEnv::new(maze).unwrap();
+        let (mut steps, mut contacts, mut jumps, mut successes) = (0, 0, 0, 0);
+        for seed in [0u64, 1, 7] {
+            let episodes = runs[maze][seed.to_string()].as_array().unwrap();
+            env.seed(seed);
+            for (k, ep) in episodes.iter().enumerate() {
+                let task = ep["task_id"].as_u64().unwrap() as usize;
+                let obs = env.reset_task(if k == 0 { Some(task) } else { None });
+                assert_eq!(env.task_id(), task, "{maze} seed {seed} episode {k}: task");
+                assert!(same_bits(&obs.observation, &floats(&ep["reset"])), "{maze} seed {seed} episode {k}: start");
+                assert!(same_bits(&env.goal(), &floats(&ep["goal"])), "{maze} seed {seed} episode {k}: goal");
+                let mut last = obs.observation;
+                for (t, want) in ep["steps"].as_array().unwrap().iter().enumerate() {
+                    let action = floats(&want["action"]);
+                    let s = env.step(&action);
+                    let o = &s.obs.observation;
+                    assert!(
+                        same_bits(o, &floats(&want["obs"])),
+                        "{maze} seed {seed} episode {k} step {t}: {o:?} vs {:?}",
+                        floats(&want["obs"])
+                    );
+                    assert_eq!(
+                        s.success,
+                        want["success"].as_bool().unwrap(),
+                        "{maze} seed {seed} episode {k} step {t}: success"
+                    );
+                    let moved = ((o[0] - last[0]).powi(2) + (o[1] - last[1]).powi(2)).sqrt();
+                    let free = 0.2 * (action[0].powi(2) + action[1].powi(2)).sqrt();
+                    contacts += usize::from((moved - free).abs() > 1e-6 && moved < 1.0);
+                    jumps += usize::from(moved > 1.0);
+                    successes += usize::from(s.success);
+                    steps += 1;
+                    last = o.clone();
+                }
+            }
+        }
+        println!(
+            "{maze:<22} {steps} steps equal to Python's: {contacts} touched a wall, {jumps} teleports, {successes} at the goal"
+        );
+        assert!(contacts > 0, "{maze}: no step ran into a wall; the replay checks nothing of MuJoCo");
+        if maze.contains("teleport") {
+            assert!(jumps > 0, "{maze}: no teleport happened");
+        }
+    }
+}

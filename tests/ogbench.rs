@@ -208,3 +208,53 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
     );
     assert!(!dir.path().join("x.pkl").exists());
 }
+
+/// pgser's evaluation in its PointMaze equals OGBench's: OGBench's oracle agent (the BFS
+/// direction plus N(0, 1) noise from `default_rng(seed)`, computed from the float32 observation a
+/// pgser policy sees) run by `pgser::eval::evaluate` on seeds 0–9 (tasks 1–5 twice: consecutive
+/// seeds cycle through OGBench's five tasks) and by ogbench's own environment (episodes ending at
+/// success) succeed on the same episodes after the same number of steps.
+#[test]
+fn evaluation_in_pointmaze_equals_ogbenchs() {
+    use pgser::env::pointmaze::oracle_subgoal;
+    use pgser::nprandom::NpRandom;
+    use std::cell::RefCell;
+
+    struct Oracle {
+        noise: RefCell<Vec<NpRandom>>,
+    }
+    impl pgser::eval::Policy for Oracle {
+        fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32> {
+            let mut noise = self.noise.borrow_mut();
+            let mut out = Vec::with_capacity(2 * n);
+            for k in 0..n {
+                let xy = [f64::from(obs[2 * k]), f64::from(obs[2 * k + 1])];
+                let g = [f64::from(goal[2 * k]), f64::from(goal[2 * k + 1])];
+                let sub = oracle_subgoal("pointmaze-medium-v0", xy, g).unwrap();
+                let d = [sub[0] - xy[0], sub[1] - xy[1]];
+                let norm = (d[0] * d[0] + d[1] * d[1]).sqrt() + 1e-6;
+                let z = pgser::nprandom::ziggurat::tables().unwrap();
+                let e = [z.standard_normal(&mut noise[k]), z.standard_normal(&mut noise[k])];
+                out.extend((0..2).map(|i| (d[i] / norm + e[i]).clamp(-1.0, 1.0) as f32));
+            }
+            out
+        }
+    }
+    let seeds: Vec<u64> = (0..10).collect();
+    let o =
+        py_ok("env_parity.py", &["pointmaze-eval", "--maze", "pointmaze-medium-v0", "--seeds", "0,1,2,3,4,5,6,7,8,9"]);
+    let theirs: serde_json::Value = serde_json::from_str(&text(&o.stdout)).unwrap();
+    let policy = Oracle { noise: RefCell::new(seeds.iter().map(|&s| NpRandom::new(s)).collect()) };
+    let ours = pgser::eval::evaluate("pointmaze-medium-v0", &policy, seeds.len(), 0).unwrap();
+    let runs = theirs.as_array().unwrap();
+    let successes = runs.iter().filter(|r| r["success"] == true).count();
+    // Reward −1 a step until the step that reaches the goal (0), which ends the episode.
+    let returns: f64 = runs
+        .iter()
+        .map(|r| if r["success"] == true { -(r["steps"].as_f64().unwrap() - 1.0) } else { -1000.0 })
+        .sum::<f64>()
+        / runs.len() as f64;
+    assert_eq!(ours.success_rate, successes as f64 / runs.len() as f64, "{ours:?} vs {theirs}");
+    assert_eq!(ours.return_mean, returns, "{ours:?} vs {theirs}");
+    assert!(successes > 0, "the oracle reached no goal: the test checks no early end");
+}

@@ -23,8 +23,12 @@ NAMESPACE = "pgser"
 
 
 def _canonical(task):
-    """'FetchPush', 'FetchPush-v4' or 'pgser/FetchPush-v4' -> 'FetchPush-v4' (others refused)."""
+    """'FetchPush', 'FetchPush-v4' or 'pgser/FetchPush-v4' -> 'FetchPush-v4' (others refused);
+    OGBench's PointMaze ids and dataset names -> the environment's id ('pointmaze-medium-v0')."""
     name = task.split("/", 1)[1] if task.startswith(NAMESPACE + "/") else task
+    if name.startswith("pointmaze-"):
+        info = _pgser.task_info(name)  # ValueError naming the id if unknown
+        return info["name"], info
     info = _pgser.task_info(name.split("-v", 1)[0])  # ValueError naming the task if unknown
     hand = info["name"].startswith("Hand")
     version = "-v1" if hand else "-v4"
@@ -79,7 +83,9 @@ class PgserEnv(gymnasium.Env):
     def step(self, action):
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         obs, reward, success = self._env.step(a)
-        return obs, float(reward), False, False, {"is_success": np.float32(success)}
+        # OGBench's mazes end an episode at its success; the Fetch and hand tasks never do.
+        terminated = bool(success) and self._env.ends_at_success
+        return obs, float(reward), terminated, False, {"is_success": np.float32(success)}
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
         return _compute_reward(self.task_id, achieved_goal, desired_goal)
@@ -137,6 +143,11 @@ def _register():
         if name not in gymnasium.registry:
             steps = 100 if task.startswith("Hand") else 50
             gymnasium.register(name, entry_point=PgserEnv, kwargs={"task": tid}, max_episode_steps=steps)
+    # OGBench's PointMaze, its episodes of 1000 steps ending at the goal.
+    for tid in ("pointmaze-medium-v0", "pointmaze-large-v0", "pointmaze-giant-v0", "pointmaze-teleport-v0"):
+        name = f"{NAMESPACE}/{tid}"
+        if name not in gymnasium.registry:
+            gymnasium.register(name, entry_point=PgserEnv, kwargs={"task": tid}, max_episode_steps=1000)
 
 
 _register()

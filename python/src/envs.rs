@@ -97,6 +97,12 @@ impl Env {
     fn task<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         crate::json_to_py(py, &serde_json::to_value(&self.task).map_err(|e| py_err(e.into()))?)
     }
+
+    /// Whether an episode ends at its first success (OGBench's mazes: `terminated`).
+    #[getter]
+    fn ends_at_success(&self) -> bool {
+        self.env.lock().unwrap().ends_at_success()
+    }
 }
 
 /// gymnasium-robotics' `compute_reward` for `task` over any leading shape: 0 where the goal is
@@ -108,7 +114,7 @@ pub fn compute_reward<'py>(
     achieved_goal: PyReadonlyArrayDyn<'py, f64>,
     desired_goal: PyReadonlyArrayDyn<'py, f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let task = Task::known(task).ok_or_else(|| PyValueError::new_err(format!("{task}: unknown task")))?;
+    let task = pgser::env::task(task).map_err(py_err)?;
     let (ag, g) = (achieved_goal, desired_goal);
     let (sa, sg) = (ag.shape().to_vec(), g.shape().to_vec());
     if sa != sg || sa.last() != Some(&task.goal_dim) {
@@ -136,6 +142,7 @@ struct Slot {
 struct Stepped {
     obs: Obs,
     reward: f64,
+    terminated: bool,
     truncated: bool,
     success: bool,
 }
@@ -220,26 +227,35 @@ impl VecEnv {
                     if s.ended {
                         (s.steps, s.ended) = (0, false);
                         return (
-                            Stepped { obs: s.env.reset(None), reward: 0.0, truncated: false, success: false },
+                            Stepped {
+                                obs: s.env.reset(None),
+                                reward: 0.0,
+                                terminated: false,
+                                truncated: false,
+                                success: false,
+                            },
                             true,
                         );
                     }
                     let st = s.env.step(a);
                     s.steps += 1;
-                    s.ended = s.steps >= limit;
-                    (Stepped { obs: st.obs, reward: st.reward, truncated: s.ended, success: st.success }, false)
+                    let terminated = st.success && s.env.ends_at_success();
+                    s.ended = terminated || s.steps >= limit;
+                    let truncated = !terminated && s.ended;
+                    (Stepped { obs: st.obs, reward: st.reward, terminated, truncated, success: st.success }, false)
                 })
                 .collect::<Vec<_>>()
         });
         let reward: Vec<f64> = results.iter().map(|r| r.0.reward).collect();
         let truncated: Vec<bool> = results.iter().map(|r| r.0.truncated).collect();
+        let terminated: Vec<bool> = results.iter().map(|r| r.0.terminated).collect();
         let success: Vec<f64> = results.iter().map(|r| if r.0.success { 1.0 } else { 0.0 }).collect();
         let was_reset: Vec<bool> = results.iter().map(|r| r.1).collect();
         let obs = results.into_iter().map(|r| r.0.obs).collect();
         Ok((
             stacked_dict(py, &self.task, obs)?,
             reward.into_pyarray(py).into_any(),
-            vec![false; self.num_envs].into_pyarray(py).into_any(),
+            terminated.into_pyarray(py).into_any(),
             truncated.into_pyarray(py).into_any(),
             success.into_pyarray(py).into_any(),
             was_reset.into_pyarray(py).into_any(),

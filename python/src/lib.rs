@@ -224,13 +224,7 @@ fn score<'py>(
 /// threshold, metric), for any task pgser knows.
 #[pyfunction]
 fn task_info<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
-    let task = pgser::task::Task::known(name).ok_or_else(|| {
-        let hint = pgser::task::Task::suggest(name).map(|s| format!(" (did you mean {s}?)")).unwrap_or_default();
-        PyValueError::new_err(format!(
-            "{name}: unknown task{hint}; known: {}",
-            pgser::task::Task::known_names().join(", ")
-        ))
-    })?;
+    let task = pgser::env::task(name).map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
     json_to_py(py, &serde_json::to_value(&task).map_err(|e| py_err(e.into()))?)
 }
 

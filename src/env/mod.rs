@@ -10,6 +10,7 @@
 pub mod expert;
 pub mod fetch;
 pub mod hand;
+pub mod pointmaze;
 
 use std::path::{Path, PathBuf};
 
@@ -60,6 +61,12 @@ pub trait GoalEnv {
     fn restart(&mut self, seed: u64) -> Obs {
         self.reset(Some(seed))
     }
+    /// Whether an episode ends at its first success, as OGBench's mazes end it
+    /// (`terminate_at_goal`): evaluation then counts the episode a success and steps it no
+    /// further. The Fetch and hand tasks run their whole length and count the last step's.
+    fn ends_at_success(&self) -> bool {
+        false
+    }
     /// Apply one action (`task().act_dim` values, clipped to [−1, 1]). Values are first rounded
     /// to f32, the action space's dtype, because gymnasium computes with a float32 action as a
     /// policy hands it over. Panics if the action has the wrong length, as gymnasium raises.
@@ -73,11 +80,30 @@ pub fn applied_action(value: f64) -> f32 {
     (value as f32).clamp(-1.0, 1.0)
 }
 
+/// The task of the environment [`make`] makes for `name`, without making it.
+pub fn task(name: &str) -> Result<Task> {
+    if let Some(t) = pointmaze::task(name) {
+        return Ok(t);
+    }
+    Task::known(name).ok_or_else(|| {
+        let hint = Task::suggest(name).map(|s| format!(" (did you mean {s}?)")).unwrap_or_default();
+        anyhow::anyhow!(
+            "{name}: unknown task{hint}; known: {}, {}",
+            Task::known_names().join(", "),
+            pointmaze::TASKS.join(", ")
+        )
+    })
+}
+
 /// The environment for a task name or gymnasium id (`FetchPush`, `FetchPush-v4`,
-/// `HandManipulateEggRotate-v1`). Other versions are refused: Fetch v1–v3 reset differently and
+/// `HandManipulateEggRotate-v1`), or an OGBench PointMaze id or dataset name
+/// (`pointmaze-medium-v0`, `pointmaze-medium-navigate-v0`). Other versions are refused: Fetch v1–v3 reset differently and
 /// hand v0 runs on mujoco-py, so their data would not match.
 pub fn make(task_name: &str) -> Result<Box<dyn GoalEnv + Send>> {
-    let simulated = || [&fetch::TASKS[..], &hand::TASKS[..]].concat().join(", ");
+    if pointmaze::resolve(task_name).is_some() {
+        return Ok(Box::new(pointmaze::PointMazeEnv::new(task_name)?));
+    }
+    let simulated = || [&fetch::TASKS[..], &hand::TASKS[..], &pointmaze::TASKS[..]].concat().join(", ");
     let Some(task) = Task::known(task_name).filter(|t| simulated().contains(t.name.as_str())) else {
         let hint = Task::suggest(task_name).map(|s| format!(" (did you mean {s}?)")).unwrap_or_default();
         bail!("{task_name}: no environment for this task{hint}; pgser simulates {}", simulated());

@@ -30,6 +30,7 @@
 //! Ported from numpy's `bit_generator.pyx` (SeedSequence), `pcg64.h` (PCG64 XSL-RR 128/64) and
 //! `distributions.c` (`next_double`, `random_uniform`, `random_standard_normal`).
 
+pub mod legacy;
 pub mod ziggurat;
 
 /// SeedSequence's hash constants (numpy `bit_generator.pyx`).

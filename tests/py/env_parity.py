@@ -161,6 +161,78 @@ def random_success_cmd(args):
     json.dump({"success": success, "returns": returns}, sys.stdout)
 
 
+def pointmaze_cmd(args):
+    """OGBench's PointMaze: per maze and seed, `np.random.seed(seed)` then `reset(seed=seed)` with
+    task (seed % 5) + 1, and a second episode continuing the global generator with no task (a
+    random one); each `steps` steps of float32 actions toward the goal in a straight line plus
+    N(0, 0.6) noise from `default_rng(1000 + seed)`, so the point runs into walls (and, in the
+    teleport maze, onto pads). `terminate_at_goal=False` keeps an episode going past success."""
+    import warnings
+
+    import gymnasium
+
+    warnings.filterwarnings("ignore")
+    import ogbench.locomaze  # noqa: F401  (registers the ids)
+
+    out = {}
+    for maze in args.mazes:
+        env = gymnasium.make(maze, terminate_at_goal=False).unwrapped
+        runs = {}
+        for seed in args.seeds:
+            np.random.seed(seed)
+            rng = np.random.default_rng(1000 + seed)
+            episodes = []
+            for k, options in enumerate([dict(task_id=seed % 5 + 1), None]):
+                ob, info = env.reset(seed=seed, options=options) if k == 0 else env.reset(options=options)
+                ep = {"task_id": env.cur_task_id, "reset": bits(ob), "goal": bits(info["goal"]), "steps": []}
+                for _ in range(args.steps):
+                    d = info["goal"] - ob
+                    a = np.clip(d / (np.linalg.norm(d) + 1e-6) + rng.normal(0, 0.6, 2), -1, 1).astype(np.float32)
+                    ob, r, term, trunc, step_info = env.step(a)
+                    ep["steps"].append({"action": bits(a.astype(np.float64)), "obs": bits(ob), "success": bool(step_info["success"])})
+                episodes.append(ep)
+            runs[str(seed)] = episodes
+        out[maze] = runs
+        env.close()
+    with open(args.out, "w") as f:
+        json.dump(out, f)
+
+
+def pointmaze_eval_cmd(args):
+    """OGBench's evaluation of its oracle agent, as pgser's evaluation runs it: per seed,
+    `np.random.seed(seed)` and `reset(options=dict(task_id=seed % 5 + 1))` in the env as OGBench
+    registers it (ending at success), then up to 1000 steps of the BFS oracle's direction,
+    computed from the observation and goal rounded to float32 (what a pgser policy sees), with
+    N(0, 1) noise from `default_rng(seed)` so that it sometimes fails. Per episode: success and steps."""
+    import warnings
+
+    import gymnasium
+
+    warnings.filterwarnings("ignore")
+    import ogbench.locomaze  # noqa: F401
+
+    env = gymnasium.make(args.maze).unwrapped
+    out = []
+    for seed in args.seeds:
+        np.random.seed(seed)
+        ob, info = env.reset(options=dict(task_id=seed % 5 + 1))
+        goal = info["goal"].astype(np.float32).astype(np.float64)
+        noise = np.random.default_rng(seed)
+        success, steps = False, 0
+        for steps in range(1, 1001):
+            xy = ob.astype(np.float32).astype(np.float64)
+            sub, _ = env.get_oracle_subgoal(xy, goal)
+            d = sub - xy
+            a = d / (np.sqrt(d[0] * d[0] + d[1] * d[1]) + 1e-6) + noise.standard_normal(2)
+            a = np.clip(a, -1, 1).astype(np.float32)
+            ob, _, terminated, _, step_info = env.step(a)
+            if terminated:
+                success = True
+                break
+        out.append({"seed": seed, "task_id": seed % 5 + 1, "success": success, "steps": steps})
+    json.dump(out, sys.stdout)
+
+
 def main():
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -183,8 +255,17 @@ def main():
     rs.add_argument("--task", required=True)
     rs.add_argument("--seed", type=int, default=0)
     rs.add_argument("--episodes", type=int, default=100)
+    pm = sub.add_parser("pointmaze")
+    pm.add_argument("--mazes", type=lambda s: s.split(","), required=True)
+    pm.add_argument("--seeds", type=ints, required=True)
+    pm.add_argument("--steps", type=int, default=200)
+    pm.add_argument("--out", required=True)
+    pe = sub.add_parser("pointmaze-eval")
+    pe.add_argument("--maze", required=True)
+    pe.add_argument("--seeds", type=ints, required=True)
     args = p.parse_args()
-    {"rng": rng_cmd, "env": env_cmd, "hand": hand_cmd, "random-success": random_success_cmd}[args.cmd](args)
+    cmds = {"pointmaze-eval": pointmaze_eval_cmd, "rng": rng_cmd, "env": env_cmd, "hand": hand_cmd, "random-success": random_success_cmd, "pointmaze": pointmaze_cmd}
+    cmds[args.cmd](args)
 
 
 if __name__ == "__main__":

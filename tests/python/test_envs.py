@@ -148,3 +148,35 @@ def test_bad_arguments_raise_value_errors():
         pgser.Policy("FetchReach", "greedy")
     with pytest.raises(ValueError, match="observation has 10 values, got 2"):
         pgser.Policy("FetchReach")({"observation": np.zeros(2), "achieved_goal": np.zeros(3), "desired_goal": np.zeros(3)})
+
+
+@pytest.mark.parametrize("task", ["pointmaze-medium-v0", "pointmaze-teleport-navigate-v0"])
+def test_pointmaze_equals_ogbench(task):
+    """pgser's PointMaze through gymnasium equals OGBench's own environment: `reset(seed=s)` is
+    `np.random.seed(s); env.reset(seed=s)` (OGBench draws start, goal and task from numpy's
+    global generator), and steps of float32 actions give the same positions bit for bit; both end
+    an episode at the goal."""
+    import warnings
+
+    import ogbench.locomaze  # noqa: F401  (registers OGBench's ids)
+
+    warnings.filterwarnings("ignore")
+    env_id = task.replace("-navigate", "")
+    ours = pgser.make(task)
+    theirs = gym.make(env_id)
+    assert ours.spec.max_episode_steps == theirs.spec.max_episode_steps == 1000
+    for seed in (0, 3):
+        o, _ = ours.reset(seed=seed)
+        np.random.seed(seed)
+        t, info = theirs.reset(seed=seed)
+        assert np.array_equal(o["observation"], t) and np.array_equal(o["desired_goal"], info["goal"])
+        rng = np.random.default_rng(seed)
+        for _ in range(100):
+            d = info["goal"] - t
+            a = np.clip(d / (np.linalg.norm(d) + 1e-6) + rng.normal(0, 0.5, 2), -1, 1).astype(np.float32)
+            o, r, term, trunc, i = ours.step(a)
+            t, r2, term2, trunc2, i2 = theirs.step(a)
+            assert np.array_equal(o["observation"], t)
+            assert (term, bool(i["is_success"])) == (term2, bool(i2["success"]))
+            if term:
+                break
