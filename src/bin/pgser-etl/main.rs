@@ -231,21 +231,14 @@ pub(crate) fn main() -> ExitCode {
             if json {
                 println!("{}", serde_json::to_string(&s)?);
             } else {
-                print!(
-                    "{}",
-                    std::fs::read_to_string(&s.markdown)
-                        .with_context(|| format!("{}: cannot read", s.markdown.display()))?
-                );
+                print_file(&s.markdown)?;
                 eprintln!("wrote {}, {} and {}", s.markdown.display(), s.csv.display(), s.figure.display());
             }
             Ok(())
         }
         Command::Fig5 { inputs, output } => {
             let f = report::fig5_all(&report::Fig5Options { inputs, out_dir: output })?;
-            print!(
-                "{}",
-                std::fs::read_to_string(&f.table1).with_context(|| format!("{}: cannot read", f.table1.display()))?
-            );
+            print_file(&f.table1)?;
             eprintln!("wrote {} ({} panels) and {}", f.figure.display(), f.tasks.len(), f.table1.display());
             if !f.missing.is_empty() {
                 eprintln!("no report for {}", f.missing.join(", "));
@@ -257,11 +250,7 @@ pub(crate) fn main() -> ExitCode {
             if json {
                 println!("{}", serde_json::to_string(&t)?);
             } else {
-                print!(
-                    "{}",
-                    std::fs::read_to_string(&t.markdown)
-                        .with_context(|| format!("{}: cannot read", t.markdown.display()))?
-                );
+                print_file(&t.markdown)?;
                 eprintln!("wrote {} and {}", t.markdown.display(), t.csv.display());
             }
             Ok(())
@@ -313,4 +302,10 @@ pub(crate) fn main() -> ExitCode {
             Ok(())
         }
     })
+}
+
+/// Prints a table the command wrote (its markdown) to stdout.
+fn print_file(path: &std::path::Path) -> anyhow::Result<()> {
+    print!("{}", std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?);
+    Ok(())
 }
