@@ -37,6 +37,19 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     }
 }
 
+/// `pgser-etl export`: a trajectory table out as another tool's dataset: a Minari folder or a
+/// WGCSL pickle ([`minari::export`]), or an OGBench file ([`ogbench::export_npz`], which streams
+/// the table). Chosen here, above both writers, as `convert` chooses between the readers.
+pub fn export(opts: &minari::ExportOptions) -> Result<minari::ExportSummary> {
+    match opts.format {
+        minari::ExportFormat::Ogbench => {
+            let f = ogbench::export_npz(&opts.table, &opts.output)?;
+            Ok(minari::ExportSummary { task: f.task, episodes: f.episodes, t: f.t })
+        }
+        _ => minari::export(opts),
+    }
+}
+
 /// The kinds of input `convert` reads.
 enum Input<'a> {
     /// One or more WGCSL pickle files.

@@ -12,15 +12,16 @@
 //!
 //! | layer | modules |
 //! |---:|---|
-//! | 8 | [`pipeline`] |
-//! | 7 | [`report`] |
-//! | 6 | [`train`] |
-//! | 5 | [`sampler`], [`inspect`] |
-//! | 4 | [`score`], [`convert`] |
-//! | 3 | [`collect`], [`eval`], [`swap`], [`minari`], [`verify`] |
-//! | 2 | [`agent`], [`trajectory`] |
-//! | 1 | [`env`](mod@env), [`query`], [`table`] |
-//! | 0 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
+//! | 9 | [`pipeline`] |
+//! | 8 | [`report`] |
+//! | 7 | [`train`] |
+//! | 6 | [`sampler`], [`inspect`] |
+//! | 5 | [`score`], [`convert`] |
+//! | 4 | [`collect`], [`eval`], [`swap`], [`minari`], [`ogbench`], [`verify`] |
+//! | 3 | [`agent`], [`query`], [`trajectory`] |
+//! | 2 | [`env`](mod@env), [`table`] |
+//! | 1 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
+//! | 0 | [`install`] |
 
 pub mod agent;
 pub mod cli;

@@ -5,7 +5,7 @@
 //! If the job fails or panics first, dropping the handle deletes the temporary file.
 
 use std::fs::File;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use tempfile::NamedTempFile;
@@ -350,6 +350,22 @@ pub fn feed_file(hasher: &mut sha2::Sha256, mut file: File, path: &Path) -> Resu
 /// Lower-case hex, as `sha256sum` prints digests.
 pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// `a/b/../c` → `a/c`, without touching the file system (the outputs may not exist yet), so
+/// the paths recorded in checkpoints and printed to the user stay short and stable.
+pub fn normalize(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(out.components().next_back(), Some(Component::Normal(_))) => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    if out.as_os_str().is_empty() { PathBuf::from(".") } else { out }
 }
 
 #[cfg(test)]

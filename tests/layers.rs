@@ -9,10 +9,11 @@ use std::path::{Path, PathBuf};
 
 /// Bottom layer first. A module may import only modules of lower layers.
 const LAYERS: &[&[&str]] = &[
+    &["install"],
     &["cli", "nprandom", "output", "pickle", "progress", "task"],
-    &["env", "query", "table"],
-    &["agent", "trajectory"],
-    &["collect", "eval", "minari", "swap", "verify"],
+    &["env", "table"],
+    &["agent", "query", "trajectory"],
+    &["collect", "eval", "minari", "ogbench", "swap", "verify"],
     &["convert", "score"],
     &["inspect", "sampler"],
     &["train"],

@@ -34,7 +34,8 @@ pub enum ExportFormat {
     Minari,
     /// A WGCSL pickle (dict of float64 arrays o, ag, u, g; protocol 3).
     Wgcsl,
-    /// An OGBench dataset file `NAME.npz` (observations, actions, terminals; src/ogbench/export.rs).
+    /// An OGBench dataset file `NAME.npz` (observations, actions, terminals): written by
+    /// src/ogbench/export.rs, which `convert::export`, the layer above, chooses for it.
     Ogbench,
 }
 
@@ -68,8 +69,9 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
     let dataset_id = match opts.format {
         ExportFormat::Minari => Some(dataset_id(out)?),
         ExportFormat::Wgcsl => None,
-        // Streamed a batch at a time by its own writer, not through the table in memory below.
-        ExportFormat::Ogbench => return crate::ogbench::export_npz(&opts.table, out),
+        ExportFormat::Ogbench => {
+            bail!("{}: OGBench files are written by pgser's convert::export, not the Minari writer", out.display())
+        }
     };
     let table = read_table(&opts.table)?;
     match dataset_id {

@@ -19,12 +19,12 @@ use arrow_array::types::{Float32Type, Float64Type};
 use arrow_schema::DataType;
 
 use super::npz::{Dtype, NpzWriter};
-use crate::minari::ExportSummary;
 use crate::output::AtomicFile;
+use crate::trajectory::Footer;
 use crate::trajectory::read::{check_all_read, check_keys, open_checked};
 
-/// Writes `table` as the OGBench dataset file `out`.
-pub fn export_npz(table: &Path, out: &Path) -> Result<ExportSummary> {
+/// Writes `table` as the OGBench dataset file `out`; returns the table's footer.
+pub fn export_npz(table: &Path, out: &Path) -> Result<Footer> {
     if out.extension().and_then(|e| e.to_str()) != Some("npz") {
         bail!(
             "{}: an OGBench dataset is a .npz file named after the dataset (pointmaze-medium-navigate-v0.npz)",
@@ -54,7 +54,7 @@ pub fn export_npz(table: &Path, out: &Path) -> Result<ExportSummary> {
     use std::io::Write;
     w.finish()?.flush().with_context(|| format!("{}: write failed", out.display()))?;
     file.commit()?;
-    Ok(ExportSummary { task: footer.task.clone(), episodes: footer.episodes, t })
+    Ok(footer)
 }
 
 /// Calls `each(row, bytes)` with every row of `column` (a vector column; desired goals and

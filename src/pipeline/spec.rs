@@ -6,7 +6,9 @@
 //! `[train]` ← `[pretrain]` or `[agents]` ← the grid cell (algo, seed, variant); an unknown
 //! name is an error, so a typo cannot silently fall back to a default.
 
-use std::path::{Component, Path, PathBuf};
+use std::path::{Path, PathBuf};
+
+pub use crate::output::normalize;
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
@@ -388,22 +390,6 @@ fn online_config(task: &str, table: &toml::Table) -> Result<OnlineConfig> {
         serde_json::from_value(json).map_err(|e| anyhow::anyhow!("a setting has the wrong type: {e}"))?;
     // Not settings of the run (they change no result): save every 10 minutes, as the CLI does.
     Ok(OnlineConfig { save_minutes: defaults.save_minutes, max_minutes: None, ..cfg })
-}
-
-/// `a/b/../c` → `a/c`, without touching the file system (the outputs may not exist yet), so
-/// the paths recorded in checkpoints and printed to the user stay short and stable.
-pub fn normalize(p: &Path) -> PathBuf {
-    let mut out = PathBuf::new();
-    for c in p.components() {
-        match c {
-            Component::CurDir => {}
-            Component::ParentDir if matches!(out.components().next_back(), Some(Component::Normal(_))) => {
-                out.pop();
-            }
-            c => out.push(c),
-        }
-    }
-    if out.as_os_str().is_empty() { PathBuf::from(".") } else { out }
 }
 
 #[cfg(test)]

@@ -96,7 +96,7 @@ pub fn study(path: &Path) -> Result<Study> {
     let f: StudyFile =
         toml::from_str(&text).map_err(|e| anyhow!("{at}: {}", e.to_string().trim().replace('\n', " ")))?;
     let dir = path.parent().unwrap_or(Path::new(""));
-    let resolve = |p: &str| crate::pipeline::normalize(&dir.join(p));
+    let resolve = |p: &str| crate::output::normalize(&dir.join(p));
     if f.arm.iter().all(|a| a.x.is_some()) || f.arm.iter().all(|a| a.x.is_none()) {
         bail!("{at}: a study needs reference arms (no x) and arms to compare with them (with x)");
     }

@@ -266,7 +266,7 @@ pub(crate) fn main() -> ExitCode {
             Ok(())
         }
         Command::Export { table, format, output } => {
-            let s = minari::export(&minari::ExportOptions { table, format, output: output.clone() })?;
+            let s = convert::export(&minari::ExportOptions { table, format, output: output.clone() })?;
             eprintln!("wrote {}: {} episodes of {} (T = {})", output.display(), s.episodes, s.task, s.t);
             Ok(())
         }
