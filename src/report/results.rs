@@ -417,7 +417,7 @@ pub fn results_markdown(r: &Results) -> String {
 fn legend() -> String {
     format!(
         "\np: Welch's two-sided t-test (unequal variances) of the per-seed final paper scores of mem against \
-         baseline / swap (and of each named arm, an ablation of mem); {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
+         baseline / swap; {BETTER} marks mem significantly better (p < {ALPHA}, higher mean), {WORSE} significantly \
          worse (lower mean); no mark: no significant difference. results.csv adds the paper's one-sided test, \
          mem outperforms the reference (Welch, H1: mem mean > reference mean), as p_one_sided_vs_baseline and \
          p_one_sided_vs_swap.\n"
