@@ -158,8 +158,9 @@ def test_pointmaze_equals_ogbench(task):
     an episode at the goal."""
     import warnings
 
-    import ogbench.locomaze  # noqa: F401  (registers OGBench's ids)
-
+    # In the test venv (tests/requirements.txt); the wheel's own check (tests/wheel/check.sh)
+    # installs only what the wheel needs, and skips this.
+    pytest.importorskip("ogbench.locomaze")  # registers OGBench's ids
     warnings.filterwarnings("ignore")
     env_id = task.replace("-navigate", "")
     ours = pgser.make(task)
