@@ -204,7 +204,13 @@ case "${1:-}" in
       # The numbers are always the grid's own files; the figures come from $drawn: the grid's
       # out/ itself, or a copy where the newer build has drawn them again.
       drawn=$src
-      if [ "$render" != "$bin/pgser-etl" ]; then
+      # A pipeline scoring with a Q outside its out/ ([pretrain] checkpoint) has a scored table
+      # whose footer finds that Q by a path relative to the grid's out/, which a copy elsewhere
+      # does not have: its figures stay the ones its own build drew.
+      given_q=$(sed -n '/^\[pretrain\]/,/^\[/p' "$g" | grep -c '^checkpoint *=' || true)
+      if [ "$given_q" != 0 ]; then
+        echo "$name: scores with a given Q: figures as its own build drew them"
+      elif [ "$render" != "$bin/pgser-etl" ]; then
         # The report and results steps again, on a hard-linked copy of out/ (outputs are replaced
         # by rename, so the grid's own files are never written) with their records removed so
         # that they run. The copy keeps the layout the grid ran in, the file in pipelines/ and its

@@ -237,14 +237,16 @@ fn share_of(s: &PriorityShares, p: &PriorityConfig) -> Option<f64> {
         .map(|x| x.share_above)
 }
 
+/// A CSV cell: empty where the arm has no such number.
 fn opt(x: Option<f64>, digits: usize) -> String {
-    x.map_or("n/a".into(), |x| format!("{x:.digits$}"))
+    x.map_or(String::new(), |x| format!("{x:.digits$}"))
 }
 
 /// The p with the direction of a significant difference, as results.md marks it.
 fn fmt_p(p: Option<f64>, above: bool) -> String {
     match p {
         None => "—".into(),
+        Some(p) if p < 1e-3 => format!("{p:.1e} {}", if above { BETTER } else { WORSE }),
         Some(p) if p < ALPHA => format!("{p:.3} {}", if above { BETTER } else { WORSE }),
         Some(p) => format!("{p:.3}"),
     }
