@@ -194,7 +194,7 @@ pub(crate) fn main() -> ExitCode {
             Some(Command::Eval { ckpt, random, task, episodes, seed, json }) => {
                 let (report, what, task) = if random {
                     let name = task.expect("clap requires --task with --random");
-                    let t = pgser::env::make(&name)?.task().clone();
+                    let t = pgser::env::task(&name)?;
                     let policy = eval::RandomPolicy::new(t.act_dim, seed);
                     (eval::evaluate(&t.name, &policy, episodes, seed)?, "random policy".to_string(), t.name)
                 } else {

@@ -9,8 +9,8 @@
 use serde::Serialize;
 
 use super::paper::PaperCell;
-use super::results::{ALPHA, BETTER, WORSE, welch_from_summary};
 use super::table2::{AGENTS, Measured};
+use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
 
 /// One side of Welch's test: (mean, sample std, n).
 pub(super) type Side = (f64, f64, usize);

@@ -30,6 +30,7 @@ mod share;
 mod spread;
 mod study;
 mod table2;
+mod welch;
 
 use std::io::Write;
 use std::path::Path;
@@ -40,14 +41,12 @@ pub use classify::{ClassifierScore, classify};
 pub use fig5::{Fig5All, Fig5Options, fig5_all};
 pub use negatives::{Negatives, negatives};
 pub use qreport::{ControlledTable1, Fig5Hist, QReport, QReportOptions, Table1, q_report, table1, table1_markdown};
-pub use results::{
-    ALPHA, BETTER, ResultRow, Results, Run, WORSE, results, results_markdown, welch_from_summary, welch_greater,
-    welch_t_test,
-};
+pub use results::{ResultRow, Results, Run, results, results_markdown};
 pub use share::{PriorityShares, Share, parse_setting};
 pub use spread::{Block, Pooled, ScoreCell, pool, read_scores};
 pub use study::{Study, StudyRow, study};
 pub use table2::{Table2, Table2Cell, Table2Options, table2};
+pub use welch::{ALPHA, BETTER, WORSE, welch_from_summary, welch_greater, welch_t_test};
 
 /// Figure size in pixels: large enough for legible 14–16 px labels, small enough to embed.
 pub const FIG_SIZE: (u32, u32) = (900, 600);

@@ -49,7 +49,7 @@ pub fn pool(blocks: &[Block]) -> Option<Pooled> {
     let mean = blocks.iter().map(|b| b.episodes as f64 * b.mean).sum::<f64>() / n as f64;
     let ss: f64 = blocks.iter().map(|b| b.episodes as f64 * (b.std * b.std + (b.mean - mean) * (b.mean - mean))).sum();
     let std = if n < 2 { f64::NAN } else { (ss / (n - 1) as f64).sqrt() };
-    // Round-off is not spread (as in results::mean_std): constant scores have std 0.
+    // Round-off is not spread (as in welch::mean_std): constant scores have std 0.
     let std = if std < 1e-12 * mean.abs().max(1.0) { 0.0 } else { std };
     Some(Pooled { episodes: n, mean, std })
 }

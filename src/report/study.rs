@@ -22,8 +22,8 @@ use polars::prelude::DataType;
 use serde::{Deserialize, Serialize};
 
 use super::plot::{self, PointSeries};
-use super::results::{ALPHA, BETTER, WORSE, welch_from_summary};
 use super::share::{PriorityShares, parse_setting};
+use super::welch::{ALPHA, BETTER, WORSE, fmt_p_above, welch_from_summary};
 use super::{FIG_SIZE, ensure_dir, write_text};
 use crate::sampler::priority::PriorityConfig;
 
@@ -242,16 +242,6 @@ fn opt(x: Option<f64>, digits: usize) -> String {
     x.map_or(String::new(), |x| format!("{x:.digits$}"))
 }
 
-/// The p with the direction of a significant difference, as results.md marks it.
-fn fmt_p(p: Option<f64>, above: bool) -> String {
-    match p {
-        None => "—".into(),
-        Some(p) if p < 1e-3 => format!("{p:.1e} {}", if above { BETTER } else { WORSE }),
-        Some(p) if p < ALPHA => format!("{p:.3} {}", if above { BETTER } else { WORSE }),
-        Some(p) => format!("{p:.3}"),
-    }
-}
-
 fn markdown(s: &Study, title: &str) -> String {
     let mut md = format!(
         "# {title}\n\n| arm | x | Table 1 accuracy (paper's / controlled) | share above own-goal median (uniform) | seeds | paper score | success |"
@@ -279,7 +269,8 @@ fn markdown(s: &Study, title: &str) -> String {
         );
         for (k, r) in s.rows.iter().filter(|r| r.x.is_none()).enumerate() {
             let p = row.p.get(k).copied().flatten();
-            let _ = write!(md, " {} |", if row.x.is_none() { "—".into() } else { fmt_p(p, row.mean > r.mean) });
+            let _ =
+                write!(md, " {} |", if row.x.is_none() { "—".into() } else { fmt_p_above(p, Some(row.mean > r.mean)) });
         }
         md += "\n";
     }

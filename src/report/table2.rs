@@ -30,8 +30,8 @@ use serde::Serialize;
 
 use super::agree::{self, Agreement, Side};
 use super::paper::{self, PaperCell, paper_task};
-use super::results::{ALPHA, BETTER, WORSE, welch_from_summary};
 use super::spread::read_scores;
+use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
 use super::{ensure_dir, write_text};
 use crate::query::first_line;
 
