@@ -15,6 +15,7 @@
 //! environment applied it: clipped to [−1, 1] and rounded to float32 (the action space's
 //! dtype), so replaying u as float32 in gymnasium reproduces the episode.
 
+pub mod ogbench;
 pub mod policy;
 
 use std::fs::File;
@@ -28,7 +29,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
-use self::policy::{EpisodePolicy, PolicySpec};
+use self::policy::{EpisodePolicy, PolicyKind, PolicySpec};
 use crate::env::{self, GoalEnv};
 use crate::output::AtomicFile;
 use crate::pickle::write::{ArrayOut, write_f64_dict};
@@ -74,6 +75,9 @@ const MIN_CHUNK: usize = 256;
 /// counts, the environment and its assets, the policy), and creates nothing: a pipeline calls
 /// it before any of its steps run.
 pub fn check(opts: &CollectOptions) -> Result<Task> {
+    if opts.policy.kind == PolicyKind::Oracle {
+        return Ok(ogbench::check(opts)?.1);
+    }
     Ok(prepare(opts)?.1.task().clone())
 }
 
@@ -101,6 +105,9 @@ fn prepare(opts: &CollectOptions) -> Result<(bool, Box<dyn GoalEnv + Send>)> {
 }
 
 pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummary> {
+    if opts.policy.kind == PolicyKind::Oracle {
+        return ogbench::collect(opts, bar);
+    }
     let started = Instant::now();
     let at = opts.output.display();
     let (pickle, first) = prepare(opts)?;

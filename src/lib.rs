@@ -16,8 +16,8 @@
 //! | 8 | [`report`] |
 //! | 7 | [`train`] |
 //! | 6 | [`sampler`], [`inspect`] |
-//! | 5 | [`score`], [`convert`] |
-//! | 4 | [`collect`], [`eval`], [`swap`], [`minari`], [`ogbench`], [`verify`] |
+//! | 5 | [`collect`], [`score`], [`convert`] |
+//! | 4 | [`eval`], [`swap`], [`minari`], [`ogbench`], [`verify`] |
 //! | 3 | [`agent`], [`query`], [`trajectory`] |
 //! | 2 | [`env`](mod@env), [`table`] |
 //! | 1 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |

@@ -258,3 +258,120 @@ fn evaluation_in_pointmaze_equals_ogbenchs() {
     assert_eq!(ours.return_mean, returns, "{ours:?} vs {theirs}");
     assert!(successes > 0, "the oracle reached no goal: the test checks no early end");
 }
+
+fn collect_ok(task: &str, episodes: usize, seed: u64, out: &Path, extra: &[&str]) -> String {
+    let o = etl()
+        .args(["collect", "--task", task, "--policy", "oracle", "--episodes", &episodes.to_string()])
+        .args(["--seed", &seed.to_string(), "-o"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    text(&o.stderr)
+}
+
+/// `collect --policy oracle` is OGBench's data generator, episode for episode: its files equal,
+/// array for array (all but each episode's first qvel row, a random velocity OGBench's reset
+/// leaves and its first step zeroes), what the generator's loop writes run in ogbench's own
+/// environment with numpy seeded S + i per episode (tests/py/make_ogbench_fixtures.py
+/// --seed-per-episode): navigate with its goal switches and walls, and stitch in the teleport
+/// maze with its teleports, train and val files.
+#[test]
+fn oracle_data_equal_ogbenchs_generator_run_in_ogbench() {
+    let dir = tempfile::tempdir().unwrap();
+    for (maze, kind, episodes, rows) in [("medium", "navigate", 3, 1001), ("teleport", "stitch", 20, 201)] {
+        let name = format!("pointmaze-{maze}-{kind}-v0");
+        let (ours, theirs) = (dir.path().join(format!("ours-{maze}")), dir.path().join(format!("theirs-{maze}")));
+        std::fs::create_dir(&ours).unwrap();
+        let file = ours.join(format!("{name}.npz"));
+        let said = collect_ok(&name, episodes, 7, &file, &[]);
+        assert!(said.contains(&format!("{episodes} episodes of pointmaze-{maze}-v0")), "{said}");
+        let val = (episodes / 10).max(1).to_string();
+        py_ok(
+            "make_ogbench_fixtures.py",
+            &[
+                theirs.to_str().unwrap(),
+                "--maze",
+                maze,
+                "--dataset-type",
+                kind,
+                "--train-episodes",
+                &episodes.to_string(),
+                "--val-episodes",
+                &val,
+                "--steps",
+                &rows.to_string(),
+                "--seed",
+                "7",
+                "--seed-per-episode",
+            ],
+        );
+        let want = theirs.join(format!("{name}.npz"));
+        let o = py_ok("check_ogbench.py", &["collected", want.to_str().unwrap(), file.to_str().unwrap()]);
+        assert!(text(&o.stdout).contains("-val/qvel"), "{}", text(&o.stdout));
+    }
+}
+
+/// In distribution, the oracle data are OGBench's: state coverage per cell, the actions' mean,
+/// spread and clipping, step lengths, wall contacts and how far episodes go, each within 5
+/// standard errors of the statistics of OGBench's own `generate_locomaze.py` (run unmodified,
+/// unseeded, with the flags of its commands.sh: tests/fixtures/ogbench/generator_stats.json, made
+/// by tests/py/ogbench_generator_stats.py reference), on as many episodes.
+#[test]
+fn oracle_data_match_ogbenchs_generator_in_distribution() {
+    let dir = tempfile::tempdir().unwrap();
+    let reference = fixture("generator_stats.json");
+    for (name, episodes) in
+        [("pointmaze-medium-navigate-v0", 200), ("pointmaze-medium-stitch-v0", 1000), ("pointmaze-large-stitch-v0", 1000)]
+    {
+        let file = dir.path().join(format!("{name}.npz"));
+        collect_ok(name, episodes, 1000, &file, &[]);
+        let o = py_ok("ogbench_generator_stats.py", &["compare", reference.to_str().unwrap(), name, file.to_str().unwrap()]);
+        let r: serde_json::Value = serde_json::from_str(&text(&o.stdout)).unwrap();
+        assert!(r["statistics"].as_u64().unwrap() >= 30, "{r}");
+    }
+    // The comparison has power: a tenth less noise than OGBench's is caught.
+    let file = dir.path().join("pointmaze-medium-stitch-v0.npz");
+    collect_ok("pointmaze-medium-stitch-v0", 1000, 1000, &file, &["--noise", "0.4"]);
+    let o = std::process::Command::new(python())
+        .arg(repo().join("tests/py/ogbench_generator_stats.py"))
+        .args(["compare", reference.to_str().unwrap(), "pointmaze-medium-stitch-v0", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains("action_clipped"), "{}", text(&o.stderr));
+}
+
+/// A `.parquet` from the oracle is the table `convert` makes of its `.npz`; the task is the
+/// maze's with T = the recipe's rows, and the footer names the recipe and the seed.
+#[test]
+fn oracle_table_is_the_converted_npz() {
+    let dir = tempfile::tempdir().unwrap();
+    let (npz, direct, converted) =
+        (dir.path().join("pointmaze-large-stitch-v0.npz"), dir.path().join("d.parquet"), dir.path().join("c.parquet"));
+    collect_ok("pointmaze-large-stitch-v0", 30, 5, &npz, &[]);
+    collect_ok("pointmaze-large-stitch-v0", 30, 5, &direct, &["--row-group-rows", "65536"]);
+    convert_ok(&npz, &converted, &[]);
+    assert_eq!(read_table(&direct).0.columns(), read_table(&converted).0.columns());
+    let footer = pgser::table::read_footer(&direct).unwrap();
+    assert_eq!((footer["task"].as_str(), footer["T"].as_u64()), (Some("pointmaze-large-v0"), Some(201)));
+    assert_eq!((footer["policy"].as_str(), footer["seed"].as_u64()), (Some("oracle:pointmaze-large-stitch-v0 noise 0.5"), Some(5)));
+    // Bad requests: one line, no file.
+    let fails = |task: &str, out: &Path, extra: &[&str], want: &str| {
+        let o = etl()
+            .args(["collect", "--task", task, "--policy", "oracle", "--episodes", "3", "-o"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        let e = text(&o.stderr);
+        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{e}");
+        assert!(!out.exists());
+    };
+    let out = dir.path().join("x.npz");
+    fails("pointmaze-medium-v0", &out, &[], "name one, pointmaze-<maze>-navigate-v0");
+    fails("FetchPush", &out, &[], "OGBench's PointMaze datasets");
+    fails("pointmaze-medium-stitch-v0", &dir.path().join("x.pkl"), &[], "name it .npz");
+    fails("pointmaze-medium-stitch-v0", &out, &["--epsilon", "0.1"], "--epsilon");
+    fails("pointmaze-medium-stitch-v0", &out, &["--seed", "4294967295"], "below 2^32");
+}

@@ -37,6 +37,9 @@ pub enum PolicyKind {
     Random,
     /// A trained actor (agent 0 of a pgser checkpoint), shared by every worker.
     Checkpoint(Arc<HostActor>),
+    /// OGBench's scripted oracle with its dataset recipe (`collect::ogbench`): a whole episode
+    /// generator of its own rather than a per-step policy.
+    Oracle,
 }
 
 impl PolicyKind {
@@ -45,11 +48,12 @@ impl PolicyKind {
         match name {
             "expert" => Ok(PolicyKind::Expert),
             "random" => Ok(PolicyKind::Random),
+            "oracle" => Ok(PolicyKind::Oracle),
             _ => match name.strip_prefix("checkpoint:") {
                 Some(file) if !file.is_empty() => {
                     Ok(PolicyKind::Checkpoint(Arc::new(HostActor::load(Path::new(file))?)))
                 }
-                _ => bail!("unknown policy '{name}': use expert, random or checkpoint:FILE"),
+                _ => bail!("unknown policy '{name}': use expert, random, oracle or checkpoint:FILE"),
             },
         }
     }
@@ -59,11 +63,17 @@ impl PolicyKind {
             PolicyKind::Expert => "expert",
             PolicyKind::Random => "random",
             PolicyKind::Checkpoint(_) => "checkpoint",
+            PolicyKind::Oracle => "oracle",
         }
     }
 }
 
 impl PolicyKind {
+    /// The action noise when none is given: OGBench's σ = 0.5 for its oracle data, else none.
+    pub fn default_noise(&self) -> f64 {
+        if *self == PolicyKind::Oracle { crate::env::pointmaze::ORACLE_NOISE } else { 0.0 }
+    }
+
     /// What a table's footer records: the name, and for a checkpoint its file.
     pub fn describe(&self) -> String {
         match self {
@@ -141,6 +151,7 @@ impl EpisodePolicy {
                 }
                 Actor::Trained(a.clone())
             }
+            PolicyKind::Oracle => bail!("{task}: the oracle makes OGBench's datasets (collect::ogbench), not steps"),
         };
         Ok(EpisodePolicy { spec, actor, rng: NpRandom::spawned(seed, &[episode]) })
     }

@@ -45,6 +45,44 @@ pub fn task(id: &str) -> Option<Task> {
     resolve(id).map(|name| Task::custom(name, EPISODE_STEPS, 2, 2, 2, GOAL_TOL))
 }
 
+/// How OGBench's PointMaze datasets were made (`data_gen_scripts/generate_locomaze.py` and the
+/// flags in its `commands.sh`), which `pgser-etl collect --policy oracle` follows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Recipe {
+    pub kind: DatasetKind,
+    /// Rows (observations) per episode: the generator's `max_episode_steps`.
+    pub rows: usize,
+    /// Training episodes of the published dataset (its `-val` file holds a tenth as many more).
+    pub episodes: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DatasetKind {
+    /// From a random cell to a random junction cell, a new junction each time one is reached,
+    /// for the whole episode.
+    Navigate,
+    /// From a random cell to a cell 4 steps away, staying there: short pieces that only
+    /// stitching joins into the evaluation tasks' paths.
+    Stitch,
+}
+
+/// The recipe of an OGBench PointMaze dataset name (`pointmaze-large-stitch-v0`); None for an
+/// environment id or another family.
+pub fn recipe(dataset: &str) -> Option<Recipe> {
+    resolve(dataset)?;
+    let words: Vec<&str> = dataset.split('-').collect();
+    let giant = words[1] == "giant";
+    match words.get(2) {
+        Some(&"navigate") if giant => Some(Recipe { kind: DatasetKind::Navigate, rows: 2001, episodes: 500 }),
+        Some(&"navigate") => Some(Recipe { kind: DatasetKind::Navigate, rows: 1001, episodes: 1000 }),
+        Some(&"stitch") => Some(Recipe { kind: DatasetKind::Stitch, rows: 201, episodes: 5000 }),
+        _ => None,
+    }
+}
+
+/// The standard deviation of the action noise in every PointMaze dataset (`--noise=0.5`).
+pub const ORACLE_NOISE: f64 = 0.5;
+
 /// Steps per episode (OGBench registers every PointMaze with `max_episode_steps=1000`).
 pub const EPISODE_STEPS: usize = 1000;
 /// OGBench's `goal_tol` for the point.
@@ -53,7 +91,8 @@ const POINT_XML: &str = include_str!("../../assets/ogbench/point.xml");
 const MAZE_UNIT: f64 = 4.0;
 const FRAME_SKIP: usize = 5;
 
-type Cell = (usize, usize);
+/// A maze cell (row i, column j).
+pub type Cell = (usize, usize);
 
 struct Maze {
     map: &'static [&'static str],
@@ -257,9 +296,15 @@ impl PointMazeEnv {
             None => 1 + self.rng.randint(5) as usize,
         };
         let (start, goal) = self.maze.tasks[id - 1];
+        self.task_id = id;
+        self.reset_cells(start, goal)
+    }
+
+    /// `env.reset(options=dict(task_info=dict(init_ij=start, goal_ij=goal)))`: start and goal
+    /// noise drawn around the two cells' centres, start first.
+    pub fn reset_cells(&mut self, start: Cell, goal: Cell) -> Obs {
         let init = self.noisy(ij_to_xy(start));
         self.goal = self.noisy(ij_to_xy(goal));
-        self.task_id = id;
         // The warm-up steps and the goal observation OGBench takes in between leave nothing
         // behind but the position: mj_resetData, then the start set (velocity is zeroed by the
         // next step before it can act).
@@ -268,6 +313,70 @@ impl PointMazeEnv {
         self.data.qvel_mut().fill(0.0);
         self.data.forward();
         self.obs()
+    }
+
+    /// `set_goal(goal_ij)`: a new goal mid-episode, with noise, as the navigate data switch goals.
+    pub fn set_goal_cell(&mut self, goal: Cell) {
+        self.goal = self.noisy(ij_to_xy(goal));
+    }
+
+    /// The free cells in row-major order (OGBench's data generator's `all_cells`).
+    pub fn free_cells(&self) -> Vec<Cell> {
+        let m = self.maze.map;
+        (0..m.len()).flat_map(|i| (0..m[0].len()).map(move |j| (i, j))).filter(|&(i, j)| self.free(i, j)).collect()
+    }
+
+    /// The free cells that are not straight corridor cells (free above and below with walls left
+    /// and right, or the reverse): the generator's `vertex_cells`, its navigate goals.
+    pub fn vertex_cells(&self) -> Vec<Cell> {
+        let f = |i: usize, j: usize| self.free(i, j);
+        self.free_cells()
+            .into_iter()
+            .filter(|&(i, j)| {
+                let vertical = f(i - 1, j) && f(i + 1, j) && !f(i, j - 1) && !f(i, j + 1);
+                let horizontal = f(i, j - 1) && f(i, j + 1) && !f(i - 1, j) && !f(i + 1, j);
+                !vertical && !horizontal
+            })
+            .collect()
+    }
+
+    /// The cells exactly `steps` moves from `from`, in breadth-first order (neighbours up, left,
+    /// down, right): the stitch data's candidate goals.
+    pub fn cells_at_distance(&self, from: Cell, steps: usize) -> Vec<Cell> {
+        let m = self.maze.map;
+        let mut dist = vec![vec![usize::MAX; m[0].len()]; m.len()];
+        dist[from.0][from.1] = 0;
+        let mut queue = std::collections::VecDeque::from([from]);
+        let mut found = Vec::new();
+        while let Some((i, j)) = queue.pop_front() {
+            for (di, dj) in [(-1i64, 0i64), (0, -1), (1, 0), (0, 1)] {
+                let (ni, nj) = ((i as i64 + di) as usize, (j as i64 + dj) as usize);
+                if ni < m.len() && nj < m[0].len() && self.free(ni, nj) && dist[ni][nj] == usize::MAX {
+                    dist[ni][nj] = dist[i][j] + 1;
+                    queue.push_back((ni, nj));
+                    if dist[ni][nj] == steps {
+                        found.push((ni, nj));
+                    }
+                }
+            }
+        }
+        found
+    }
+
+    fn free(&self, i: usize, j: usize) -> bool {
+        self.maze.map.get(i).and_then(|row| row.as_bytes().get(j)) == Some(&b'0')
+    }
+
+    /// numpy's global generator, which OGBench's data generator also draws its cells and action
+    /// noise from.
+    pub fn rng(&mut self) -> &mut RandomState {
+        &mut self.rng
+    }
+
+    /// The point's velocity (what OGBench records as `qvel`).
+    pub fn qvel(&self) -> [f64; 2] {
+        let v = self.data.qvel();
+        [v[0], v[1]]
     }
 
     /// `add_noise`: U(−1, 1) · unit / 4 on each coordinate, x first.
@@ -291,7 +400,8 @@ impl PointMazeEnv {
         self.task_id
     }
 
-    fn xy(&self) -> [f64; 2] {
+    /// The point's position (x, y).
+    pub fn xy(&self) -> [f64; 2] {
         let q = self.data.qpos();
         [q[0], q[1]]
     }
@@ -331,8 +441,22 @@ impl GoalEnv for PointMazeEnv {
         assert_eq!(action.len(), 2, "PointMaze takes 2 action values");
         // `0.2 * action` on the float32 action is float32 (numpy's weak Python scalar), then
         // added to the float64 position.
-        for (q, &a) in self.data.qpos_mut().iter_mut().zip(action) {
-            *q += f64::from(0.2f32 * super::applied_action(a));
+        let a = |k: usize| f64::from(0.2f32 * super::applied_action(action[k]));
+        self.advance([a(0), a(1)])
+    }
+}
+
+impl PointMazeEnv {
+    /// A step with a float64 action, as OGBench's data generator takes them (`0.2 * action` in
+    /// float64; the action is not clipped here, the generator clips it).
+    pub fn step_f64(&mut self, action: [f64; 2]) -> Step {
+        self.advance(action.map(|a| 0.2 * a))
+    }
+
+    /// Moves the point by `delta`, resolves walls, then checks success and the teleport pads.
+    fn advance(&mut self, delta: [f64; 2]) -> Step {
+        for (q, d) in self.data.qpos_mut().iter_mut().zip(delta) {
+            *q += d;
         }
         self.data.qvel_mut().fill(0.0);
         for _ in 0..FRAME_SKIP {

@@ -6,7 +6,8 @@
 //! so reproducing one of its episodes means seeding this as `np.random.seed(s)` does. An integer
 //! seed goes through MT19937's `init_genrand` (numpy's `_legacy_seeding` for a scalar); a double is
 //! `random_sample`'s 53 bits from two 32-bit outputs; `randint(n)` masks a 32-bit output to the
-//! next power of two and rejects values ≥ n.
+//! next power of two and rejects values ≥ n. `normal` is numpy's legacy polar Box–Muller, which
+//! makes values in pairs and keeps the second for the next call (`np.random.seed` drops it).
 
 const N: usize = 624;
 const M: usize = 397;
@@ -14,6 +15,8 @@ const M: usize = 397;
 pub struct RandomState {
     mt: [u32; N],
     index: usize,
+    /// The second value of the last Box–Muller pair, not yet returned.
+    gauss: Option<f64>,
 }
 
 impl RandomState {
@@ -24,7 +27,7 @@ impl RandomState {
         for i in 1..N {
             mt[i] = 1_812_433_253u32.wrapping_mul(mt[i - 1] ^ (mt[i - 1] >> 30)).wrapping_add(i as u32);
         }
-        RandomState { mt, index: N }
+        RandomState { mt, index: N, gauss: None }
     }
 
     fn generate(&mut self) {
@@ -64,6 +67,29 @@ impl RandomState {
         low + (high - low) * self.random_sample()
     }
 
+    /// `np.random.standard_normal()` (numpy's `legacy_gauss`): draw points of the square until
+    /// one falls inside the unit circle (and not at its centre), return `f·x2` and keep `f·x1`.
+    pub fn standard_normal(&mut self) -> f64 {
+        if let Some(g) = self.gauss.take() {
+            return g;
+        }
+        loop {
+            let x1 = 2.0 * self.random_sample() - 1.0;
+            let x2 = 2.0 * self.random_sample() - 1.0;
+            let r2 = x1 * x1 + x2 * x2;
+            if r2 < 1.0 && r2 != 0.0 {
+                let f = (-2.0 * r2.ln() / r2).sqrt();
+                self.gauss = Some(f * x1);
+                return f * x2;
+            }
+        }
+    }
+
+    /// `np.random.normal(loc, scale)`: `loc + scale·standard_normal()`; with `size=k`, k calls.
+    pub fn normal(&mut self, loc: f64, scale: f64) -> f64 {
+        loc + scale * self.standard_normal()
+    }
+
     /// `np.random.randint(n)` for n ≥ 1: [0, n).
     pub fn randint(&mut self, n: u32) -> u32 {
         assert!(n >= 1, "randint(0)");
@@ -101,5 +127,27 @@ mod tests {
         let a: Vec<u32> = (0..8).map(|_| r.randint(5)).collect();
         let b: Vec<u32> = (0..4).map(|_| 1 + r.randint(5)).collect();
         assert_eq!((a, b, r.randint(3), r.randint(1)), (vec![3, 0, 1, 0, 4, 3, 0, 0], vec![5, 2, 1, 4], 0, 0));
+    }
+
+    /// numpy 2.4.6: `np.random.seed(7)`; `normal(0, .5, 2)` twice, `normal(1, 2)`, `randint(10)`,
+    /// `normal(0, .5, 3)` (its third value starts a pair and leaves one kept).
+    #[test]
+    fn normal_draws_pairs_as_numpy_does() {
+        let mut r = RandomState::new(7);
+        let mut v: Vec<f64> = (0..4).map(|_| r.normal(0.0, 0.5)).collect();
+        v.push(r.normal(1.0, 2.0));
+        assert_eq!(r.randint(10), 8);
+        v.extend((0..3).map(|_| r.normal(0.0, 0.5)));
+        let want = [
+            0.845262851900178,
+            -0.2329686852704164,
+            0.0164100818392922,
+            0.20375814149825391,
+            -0.5778460572514772,
+            0.001032786452974065,
+            1.0128857620685174,
+            -0.0006640252380790819,
+        ];
+        assert_eq!(v, want);
     }
 }

@@ -38,6 +38,10 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
             let task = Task::known(&p.task).context("task")?;
             Some((task, vec![(PathBuf::from("expert"), *expert), (PathBuf::from("random"), *random)], 8))
         }
+        Data::Oracle { episodes, .. } => {
+            let (_, task) = crate::collect::ogbench::recipe(&p.task).context("task")?;
+            Some((task, vec![(PathBuf::from("oracle"), *episodes)], 4))
+        }
         Data::Pickles { .. } => None,
     };
     if let Some(q) = p.q_checkpoint.as_ref().filter(|q| q.exists()) {
@@ -85,7 +89,7 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
             }
             Action::Report(_) => {
                 let (_, sources, _) = beta.as_ref().expect("convert comes before the report");
-                positive_episodes(p.report.positive_episodes, sources)?;
+                positive_episodes(super::positives(p), sources)?;
             }
             Action::Results(_) => {}
         }
@@ -126,7 +130,7 @@ fn positive_episodes(given: Option<usize>, sources: &[(PathBuf, usize)]) -> Resu
 /// after the data were collected.
 fn check_q(q: &Path, task: &str) -> Result<()> {
     let (agent, _) = crate::agent::checkpoint::load(q, Backend::Cpu.device()?)?;
-    let want = Task::known(task).context("task")?;
+    let want = crate::env::task(task)?;
     if agent.task.name != want.name {
         bail!("a critic trained on {}, not on the pipeline's task {}", agent.task.name, want.name);
     }

@@ -217,7 +217,35 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             }
             (files, None)
         }
+        Data::Oracle { episodes, seed, noise } => {
+            // Named after the dataset, as OGBench's loader and `convert` expect; its -val file
+            // beside it.
+            let file = out.join(format!("data/{}.npz", p.task));
+            let val = collect::ogbench::val_file(&file);
+            steps.push(Step {
+                name: "collect_oracle".into(),
+                params: json!({"task": p.task, "policy": "oracle", "episodes": episodes, "seed": seed, "noise": noise}),
+                inputs: vec![],
+                outputs: vec![file.clone(), val],
+                action: Action::Collect(CollectStep {
+                    opts: collect::CollectOptions {
+                        task: p.task.clone(),
+                        policy: PolicySpec { kind: PolicyKind::Oracle, noise: *noise, epsilon: 0.0 },
+                        episodes: *episodes,
+                        seed: *seed,
+                        output: file.clone(),
+                        float32: false,
+                        row_group_rows: 65_536,
+                        command: cmd("collect_oracle"),
+                    },
+                    checkpoint: None,
+                }),
+            });
+            (vec![file], None)
+        }
     };
+    // An OGBench file names its environment itself; a pickle takes the pipeline's task.
+    let convert_task = (!matches!(p.data, Data::Oracle { .. })).then(|| p.task.clone());
     steps.push(Step {
         name: "convert".into(),
         params: json!({"task": p.task, "episodes": episodes}),
@@ -226,7 +254,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         action: Action::Convert(convert::ConvertOptions {
             inputs: pickles,
             output: traj.clone(),
-            task: Some(p.task.clone()),
+            task: convert_task,
             threshold: None,
             episodes,
             float32: false,
@@ -312,7 +340,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     let r = report::QReportOptions {
         scored: scored.clone(),
         out_dir: report_dir.clone(),
-        positive_episodes: p.report.positive_episodes,
+        positive_episodes: positives(p),
         seed: p.report.seed,
         priorities,
         ..report::QReportOptions::default()
@@ -345,6 +373,15 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
         bail!("two steps are both named {:?}", s.name);
     }
     Ok(steps)
+}
+
+/// The report's positives: `[report] positive_episodes`, or with oracle data every episode (each
+/// transition's own goal is its episode's last position, which the episode reaches).
+fn positives(p: &Pipeline) -> Option<usize> {
+    match p.data {
+        Data::Oracle { episodes, .. } => p.report.positive_episodes.or(Some(episodes)),
+        _ => p.report.positive_episodes,
+    }
 }
 
 /// Puts the agent cells into stacks of at most `batch`, in plan order, each stack of cells that

@@ -87,6 +87,9 @@ pub enum Data {
     /// scripted one (Fetch), or with `checkpoint` a trained actor (the hand tasks, which have no
     /// scripted expert): that file when it exists, else the one the `expert` step trains.
     Collect { expert: usize, random: usize, seed: u64, noise: f64, checkpoint: Option<PathBuf> },
+    /// OGBench's recipe for the dataset the task names (`task = "pointmaze-medium-stitch-v0"`):
+    /// `episodes` of its oracle (seeds seed…), written as the dataset's `.npz` and converted.
+    Oracle { episodes: usize, seed: u64, noise: f64 },
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -161,10 +164,10 @@ struct DataFile {
     episodes: Option<Vec<usize>>,
     expert: Option<usize>,
     random: Option<usize>,
+    oracle: Option<usize>,
     #[serde(default)]
     seed: u64,
-    #[serde(default)]
-    noise: f64,
+    noise: Option<f64>,
     expert_checkpoint: Option<String>,
 }
 
@@ -186,15 +189,20 @@ impl Pipeline {
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim().replace('\n', " ")))?;
         let dir = path.parent().unwrap_or(Path::new(""));
         let resolve = |p: &str| normalize(&dir.join(p));
-        if crate::task::Task::known(&f.task).is_none() {
-            bail!("task {:?} is not one pgser can evaluate ({})", f.task, crate::task::Task::known_names().join(", "));
+        if crate::env::task(&f.task).is_err() {
+            bail!(
+                "task {:?} is not one pgser can evaluate ({}, or an OGBench PointMaze dataset: {}-navigate-v0, …)",
+                f.task,
+                crate::task::Task::known_names().join(", "),
+                crate::env::pointmaze::TASKS[0].trim_end_matches("-v0")
+            );
         }
         if f.name.is_empty() || !f.name.chars().all(|c| c.is_ascii_alphanumeric() || "-_".contains(c)) {
             bail!("name {:?}: use letters, digits, - and _ only", f.name);
         }
         let d = f.data;
-        let data = match (d.pickles.is_empty(), d.expert, d.random) {
-            (false, None, None) => {
+        let data = match (d.pickles.is_empty(), d.expert, d.random, d.oracle) {
+            (false, None, None, None) => {
                 if let Some(e) = &d.episodes
                     && e.len() != d.pickles.len()
                 {
@@ -202,14 +210,26 @@ impl Pipeline {
                 }
                 Data::Pickles { inputs: d.pickles.iter().map(|p| resolve(p)).collect(), episodes: d.episodes }
             }
-            (true, Some(expert), Some(random)) if d.episodes.is_none() => {
+            (true, Some(expert), Some(random), None) if d.episodes.is_none() => {
                 if expert == 0 {
                     bail!("[data]: expert = 0; the report needs expert episodes as positives");
                 }
                 let checkpoint = d.expert_checkpoint.as_deref().map(resolve);
-                Data::Collect { expert, random, seed: d.seed, noise: d.noise, checkpoint }
+                Data::Collect { expert, random, seed: d.seed, noise: d.noise.unwrap_or(0.0), checkpoint }
             }
-            _ => bail!("[data]: give either `pickles` (and optionally `episodes`) or both `expert` and `random`"),
+            (true, None, None, Some(episodes)) if d.episodes.is_none() && d.expert_checkpoint.is_none() => {
+                crate::env::pointmaze::recipe(&f.task).with_context(|| {
+                    format!("[data] oracle: OGBench's oracle makes the PointMaze datasets; task {:?} names none", f.task)
+                })?;
+                if episodes == 0 {
+                    bail!("[data] oracle = 0: must be at least 1 episode");
+                }
+                Data::Oracle { episodes, seed: d.seed, noise: d.noise.unwrap_or(crate::env::pointmaze::ORACLE_NOISE) }
+            }
+            _ => bail!(
+                "[data]: give either `pickles` (and optionally `episodes`), both `expert` and `random`, or `oracle` \
+                 (an OGBench dataset's episodes)"
+            ),
         };
         if f.expert.is_some() && !matches!(data, Data::Collect { checkpoint: Some(_), .. }) {
             bail!("[expert] trains a missing [data] expert_checkpoint; without expert_checkpoint it means nothing");

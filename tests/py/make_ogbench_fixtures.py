@@ -11,7 +11,7 @@ Nothing is downloaded (the dataset servers are not needed). Run it in a scratch 
   /tmp/ogvenv/bin/pip install ogbench==1.2.2 mujoco==3.17.0
   /tmp/ogvenv/bin/python tests/py/make_ogbench_fixtures.py OUT_DIR [--check] [--dump-loaded]
       [--dataset-type navigate|stitch|explore] [--maze medium|large|giant|teleport]
-      [--train-episodes 4] [--val-episodes 2] [--steps 101] [--seed 0]
+      [--train-episodes 4] [--val-episodes 2] [--steps 101] [--seed 0] [--seed-per-episode]
 
 Writes OUT_DIR/pointmaze-<maze>-<type>-v0.npz and OUT_DIR/pointmaze-<maze>-<type>-v0-val.npz with
 `np.savez_compressed` (a zip of DEFLATE-compressed .npy members written with zip64 extra fields),
@@ -27,6 +27,10 @@ Differences from generate_locomaze.py, none of which changes the format:
   only (the env's own RNG draws the reset qvel, which lands in qvel's first row of each episode) and
   `env.action_space.seed(seed)` (the 5 random warm-up steps inside reset; they change nothing stored);
 - train and val episodes are counted separately (the script takes num_episodes // 10 for val).
+
+--seed-per-episode seeds numpy's global generator with seed + i before episode i (train episodes
+first, then val), and never seeds env.reset: what `pgser-etl collect --policy oracle --seed S`
+does, so that its files can be compared with these array for array (tests/ogbench.rs).
 
 --check loads the files back with `ogbench.make_env_and_datasets(..., dataset_path=...)` for
 compact_dataset False and True (and add_info True) and prints every array's shape and dtype.
@@ -85,11 +89,14 @@ def stitch_goal(maze_map, init_ij, adj_steps=4):
     return adj[np.random.randint(len(adj))] if adj else init_ij
 
 
-def rollout(env, num_episodes, dataset_type, noise, seed, first):
+def rollout(env, num_episodes, dataset_type, noise, seed, first, seed_from=None):
     u = env.unwrapped
     all_cells, vertex_cells = cells(u.maze_map)
     data = {k: [] for k in ['observations', 'actions', 'terminals', 'qpos', 'qvel']}
     for ep in range(num_episodes):
+        if seed_from is not None:
+            np.random.seed(seed_from + ep)
+            first = False
         if dataset_type in ['path', 'navigate', 'explore']:
             init_ij = all_cells[np.random.randint(len(all_cells))]
             goal_ij = vertex_cells[np.random.randint(len(vertex_cells))]
@@ -144,6 +151,7 @@ def main():
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--check', action='store_true')
     p.add_argument('--dump-loaded', action='store_true')
+    p.add_argument('--seed-per-episode', action='store_true')
     a = p.parse_args()
 
     env_id = f'pointmaze-{a.maze}-v0'
@@ -152,8 +160,11 @@ def main():
     np.random.seed(a.seed)
     env = gymnasium.make(env_id, terminate_at_goal=False, max_episode_steps=a.steps)
     env.action_space.seed(a.seed)
-    train = rollout(env, a.train_episodes, a.dataset_type, a.noise, a.seed, first=True)
-    val = rollout(env, a.val_episodes, a.dataset_type, a.noise, a.seed, first=False)
+    per = a.seed_per_episode
+    train = rollout(env, a.train_episodes, a.dataset_type, a.noise, a.seed, first=True,
+                    seed_from=a.seed if per else None)
+    val = rollout(env, a.val_episodes, a.dataset_type, a.noise, a.seed, first=False,
+                  seed_from=a.seed + a.train_episodes if per else None)
     train_path = os.path.join(a.out_dir, f'{name}.npz')
     val_path = train_path.replace('.npz', '-val.npz')
     for path, d in [(train_path, train), (val_path, val)]:

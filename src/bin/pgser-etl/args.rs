@@ -31,22 +31,28 @@ pub enum Command {
         gymnasium's time limit records Fetch episodes, the last step is dropped; --exact-length refuses). The task is \
         --task, else the id of the dataset's env_spec (FetchReach-v4 is FetchReach). See docs/minari.md.")]
     Convert(convert::ConvertOptions),
-    /// Simulate episodes in a Fetch or hand environment (expert, trained or random policy) into a table or pickle.
+    /// Simulate episodes in a Fetch, hand or PointMaze environment (expert, trained, random or OGBench's oracle) into a table, pickle or OGBench file.
     #[command(
         after_help = "Examples:\n  pgser-etl collect --task FetchPush --policy expert --episodes 500 --seed 0 -o expert.parquet\n  \
         pgser-etl collect --task FetchPush --policy random --episodes 2000 --seed 1000 -o random.pkl\n  \
         pgser-etl collect --task FetchReach --policy expert --noise 0.1 --episodes 50 --seed 0 -o noisy.pkl\n  \
         pgser-etl collect --task HandManipulateBlockRotateZ --policy random --episodes 2000 --seed 1000 -o random.parquet\n  \
-        pgser-etl collect --task HandManipulateBlockRotateZ --policy checkpoint:data/experts/block_z.ckpt --episodes 500 -o expert.parquet\n\n\
-        Episode i resets with seed S+i, as a newly made gymnasium env's reset(seed=S+i) does."
+        pgser-etl collect --task HandManipulateBlockRotateZ --policy checkpoint:data/experts/block_z.ckpt --episodes 500 -o expert.parquet\n  \
+        pgser-etl collect --task pointmaze-medium-navigate-v0 --policy oracle --episodes 1000 -o pointmaze-medium-navigate-v0.npz\n\n\
+        Episode i resets with seed S+i, as a newly made gymnasium env's reset(seed=S+i) does. --policy oracle makes \
+        OGBench's PointMaze datasets by their recipe (docs/ogbench.md): the dataset name gives the maze, navigate or \
+        stitch and the episode length; episode i seeds numpy's generator with S+i; a .npz output gets its -val.npz \
+        beside it."
     )]
     Collect {
         /// Task: FetchReach, FetchPush, FetchPickAndPlace, FetchSlide (optionally -v4),
-        /// HandManipulateBlockRotateZ or HandManipulateEggRotate (optionally -v1).
+        /// HandManipulateBlockRotateZ or HandManipulateEggRotate (optionally -v1); with --policy
+        /// oracle an OGBench PointMaze dataset (pointmaze-medium-navigate-v0, pointmaze-large-stitch-v0).
         #[arg(long)]
         task: String,
-        /// Who acts: `expert` (the scripted Fetch experts), `random` (uniform actions), or
-        /// `checkpoint:FILE` (agent 0's actor of a pgser checkpoint of the same task).
+        /// Who acts: `expert` (the scripted Fetch experts), `random` (uniform actions),
+        /// `checkpoint:FILE` (agent 0's actor of a pgser checkpoint of the same task), or `oracle`
+        /// (OGBench's PointMaze data recipe).
         #[arg(long)]
         policy: String,
         /// Number of episodes.
@@ -55,12 +61,14 @@ pub enum Command {
         /// Episode i resets the environment with seed S+i; policy noise comes from (S, i).
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Output: .parquet (trajectory table) or .pkl (WGCSL pickle), written atomically.
+        /// Output: .parquet (trajectory table) or .pkl (WGCSL pickle); with --policy oracle .npz
+        /// (OGBench's dataset file, and its -val.npz) or .parquet; written atomically.
         #[arg(short, long)]
         output: PathBuf,
-        /// Standard deviation of Gaussian noise added to expert or checkpoint actions (then clipped to [-1, 1]).
-        #[arg(long, default_value_t = 0.0)]
-        noise: f64,
+        /// Standard deviation of Gaussian noise added to expert, checkpoint or oracle actions (then
+        /// clipped to [-1, 1]) [default: 0; oracle: 0.5, OGBench's]
+        #[arg(long)]
+        noise: Option<f64>,
         /// Probability of a uniform random action instead of the expert's or checkpoint's, per step.
         #[arg(long, default_value_t = 0.0)]
         epsilon: f64,

@@ -50,9 +50,11 @@ pub(crate) fn main() -> ExitCode {
             Ok(())
         }
         Command::Collect { task, policy, episodes, seed, output, noise, epsilon, float32, row_group_rows } => {
+            let kind = PolicyKind::parse(&policy)?;
+            let noise = noise.unwrap_or(kind.default_noise());
             let opts = collect::CollectOptions {
                 task,
-                policy: PolicySpec { kind: PolicyKind::parse(&policy)?, noise, epsilon },
+                policy: PolicySpec { kind, noise, epsilon },
                 episodes,
                 seed,
                 output,
