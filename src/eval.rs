@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::env::{self, GoalEnv, Obs};
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub episodes: usize,
     pub return_mean: f64,
@@ -26,6 +26,10 @@ pub struct EvalReport {
     pub success_rate: f64,
     /// T + return_mean: the paper's score, in [0, T].
     pub paper_score: f64,
+    /// Environments with fixed evaluation tasks (OGBench's mazes: 5): each task's success rate,
+    /// task 1 first, as OGBench reports them beside their mean. Empty for the other tasks.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub task_success: Vec<f64>,
 }
 
 /// A batched policy: `n` rows of observations and desired goals in, `n` actions out.
@@ -94,11 +98,20 @@ fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackP
         (0..(group * block).min(members * episodes)).map(|_| env::make(task_name)).collect::<Result<_>>()?;
     let task = envs.first().map(|e| e.task().clone());
     let Some(task) = task else {
-        let empty = EvalReport { episodes: 0, return_mean: 0.0, return_std: 0.0, success_rate: 0.0, paper_score: 0.0 };
+        let empty = EvalReport {
+            episodes: 0,
+            return_mean: 0.0,
+            return_std: 0.0,
+            success_rate: 0.0,
+            paper_score: 0.0,
+            task_success: vec![],
+        };
         return Ok(vec![empty; members]);
     };
     let mut returns = vec![0.0f64; members * episodes];
     let mut success = vec![false; members * episodes];
+    // Episode i's evaluation task (1…K), where the environment has them.
+    let mut task_of: Vec<Option<usize>> = vec![None; episodes];
     for g0 in (0..members).step_by(group) {
         let gm = group.min(members - g0);
         for e0 in (0..episodes).step_by(block) {
@@ -107,6 +120,9 @@ fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackP
             let live = &mut envs[..gm * n];
             let mut obs: Vec<Obs> =
                 live.par_iter_mut().enumerate().map(|(k, e)| e.restart(seed + (e0 + k % n) as u64)).collect();
+            for (k, e) in live[..n].iter().enumerate() {
+                task_of[e0 + k] = e.eval_task();
+            }
             // Episodes that ended at their success (OGBench's mazes): stepped no further.
             let mut done = vec![false; live.len()];
             for _ in 0..task.t {
@@ -156,7 +172,20 @@ fn run(task_name: &str, members: usize, episodes: usize, seed: u64, act: &StackP
                 return_std: std,
                 success_rate: success.iter().filter(|&&s| s).count() as f64 / n,
                 paper_score: task.t as f64 + mean,
+                task_success: per_task(&task_of, success),
             }
         })
         .collect())
+}
+
+/// Each task's success rate (task 1 first) from the episodes' tasks; empty when the environment
+/// has no fixed tasks. A task no episode drew (fewer episodes than tasks) is NaN.
+fn per_task(task_of: &[Option<usize>], success: &[bool]) -> Vec<f64> {
+    let Some(k) = task_of.iter().flatten().max() else { return vec![] };
+    (1..=*k)
+        .map(|t| {
+            let runs: Vec<bool> = task_of.iter().zip(success).filter(|(x, _)| **x == Some(t)).map(|(_, &s)| s).collect();
+            runs.iter().filter(|&&s| s).count() as f64 / runs.len() as f64
+        })
+        .collect()
 }

@@ -287,7 +287,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         update_time += t0.elapsed().as_secs_f64();
         if cfg.eval_every > 0 && u.is_multiple_of(cfg.eval_every) && u < cfg.updates {
             for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
-                lines[i].eval = Some(report);
+                lines[i].eval = Some(report.clone());
                 runs[i].last_eval = Some(report);
             }
         }
@@ -311,7 +311,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         let u = agent.updates();
         for (i, report) in evaluate(&agent)?.into_iter().flatten().enumerate() {
             let run = &mut runs[i];
-            run.last_eval = Some(report);
+            run.last_eval = Some(report.clone());
             run.metrics.retain(|m| m.updates < u || m.eval.is_none());
             run.metrics.push(MetricsLine {
                 updates: u,
@@ -333,7 +333,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         .map(|r| Summary {
             updates: agent.updates(),
             updates_per_sec: if update_time > 0.0 { done as f64 / update_time } else { 0.0 },
-            eval: r.last_eval,
+            eval: r.last_eval.clone(),
             checkpoint: r.cell.out.clone(),
             metrics: metrics_path(&r.cell.out),
         })
@@ -356,7 +356,7 @@ fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Dura
     // Each agent's latest evaluation line (the agents of a stack are evaluated together).
     let last: Vec<(u64, f64)> = runs
         .iter()
-        .filter_map(|r| r.metrics.iter().rev().find_map(|m| Some((m.updates, m.eval?.paper_score))))
+        .filter_map(|r| r.metrics.iter().rev().find_map(|m| Some((m.updates, m.eval.as_ref()?.paper_score))))
         .collect();
     if let Some(at) = last.iter().map(|&(u, _)| u).max() {
         let scores: Vec<f64> = last.iter().map(|&(_, p)| p).collect();
@@ -377,7 +377,7 @@ fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Dura
 fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> (Vec<MetricsLine>, Option<EvalReport>) {
     let is_final = |m: &MetricsLine| m.updates == u && m.eval.is_some() && m.critic_loss.is_none();
     let Some(pos) = metrics.iter().position(is_final) else {
-        let last = metrics.iter().rev().find_map(|m| m.eval.filter(|_| m.updates == u));
+        let last = metrics.iter().rev().find_map(|m| m.eval.clone().filter(|_| m.updates == u));
         return (metrics, last);
     };
     let report = metrics.remove(pos).eval;
@@ -385,10 +385,14 @@ fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> 
         return (metrics, None);
     }
     match metrics.iter_mut().find(|m| m.updates == u) {
-        Some(line) => line.eval = report,
-        None => {
-            metrics.push(MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: report })
-        }
+        Some(line) => line.eval = report.clone(),
+        None => metrics.push(MetricsLine {
+            updates: u,
+            critic_loss: None,
+            actor_loss: None,
+            q_mean: None,
+            eval: report.clone(),
+        }),
     }
     (metrics, report)
 }

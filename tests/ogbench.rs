@@ -257,6 +257,26 @@ fn evaluation_in_pointmaze_equals_ogbenchs() {
     assert_eq!(ours.success_rate, successes as f64 / runs.len() as f64, "{ours:?} vs {theirs}");
     assert_eq!(ours.return_mean, returns, "{ours:?} vs {theirs}");
     assert!(successes > 0, "the oracle reached no goal: the test checks no early end");
+    // Per task, as OGBench reports: seed i ran task i % 5 + 1.
+    let per_task: Vec<f64> = (0..5)
+        .map(|t| {
+            let of: Vec<_> = runs.iter().enumerate().filter(|(i, _)| i % 5 == t).map(|(_, r)| r["success"] == true).collect();
+            of.iter().filter(|&&s| s).count() as f64 / of.len() as f64
+        })
+        .collect();
+    assert_eq!(ours.task_success, per_task, "{ours:?} vs {theirs}");
+    assert!(pgser::eval::evaluate("FetchReach", &policy_fetch(), 2, 0).unwrap().task_success.is_empty());
+}
+
+/// Zero actions in FetchReach: a task without fixed evaluation tasks.
+fn policy_fetch() -> impl pgser::eval::Policy {
+    struct Still;
+    impl pgser::eval::Policy for Still {
+        fn act(&self, _obs: &[f32], _goal: &[f32], n: usize) -> Vec<f32> {
+            vec![0.0; 4 * n]
+        }
+    }
+    Still
 }
 
 fn collect_ok(task: &str, episodes: usize, seed: u64, out: &Path, extra: &[&str]) -> String {

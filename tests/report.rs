@@ -587,3 +587,32 @@ fn fig5_across_tasks(d: &Path, rep: &Path, j: &serde_json::Value) {
     std::fs::write(&f, k.to_string()).unwrap();
     refused(&[f.as_path()], "has no fig5_hist");
 }
+
+/// OGBench's mazes are scored as OGBench scores them: the final success rate in percent (an
+/// episode ends at its goal, so the paper score would count steps), tested and pooled as such
+/// (each episode 0 or 100).
+#[test]
+fn ogbench_tasks_are_scored_by_success_in_percent() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut runs = Vec::new();
+    for (variant, success) in [("baseline", [0.1, 0.2, 0.3]), ("swap", [0.2, 0.3, 0.4]), ("mem", [0.6, 0.7, 0.8])] {
+        for (seed, p) in success.iter().enumerate() {
+            // A paper score unrelated to success: the table must not use it.
+            let m = metrics_file(d, &format!("{variant}{seed}.metrics.jsonl"), 900.0 - seed as f64, *p);
+            runs.push(report_run("pointmaze-medium-navigate-v0", "td3bc", variant, seed as u64, m));
+        }
+    }
+    let r = report::results(&runs, &d.join("out")).unwrap();
+    let mem = r.rows.iter().find(|row| row.variant == "mem").unwrap();
+    let (m, s) = mean_std(&[60.0, 70.0, 80.0]);
+    assert!((mem.paper_score_mean - m).abs() < 1e-9 && (mem.paper_score_std - s).abs() < 1e-9, "{mem:?}");
+    let (_, _, p) = report::welch_t_test(&[60.0, 70.0, 80.0], &[10.0, 20.0, 30.0]).unwrap();
+    assert!((mem.p_vs_baseline.unwrap() - p).abs() < 1e-12, "{mem:?}");
+    // Pooled: 10 episodes per seed, 6, 7, 8 of them successes.
+    let episodes: Vec<f64> =
+        [6, 7, 8].iter().flat_map(|&k| (0..10).map(move |i| if i < k { 100.0 } else { 0.0 })).collect();
+    assert!((mem.paper_score_std_episodes.unwrap() - mean_std(&episodes).1).abs() < 1e-9, "{mem:?}");
+    let md = std::fs::read_to_string(&r.markdown).unwrap();
+    assert!(md.contains("| agent | success (%) |") && md.contains("OGBench's tasks"), "{md}");
+}

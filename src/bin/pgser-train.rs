@@ -209,8 +209,14 @@ pub(crate) fn main() -> ExitCode {
                 if json {
                     println!("{}", serde_json::to_string(&report)?);
                 } else {
+                    let tasks = if report.task_success.is_empty() {
+                        String::new()
+                    } else {
+                        let each: Vec<String> = report.task_success.iter().map(|s| format!("{s:.3}")).collect();
+                        format!("; success per task (1–{}): {}", each.len(), each.join(" "))
+                    };
                     println!(
-                        "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}",
+                        "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}{tasks}",
                         report.episodes, report.return_mean, report.return_std, report.success_rate, report.paper_score
                     );
                 }
@@ -222,7 +228,7 @@ pub(crate) fn main() -> ExitCode {
                 let bar = progress::bar("online", "cycles");
                 let s =
                     train::online::train_online(&cfg, &output, resume, args.run.device, &cli::command_line(), &bar)?;
-                let eval = s.eval.map_or(String::new(), |e| {
+                let eval = s.eval.as_ref().map_or(String::new(), |e| {
                     format!(
                         "; eval over {} episodes: success {:.3}, return {:.2}",
                         e.episodes, e.success_rate, e.return_mean

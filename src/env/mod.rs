@@ -67,6 +67,11 @@ pub trait GoalEnv {
     fn ends_at_success(&self) -> bool {
         false
     }
+    /// The fixed evaluation task (1…K) the last `restart` set up, for environments that have
+    /// them (OGBench's mazes: 5, cycled by seed); evaluation reports each one's success.
+    fn eval_task(&self) -> Option<usize> {
+        None
+    }
     /// Apply one action (`task().act_dim` values, clipped to [−1, 1]). Values are first rounded
     /// to f32, the action space's dtype, because gymnasium computes with a float32 action as a
     /// policy hands it over. Panics if the action has the wrong length, as gymnasium raises.

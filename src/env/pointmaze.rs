@@ -437,6 +437,10 @@ impl GoalEnv for PointMazeEnv {
         true
     }
 
+    fn eval_task(&self) -> Option<usize> {
+        Some(self.task_id)
+    }
+
     fn step(&mut self, action: &[f64]) -> Step {
         assert_eq!(action.len(), 2, "PointMaze takes 2 action values");
         // `0.2 * action` on the float32 action is float32 (numpy's weak Python scalar), then

@@ -176,7 +176,7 @@ pub fn results(runs: &[Run], out_dir: &Path) -> Result<Results> {
             FIG_SIZE,
             &format!("{task}: evaluation during training"),
             "updates",
-            "paper score",
+            score_name(&task),
             &lines,
         )?;
         curves.push(path);
@@ -216,6 +216,18 @@ struct Group {
     seeds: Vec<u64>,
 }
 
+/// Whether a task is scored by its success rate in percent, as OGBench scores its datasets
+/// (`pointmaze-medium-navigate-v0`), rather than by the paper's score: a maze episode ends at
+/// its goal, so T + return would count the steps it took, not whether it arrived.
+fn success_scored(task: &str) -> bool {
+    crate::env::pointmaze::resolve(task).is_some()
+}
+
+/// The score column's name for a task's table and curves.
+fn score_name(task: &str) -> &'static str {
+    if success_scored(task) { "success (%)" } else { "paper score" }
+}
+
 /// Every evaluation line of every run: the group columns, the run's index, and the line.
 fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
     let (mut task, mut algo, mut variant) = (Vec::new(), Vec::new(), Vec::new());
@@ -231,11 +243,18 @@ fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
             variant_ranks.push(variant_rank(&r.variant));
             run.push(i as u64);
             updates.push(e.updates);
-            score.push(e.paper_score);
             success.push(e.success_rate);
             seed.push(r.seed);
             episodes.push(e.episodes);
-            episode_std.push(e.episode_std);
+            if success_scored(&r.task) {
+                // Each episode a success (100) or not (0): their std, n not n − 1, as return_std.
+                let p = e.success_rate;
+                score.push(100.0 * p);
+                episode_std.push(100.0 * (p * (1.0 - p)).sqrt());
+            } else {
+                score.push(e.paper_score);
+                episode_std.push(e.episode_std);
+            }
         }
     }
     let columns = vec![
@@ -362,12 +381,13 @@ pub fn results_markdown(r: &Results) -> String {
         if task != Some(row.task.as_str()) {
             task = Some(&row.task);
             let _ = write!(s, "\n## {}\n\n", row.task);
-            s += if pooled {
+            let head = if pooled {
                 "| agent | paper score | ± over episodes | success | seeds | episodes | p vs baseline | p vs swap | \
                  p vs baseline (episodes) | p vs swap (episodes) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
             } else {
                 "| agent | paper score | success | seeds | p vs baseline | p vs swap |\n|---|---:|---:|---:|---:|---:|\n"
             };
+            s += &head.replacen("paper score", score_name(&row.task), 1);
         }
         let seeds = format!("{} ± {}", fmt3(row.paper_score_mean), fmt3(row.paper_score_std));
         let tests =
@@ -396,6 +416,11 @@ pub fn results_markdown(r: &Results) -> String {
         }
     }
     s += &legend();
+    if r.rows.iter().any(|row| success_scored(&row.task)) {
+        s += "\nOGBench's tasks (pointmaze-…) are scored as OGBench scores them, by the success rate in percent (the \
+              share of evaluation episodes that reached the goal; an episode ends there), in place of the paper \
+              score; their p values test those.\n";
+    }
     if pooled {
         s += "\nThe marks and the p columns test the seeds' mean scores (n = seeds), the test pgser's claims rest on. \
               ± over episodes is the std of every evaluation episode of every seed pooled (n = episodes), and the \

@@ -327,7 +327,7 @@ pub fn train_online(
         updates: run.agent.updates,
         env_steps_per_sec: rate(steps, rollout_secs),
         updates_per_sec: rate(updates, update_secs),
-        eval: run.metrics.last().and_then(|m| m.eval),
+        eval: run.metrics.last().and_then(|m| m.eval.clone()),
         checkpoint: out.to_path_buf(),
         metrics: super::metrics_path(out),
         buffer: buffer_path(out),
@@ -378,7 +378,7 @@ impl Run {
     /// The last epoch's metrics in a line.
     fn epoch_summary(&self) -> String {
         let m = self.metrics.last().expect("an epoch has ended");
-        let success = m.eval.map_or("-".to_string(), |e| format!("{:.3}", e.success_rate));
+        let success = m.eval.as_ref().map_or("-".to_string(), |e| format!("{:.3}", e.success_rate));
         format!(
             "{}: epoch {}/{}: eval success {success}, exploring success {:.3}, critic loss {:.4}, \
              {:.0} env steps/s, {:.1} updates/s, {:.0} s",
