@@ -266,22 +266,101 @@ impl VecEnv {
 /// A policy of `pgser-etl collect` for one episode: "expert" (the scripted Fetch experts),
 /// "random", or "checkpoint:FILE" (a trained actor), with collect's `noise` and `epsilon`.
 /// Episode `episode` of a run seeded `seed` draws the same noise as collect's episode does.
+/// `Policy("run.ckpt")` is that checkpoint's actor, on its own task (any task pgser trains on,
+/// OGBench's included), and its `act` takes batches of observations and goals.
 #[pyclass(module = "pgser._pgser")]
 pub struct Policy {
     policy: Mutex<EpisodePolicy>,
     task: Task,
+    /// A checkpoint's actor, for `act`'s deterministic batches.
+    actor: Option<std::sync::Arc<pgser::agent::HostActor>>,
 }
 
 #[pymethods]
 impl Policy {
     #[new]
-    #[pyo3(signature = (task, policy="expert", *, seed=0, episode=0, noise=0.0, epsilon=0.0))]
-    fn new(task: &str, policy: &str, seed: u64, episode: u64, noise: f64, epsilon: f64) -> PyResult<Policy> {
-        let t = Task::known(task).ok_or_else(|| PyValueError::new_err(format!("{task}: unknown task")))?;
-        let kind = PolicyKind::parse(policy).map_err(py_err)?;
+    #[pyo3(signature = (task, policy=None, *, seed=0, episode=0, noise=0.0, epsilon=0.0))]
+    fn new(task: &str, policy: Option<&str>, seed: u64, episode: u64, noise: f64, epsilon: f64) -> PyResult<Policy> {
+        // `Policy("run.ckpt")`: a file in the task's place is a checkpoint, its task its own.
+        let (kind, t) = match policy {
+            None if std::path::Path::new(task).is_file() => {
+                let kind = PolicyKind::parse(&format!("checkpoint:{task}")).map_err(py_err)?;
+                let PolicyKind::Checkpoint(a) = &kind else { unreachable!("parsed as a checkpoint") };
+                let t = a.task.clone();
+                (kind, t)
+            }
+            _ => {
+                let t = Task::known(task).ok_or_else(|| {
+                    PyValueError::new_err(format!("{task}: unknown task (or no such checkpoint file)"))
+                })?;
+                (PolicyKind::parse(policy.unwrap_or("expert")).map_err(py_err)?, t)
+            }
+        };
+        let actor = match &kind {
+            PolicyKind::Checkpoint(a) => Some(a.clone()),
+            _ => None,
+        };
         let spec = PolicySpec { kind, noise, epsilon };
         let policy = EpisodePolicy::new(spec, &t.name, seed, episode).map_err(py_err)?;
-        Ok(Policy { policy: Mutex::new(policy), task: t })
+        Ok(Policy { policy: Mutex::new(policy), task: t, actor })
+    }
+
+    /// The task's name, and its observation, goal and action sizes.
+    #[getter]
+    fn task(&self) -> (String, usize, usize, usize) {
+        let t = &self.task;
+        (t.name.clone(), t.obs_dim, t.goal_dim, t.act_dim)
+    }
+
+    /// A checkpoint's deterministic actions for a batch: `observations` (n, obs_dim) and `goals`
+    /// (n, goal_dim), float32 or float64, give (n, act_dim) float32 actions in (−1, 1), π(s, g)
+    /// as evaluation computes it (no noise). Rows run in parallel, without the GIL.
+    fn act<'py>(
+        &self,
+        py: Python<'py>,
+        observations: &Bound<'py, PyAny>,
+        goals: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let np = py.import("numpy")?;
+        let as_f64 = |x: &Bound<'py, PyAny>| -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+            Ok(np.call_method1("ascontiguousarray", (x, "float64"))?.extract()?)
+        };
+        let (observations, goals) = (as_f64(observations)?, as_f64(goals)?);
+        let Some(actor) = &self.actor else {
+            return Err(PyValueError::new_err(
+                "act() is a checkpoint's actor on batches; call an expert or random policy with an observation dict",
+            ));
+        };
+        let t = &self.task;
+        let rows = |a: &PyReadonlyArrayDyn<'py, f64>, dim: usize, what: &str| -> PyResult<(usize, Vec<f64>)> {
+            let shape = a.shape().to_vec();
+            let n = match shape.as_slice() {
+                [d] if *d == dim => 1,
+                [n, d] if *d == dim => *n,
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "{}: {what} must be (n, {dim}) or ({dim},), got {shape:?}",
+                        t.name
+                    )));
+                }
+            };
+            Ok((n, a.as_array().iter().copied().collect()))
+        };
+        let (n, o) = rows(&observations, t.obs_dim, "observations")?;
+        let (m, g) = rows(&goals, t.goal_dim, "goals")?;
+        if n != m {
+            return Err(PyValueError::new_err(format!("{n} observations but {m} goals")));
+        }
+        let (od, gd, ad) = (t.obs_dim, t.goal_dim, t.act_dim);
+        let out: Vec<f32> = py.detach(|| {
+            let mut out = vec![0.0f64; n * ad];
+            out.par_chunks_mut(ad).enumerate().for_each(|(i, a)| {
+                actor.act(&o[i * od..(i + 1) * od], &g[i * gd..(i + 1) * gd], a);
+            });
+            out.into_iter().map(|x| x as f32).collect()
+        });
+        let arr = Array2::from_shape_vec((n, ad), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(arr.into_pyarray(py).into_any())
     }
 
     /// The action for a goal-environment observation dict, as float64 in [−1, 1].
