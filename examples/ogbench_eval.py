@@ -4,16 +4,18 @@
     python examples/ogbench_eval.py ~/.ogbench/data/antmaze-large-navigate-v0.npz --out /tmp/ant
     python examples/ogbench_eval.py pointmaze-medium-stitch-v0.npz --updates 20000 --swap random
 
-For any OGBench locomotion-maze dataset (pointmaze, antmaze, humanoidmaze; pgser simulates only
-PointMaze, so this is how the others are evaluated). Steps:
-1. `pgser-etl convert DATASET.npz`: the trajectory table (goal = the agent's x, y; docs/ogbench.md);
+For any OGBench locomotion-maze or cube dataset (pointmaze, antmaze, humanoidmaze, cube-*; pgser
+simulates only PointMaze, so this is how the others are evaluated). Steps:
+1. `pgser-etl convert DATASET.npz`: the trajectory table (goal = the x, y or the cubes' positions; docs/ogbench.md);
 2. `pgser-train`: TD3+BC (optionally with random goal swapping) at gamma 0.99, OGBench's agents'
    discount, as the PointMaze pipelines train;
 3. OGBench's protocol in `ogbench.make_env_and_datasets(NAME, env_only=True)`: each of the 5
-   evaluation tasks for --episodes episodes, `env.reset(options=dict(task_id=k))`, the goal the x, y
-   of `info["goal"]`, actions from `pgser.Policy(checkpoint).act` (batched, float32), until the
-   episode terminates at its goal or the time limit truncates it; success is `info["success"]` of
-   the last step. Prints each task's success rate and their mean, then one JSON line.
+   evaluation tasks for --episodes episodes, `env.reset(options=dict(task_id=k))`, the goal what
+   `pgser.ogbench_goal` maps `info["goal"]` (the goal state's whole observation) to, as the table's
+   goals were mapped (the x, y; the cubes' positions), actions from `pgser.Policy(checkpoint).act`
+   (batched, float32), until the episode terminates at its goal or the time limit truncates it;
+   success is `info["success"]` of the last step. Prints each task's success rate and their mean,
+   then one JSON line.
 
 The dataset's name (its file name, as OGBench names its files) gives the environment. The
 `-val.npz` file is not needed. Nothing is downloaded: get the file with OGBench's own loader, or
@@ -67,6 +69,7 @@ def main():
     )
 
     policy = pgser.Policy(str(ckpt))
+    env_name = policy.task[0]  # the environment the table was made for (cube-double-v0, ...)
     env = ogbench.make_env_and_datasets(name, env_only=True)
     tasks = env.unwrapped.task_infos
     success = []
@@ -77,7 +80,7 @@ def main():
             # seed leaves alone: seeded here so that a run repeats.
             np.random.seed(a.seed * 1000 + ep)
             ob, info = env.reset(seed=a.seed * 1000 + ep, options=dict(task_id=k))
-            goal = np.asarray(info["goal"])[:2]
+            goal = pgser.ogbench_goal(env_name, info["goal"])
             done = False
             while not done:
                 action = policy.act(ob[None], goal[None])[0]

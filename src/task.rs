@@ -17,6 +17,10 @@ pub enum GoalMetric {
     /// tasks): `2·acos(clip(⟨q_a, q_b⟩, −1, 1))`, the w component of `q_a ⊗ conj(q_b)`,
     /// exactly as gymnasium-robotics' `_goal_distance` computes it (no |·|).
     QuatAngle,
+    /// The goal is several objects' 3-D positions, consecutive (x, y, z) triples, and is reached
+    /// when every object is within the threshold of its own: the distance is the largest of the
+    /// objects' Euclidean distances (OGBench's cube tasks).
+    EachObject,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -123,6 +127,20 @@ impl Task {
                 let dot: f64 = ag[3..7].iter().zip(&g[3..7]).map(|(&a, &b)| a.into() * b.into()).sum();
                 2.0 * dot.clamp(-1.0, 1.0).acos()
             }
+            GoalMetric::EachObject => ag
+                .chunks(3)
+                .zip(g.chunks(3))
+                .map(|(a, b)| {
+                    a.iter()
+                        .zip(b)
+                        .map(|(&x, &y)| {
+                            let d = x.into() - y.into();
+                            d * d
+                        })
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .fold(0.0, f64::max),
         }
     }
 
@@ -138,7 +156,7 @@ impl Task {
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
         let d = self.distance(ag, g);
         match self.metric {
-            GoalMetric::Euclidean => {
+            GoalMetric::Euclidean | GoalMetric::EachObject => {
                 if d > self.threshold {
                     -1.0
                 } else {
@@ -187,6 +205,17 @@ mod tests {
         assert_eq!(Task::known("fetchreach").unwrap().name, "FetchReach");
         assert!(Task::known("PointReach").is_none());
         assert_eq!(Task::matching(50, 25, 3, 4).len(), 3);
+    }
+
+    #[test]
+    fn each_object_must_be_within_the_threshold() {
+        let t = Task { metric: GoalMetric::EachObject, threshold: 0.4, ..Task::custom("cube-double-v0", 1001, 37, 6, 5, 0.4) };
+        let g = [0.0; 6];
+        // Both cubes 0.3 away: jointly 0.42 (Euclidean would fail), each within 0.4.
+        assert!((t.distance(&[0.3, 0.0, 0.0, 0.0, 0.3, 0.0], &g) - 0.3).abs() < 1e-15);
+        assert_eq!(t.reward(&[0.3, 0.0, 0.0, 0.0, 0.3, 0.0], &g), 0.0);
+        assert_eq!(t.reward(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], &g), -1.0);
+        assert!(t.success(&[0.1, 0.1, 0.1, 0.0, 0.0, 0.0], &g));
     }
 
     #[test]

@@ -148,10 +148,10 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
     fails(&odd, &[], "names no environment: give it with --task");
     convert_ok(&odd, &out, &["--task", "pointmaze-medium-v0"]);
     std::fs::remove_file(&out).unwrap();
-    // A family whose goal is not the agent's position.
+    // A pointmaze file under a cube dataset's name: its observations are no cube scene's.
     let cube = dir.path().join("cube-single-play-v0.npz");
     std::fs::write(&cube, &bytes).unwrap();
-    fails(&cube, &[], "cube datasets: pgser reads OGBench's locomotion mazes");
+    fails(&cube, &[], "cube-single-v0: observations have 2 values; a cube scene's have 19 + 9 per cube");
     // Episodes of two lengths, and a missing key: written with the npz writer.
     let write = |path: &Path, keys: &[(&str, npz::Dtype, Vec<usize>, Vec<u8>)]| {
         let mut w = npz::NpzWriter::new(std::fs::File::create(path).unwrap(), true);
@@ -394,4 +394,63 @@ fn oracle_table_is_the_converted_npz() {
     fails("pointmaze-medium-stitch-v0", &dir.path().join("x.pkl"), &[], "name it .npz");
     fails("pointmaze-medium-stitch-v0", &out, &["--epsilon", "0.1"], "--epsilon");
     fails("pointmaze-medium-stitch-v0", &out, &["--seed", "4294967295"], "below 2^32");
+}
+
+/// Cube datasets (tests/fixtures/ogbench/cube, from ogbench's own cube scenes by
+/// tests/py/make_ogbench_cube_fixtures.py): the goal is each cube's position, exactly what
+/// OGBench's oracle representation holds row for row (`oracle_reps`, kept in the fixture), reached
+/// when every cube is within 0.4 (0.04 m in the observation's ×10 units); and an exported file
+/// loads in ogbench as the original.
+#[test]
+fn cube_goals_are_the_cubes_positions() {
+    let dir = tempfile::tempdir().unwrap();
+    for (scene, cubes) in [("single", 1usize), ("double", 2)] {
+        let name = format!("cube-{scene}-play-v0");
+        let src = fixture(&format!("cube/{name}.npz"));
+        let table = dir.path().join(format!("{scene}.parquet"));
+        let notes = convert_ok(&src, &table, &[]);
+        assert!(notes.contains("for every cube"), "{notes}");
+        let footer = pgser::table::read_footer(&table).unwrap();
+        assert_eq!(
+            (footer["task"].as_str(), footer["goal_dim"].as_u64(), footer["goal_metric"].as_str()),
+            (Some(format!("cube-{scene}-v0").as_str()), Some(3 * cubes as u64), Some("each_object"))
+        );
+        assert_eq!((footer["success_threshold"].as_f64(), footer["T"].as_u64()), (Some(0.4), Some(21)));
+        let reps: Vec<f32> = pgser::ogbench::npz::with_member(&src, "oracle_reps", |r, _| {
+            let mut b = Vec::new();
+            r.read_to_end(&mut b)?;
+            Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
+        })
+        .unwrap();
+        let (t, _) = read_table(&table);
+        use arrow_array::cast::AsArray;
+        let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
+        let got = ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec();
+        assert_eq!(got, reps, "{name}: the goal is not OGBench's oracle representation");
+
+        let out = dir.path().join(format!("ours-{scene}"));
+        std::fs::create_dir(&out).unwrap();
+        for split in ["", "-val"] {
+            let file = format!("{name}{split}.npz");
+            let t = dir.path().join(format!("{scene}{split}.parquet"));
+            convert_ok(&fixture(&format!("cube/{file}")), &t, &[]);
+            let o = etl().arg("export").arg(&t).args(["--format", "ogbench", "-o"]).arg(out.join(&file)).output().unwrap();
+            assert!(o.status.success(), "{}", text(&o.stderr));
+        }
+        let (ours, theirs) = (out.join(format!("{name}.npz")), src.clone());
+        py_ok("check_ogbench.py", &["same", &name, theirs.to_str().unwrap(), ours.to_str().unwrap()]);
+    }
+    // A scene whose goals are not positions, and observations that are no cube scene's.
+    let bad = dir.path().join("puzzle-3x3-play-v0.npz");
+    std::fs::copy(fixture("cube/cube-single-play-v0.npz"), &bad).unwrap();
+    let o = etl().arg("convert").arg(&bad).arg("-o").arg(dir.path().join("p.parquet")).output().unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains("not positions"), "{}", text(&o.stderr));
+    let o = etl()
+        .arg("convert")
+        .arg(fixture("cube/cube-single-play-v0.npz"))
+        .args(["--task", "cube-double-v0", "-o"])
+        .arg(dir.path().join("q.parquet"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains("a scene of 2 cubes has 37"), "{}", text(&o.stderr));
 }

@@ -5,7 +5,9 @@ Shadow Hand environments, from the same Rust library as the `pgser-etl` / `pgser
 - ``convert(...)`` / ``score(...)``: ``pgser-etl convert`` and ``pgser-etl score``.
 - ``Sampler(path, ...)``: the batches ``pgser-train`` trains on, as dicts of numpy arrays.
 - ``make(task)`` / ``VectorEnv(task, n)``: gymnasium environments (ids ``pgser/FetchPush-v4`` ...).
-- ``Policy(task, "expert")``: the scripted experts, random actions, or a checkpoint's actor.
+- ``Policy(task, "expert")``: the scripted experts, random actions, or a checkpoint's actor;
+  ``Policy("run.ckpt").act(observations, goals)``: a checkpoint's actor on batches.
+- ``ogbench_goal(env, observations)``: OGBench's goal map (x, y; the cubes' positions).
 
 docs/python.md in the repository describes each, with the settings they share with the CLI.
 """
@@ -21,7 +23,7 @@ for _var, _rel in (("PGSER_ASSETS", "assets"), ("PGSER_ZIGGURAT", "data/numpy_zi
         _os.environ[_var] = str(_Path(__file__).parent / _rel)
 
 from . import _pgser  # noqa: E402
-from ._pgser import Sampler, Policy, convert, read_footer, read_table, score, task_info
+from ._pgser import Sampler, Policy, convert, ogbench_goal, read_footer, read_table, score, task_info
 
 # Registers the pgser/<task> ids with gymnasium on import, so gymnasium.make("pgser/FetchPush-v4")
 # works after `import pgser` as it does through pgser.make.
@@ -60,6 +62,7 @@ def VectorEnv(task, num_envs, seed=None):  # noqa: N802 (a class to its users)
 
 __all__ = [
     "Policy",
+    "ogbench_goal",
     "Sampler",
     "TASKS",
     "VectorEnv",

@@ -222,6 +222,36 @@ fn score<'py>(
 
 /// The task's dimensions and constants as a dict (name, T, obs_dim, goal_dim, act_dim,
 /// threshold, metric), for any task pgser knows.
+/// OGBench's goal map φ for an environment (`antmaze-large-v0`, `cube-double-v0`): the goal
+/// values of observations (n, obs_dim) or (obs_dim,), as pgser's tables hold goals (the agent's
+/// x, y; the cubes' positions). OGBench evaluates with a whole goal observation (`info["goal"]`):
+/// this is the goal a pgser agent takes for it.
+#[pyfunction]
+fn ogbench_goal<'py>(py: Python<'py>, env: &str, observations: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    use numpy::{IntoPyArray, PyUntypedArrayMethods};
+    let np = py.import("numpy")?;
+    let a: numpy::PyReadonlyArrayDyn<'py, f64> = np.call_method1("ascontiguousarray", (observations, "float64"))?.extract()?;
+    let shape = a.shape().to_vec();
+    let (n, dim) = match shape.as_slice() {
+        [d] => (None, *d),
+        [n, d] => (Some(*n), *d),
+        _ => return Err(PyValueError::new_err(format!("observations must be (n, dim) or (dim,), got {shape:?}"))),
+    };
+    let map = pgser::ogbench::goal_map(env, dim).map_err(py_err)?;
+    let values = a.as_slice()?;
+    let goals: Vec<f64> = values.chunks_exact(dim.max(1)).flat_map(|row| map.map(row)).collect();
+    let g = map.goal_dim();
+    let arr = numpy::ndarray::ArrayD::from_shape_vec(
+        match n {
+            Some(n) => vec![n, g],
+            None => vec![g],
+        },
+        goals,
+    )
+    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(arr.into_pyarray(py).into_any())
+}
+
 #[pyfunction]
 fn task_info<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
     let task = pgser::env::task(name).map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
@@ -238,6 +268,7 @@ fn _pgser(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(convert, m)?)?;
     m.add_function(wrap_pyfunction!(score, m)?)?;
     m.add_function(wrap_pyfunction!(task_info, m)?)?;
+    m.add_function(wrap_pyfunction!(ogbench_goal, m)?)?;
     m.add_function(wrap_pyfunction!(envs::compute_reward, m)?)?;
     m.add_class::<sampler::Sampler>()?;
     m.add_class::<envs::Env>()?;

@@ -22,6 +22,7 @@
 //! docs/ogbench.md is the user's side of this.
 
 mod export;
+pub mod goal;
 pub mod npz;
 
 use std::io::Read;
@@ -31,6 +32,7 @@ use anyhow::{Context, Result, bail};
 use indicatif::ProgressBar;
 
 pub use export::export_npz;
+pub use goal::{GoalMap, goal_map};
 use npz::{Dtype, Member};
 
 use crate::task::Task;
@@ -39,10 +41,6 @@ use crate::trajectory::{
     TrajectoryWriter,
 };
 
-/// The dataset families pgser reads, their goal tolerance (OGBench's `goal_tol`), and the
-/// observation values that are the goal (the agent's x, y).
-const FAMILIES: [(&str, f64); 3] = [("pointmaze", 1.0), ("antmaze", 0.5), ("humanoidmaze", 0.5)];
-const GOAL: std::ops::Range<usize> = 0..2;
 
 /// Which of OGBench's layouts a file holds (the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -80,7 +78,8 @@ pub struct Dataset {
     pub episodes: usize,
     /// The members pgser leaves out (qpos, qvel, …).
     pub skipped: Vec<String>,
-    threshold: f64,
+    /// Which observation values are the goal, and when it is reached ([`goal`]).
+    pub goal: GoalMap,
 }
 
 /// `pointmaze-medium-navigate-v0` → `pointmaze-medium-v0`: OGBench drops the dataset type (the
@@ -110,13 +109,6 @@ impl Dataset {
                  no environment: give it with --task (pointmaze-medium-v0)"
             ),
         };
-        let family = env.split('-').next().unwrap_or_default();
-        let Some(&(_, threshold)) = FAMILIES.iter().find(|f| f.0 == family) else {
-            bail!(
-                "{at}: {family} datasets: pgser reads OGBench's locomotion mazes ({}), whose goal is the agent's x, y",
-                FAMILIES.map(|f| f.0).join(", ")
-            );
-        };
         let members = npz::members(path)?;
         let get = |key: &str| members.iter().find(|m| m.key == key);
         let need =
@@ -128,9 +120,7 @@ impl Dataset {
                 bail!("{at}: {}: a {:?} array of shape {:?}; pgser reads float rows [N, dim]", m.key, m.dtype, m.shape);
             }
         }
-        if observations.row_len() < GOAL.end {
-            bail!("{at}: observations have {} values; the goal is the first {}", observations.row_len(), GOAL.end);
-        }
+        let goal = goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?;
         let layout = match (get("next_observations"), get("valids")) {
             (Some(_), _) => Layout::Regular,
             (None, Some(_)) => Layout::Compact,
@@ -174,7 +164,7 @@ impl Dataset {
             rows_per_episode,
             episodes: ends.len(),
             skipped,
-            threshold,
+            goal,
         })
     }
 
@@ -183,13 +173,22 @@ impl Dataset {
         if self.layout == Layout::Regular { self.rows_per_episode + 1 } else { self.rows_per_episode }
     }
 
-    /// The task: OGBench's environment, T from the data, goal (x, y), and the success threshold
-    /// (`--threshold`, else OGBench's `goal_tol`).
+    /// The task: OGBench's environment, T from the data, the goal map's goal and metric, and the
+    /// success threshold (`--threshold`, else OGBench's).
     pub fn task(&self, threshold: Option<f64>) -> Result<Task> {
-        let dims = (self.t(), self.observations.row_len(), GOAL.len(), self.actions.row_len());
-        let keys = ["observations", "observations[:2]", "actions"];
+        let dims = (self.t(), self.observations.row_len(), self.goal.goal_dim(), self.actions.row_len());
+        let keys = ["observations", "the goal", "actions"];
         let at = self.path.display().to_string();
-        crate::trajectory::task_for(&at, dims, keys, "rows", Some(&self.env), threshold.or(Some(self.threshold)))
+        let mut task = crate::trajectory::task_for(
+            &at,
+            dims,
+            keys,
+            "rows",
+            Some(&self.env),
+            threshold.or(Some(self.goal.threshold)),
+        )?;
+        task.metric = self.goal.metric;
+        Ok(task)
     }
 }
 
@@ -312,9 +311,13 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
     }];
     let bytes = writer.finish(&footer)?;
     let mut notes = vec![format!(
-        "{at}: OGBench's {} (environment {}): goal = the agent's x, y (observations[:2]), success within {}; each \
-         transition's desired goal is its episode's last position (the data have no goals)",
-        d.name, d.env, task.threshold
+        "{at}: OGBench's {} (environment {}): goal = observations{}, success within {}{}; each transition's desired \
+         goal is its episode's last (the data have no goals)",
+        d.name,
+        d.env,
+        d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + "),
+        task.threshold,
+        if d.goal.metric == crate::task::GoalMetric::EachObject { " for every cube" } else { "" }
     )];
     if d.layout != Layout::Regular {
         notes.push(format!(
@@ -335,6 +338,7 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
 /// One window of episodes as the four WGCSL arrays, in the file's float types.
 struct Window {
     t: usize,
+    goal: GoalMap,
     layout: Layout,
     obs: (usize, usize),
     act: (usize, usize),
@@ -348,6 +352,7 @@ impl Window {
     fn new(d: &Dataset) -> Window {
         Window {
             t: d.t(),
+            goal: d.goal.clone(),
             layout: d.layout,
             obs: (d.observations.row_len(), d.observations.dtype.size()),
             act: (d.actions.row_len(), d.actions.dtype.size()),
@@ -376,7 +381,7 @@ impl Window {
             self.raw_next.resize(self.raw_obs.len(), 0);
             n.read_exact(&mut self.raw_next).context("next_observations are cut short")?;
         }
-        let (orow, arow, grow) = (od * os, ad * asz, GOAL.len() * os);
+        let (orow, arow, grow) = (od * os, ad * asz, self.goal.goal_dim() * os);
         self.arrays.iter_mut().for_each(Vec::clear);
         for e in 0..k {
             let o = &self.raw_obs[e * file_rows * orow..(e + 1) * file_rows * orow];
@@ -388,9 +393,8 @@ impl Window {
                 let n = &self.raw_next[e * file_rows * orow..(e + 1) * file_rows * orow];
                 self.arrays[0].extend_from_slice(&n[(file_rows - 1) * orow..]);
             }
-            let ep_obs = &self.arrays[0][start..];
-            let goal = |row: &[u8]| row[GOAL.start * os..GOAL.end * os].to_vec();
-            let ag: Vec<u8> = ep_obs.chunks_exact(orow).flat_map(goal).collect();
+            let mut ag = Vec::with_capacity(t * grow);
+            self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag);
             let last = ag[(t - 1) * grow..].to_vec();
             self.arrays[1].extend_from_slice(&ag);
             self.arrays[2].extend_from_slice(&a[..(t - 1) * arow]);
@@ -403,7 +407,7 @@ impl Window {
 
     fn view<'a>(&'a self, at: &str, k: usize) -> EpisodeArrays<'a> {
         let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
-        let g = GOAL.len();
+        let g = self.goal.goal_dim();
         let spec = [(t, od, os), (t, g, os), (t - 1, ad, asz), (t - 1, g, os)];
         let arrays = std::array::from_fn(|i| FloatArray {
             data: &self.arrays[i],

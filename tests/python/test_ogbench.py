@@ -61,3 +61,12 @@ def test_example_evaluates_in_ogbenchs_environment(stitch, tmp_path):
     assert all(s in (0.0, 0.5, 1.0) for s in r["task_success"]), r
     assert r["success"] == pytest.approx(np.mean(r["task_success"]))
     assert "task1" in p.stderr and "success" in p.stderr, p.stderr
+
+
+def test_ogbench_goal_is_the_goal_map_of_the_tables():
+    cube = np.load(REPO / "tests/fixtures/ogbench/cube/cube-double-play-v0.npz")
+    np.testing.assert_array_equal(pgser.ogbench_goal("cube-double-v0", cube["observations"]), cube["oracle_reps"])
+    assert pgser.ogbench_goal("cube-double-v0", cube["observations"][0]).shape == (6,)
+    np.testing.assert_array_equal(pgser.ogbench_goal("antmaze-large-v0", np.arange(29.0)), [0.0, 1.0])
+    with pytest.raises(ValueError, match="not positions"):
+        pgser.ogbench_goal("puzzle-3x3-v0", np.zeros(10))

@@ -1,0 +1,123 @@
+//! The goal map φ of OGBench's environments: which observation values are the goal, and when it
+//! is reached, as OGBench's own success test has it.
+//!
+//! - Locomotion mazes (pointmaze, antmaze, humanoidmaze): the observation starts with the agent's
+//!   x, y; success is a distance of at most `goal_tol` (1.0 for the point, 0.5 for the ant and the
+//!   humanoid).
+//! - Cube (cube-single … cube-quadruple): the observation is 19 values of the arm and gripper,
+//!   then 9 per cube: its position (x, y, z) centred on (0.425, 0, 0) and scaled by 10, its
+//!   quaternion, and the cosine and sine of its yaw (`CubeEnv.compute_observation`). The goal is
+//!   the cubes' positions (what OGBench's `oraclerep` datasets hold), and it is reached when every
+//!   cube is within 0.04 m of its target (`_compute_successes`), i.e. 0.4 in the observation's
+//!   scaled units: [`GoalMetric::EachObject`].
+//!
+//! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
+//! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
+//! Puzzle and scene goals (button states, drawers) are not positions and are not mapped.
+
+use std::ops::Range;
+
+use anyhow::{Result, bail};
+
+use crate::task::GoalMetric;
+
+/// Values of the arm and gripper before the cubes in a cube observation, and values per cube.
+const CUBE_PROPRIO: usize = 19;
+const CUBE_VALUES: usize = 9;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct GoalMap {
+    /// The observation's goal values, in order.
+    pub ranges: Vec<Range<usize>>,
+    pub threshold: f64,
+    pub metric: GoalMetric,
+}
+
+impl GoalMap {
+    pub fn goal_dim(&self) -> usize {
+        self.ranges.iter().map(Range::len).sum()
+    }
+
+    /// φ of observation rows of `size`-byte values (one row of `obs_dim` values each): the goal
+    /// rows, appended to `out`.
+    pub fn map_bytes(&self, rows: &[u8], obs_dim: usize, size: usize, out: &mut Vec<u8>) {
+        for row in rows.chunks_exact(obs_dim * size) {
+            for r in &self.ranges {
+                out.extend_from_slice(&row[r.start * size..r.end * size]);
+            }
+        }
+    }
+
+    /// φ of one observation.
+    pub fn map(&self, obs: &[f64]) -> Vec<f64> {
+        self.ranges.iter().flat_map(|r| obs[r.clone()].iter().copied()).collect()
+    }
+}
+
+/// The families pgser maps, for error messages.
+pub const FAMILIES: [&str; 4] = ["pointmaze", "antmaze", "humanoidmaze", "cube"];
+
+/// The goal map of an OGBench environment (`antmaze-large-v0`, `cube-double-v0`) whose
+/// observations have `obs_dim` values.
+pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
+    let family = env.split('-').next().unwrap_or_default();
+    let maze = |tol: f64| -> Result<GoalMap> {
+        if obs_dim < 2 {
+            bail!("{env}: observations have {obs_dim} values; the goal is the first 2 (the agent's x, y)");
+        }
+        Ok(GoalMap { ranges: vec![0..2], threshold: tol, metric: GoalMetric::Euclidean })
+    };
+    match family {
+        "pointmaze" => maze(1.0),
+        "antmaze" | "humanoidmaze" => maze(0.5),
+        "cube" => {
+            let cubes = obs_dim.saturating_sub(CUBE_PROPRIO) / CUBE_VALUES;
+            if cubes == 0 || CUBE_PROPRIO + cubes * CUBE_VALUES != obs_dim {
+                bail!(
+                    "{env}: observations have {obs_dim} values; a cube scene's have {CUBE_PROPRIO} + {CUBE_VALUES} per cube"
+                );
+            }
+            let named = match env.split('-').nth(1) {
+                Some("single") => Some(1),
+                Some("double") => Some(2),
+                Some("triple") => Some(3),
+                Some("quadruple") => Some(4),
+                Some("octuple") => Some(8),
+                _ => None,
+            };
+            if let Some(n) = named.filter(|&n| n != cubes) {
+                bail!(
+                    "{env}: a scene of {n} cubes has {} observation values, these have {obs_dim} ({cubes} cube{})",
+                    CUBE_PROPRIO + n * CUBE_VALUES,
+                    if cubes == 1 { "" } else { "s" }
+                );
+            }
+            let ranges = (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
+            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject })
+        }
+        _ => bail!(
+            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual, puzzle and scene goals are not \
+             positions)",
+            FAMILIES.join(", ")
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn maps_of_the_families() {
+        assert_eq!(goal_map("pointmaze-medium-v0", 2).unwrap().ranges, vec![0..2]);
+        assert_eq!(goal_map("antmaze-large-v0", 29).unwrap().threshold, 0.5);
+        let c = goal_map("cube-double-v0", 37).unwrap();
+        assert_eq!((c.ranges.clone(), c.goal_dim(), c.metric), (vec![19..22, 28..31], 6, GoalMetric::EachObject));
+        let obs: Vec<f64> = (0..37).map(f64::from).collect();
+        assert_eq!(c.map(&obs), [19.0, 20.0, 21.0, 28.0, 29.0, 30.0]);
+        assert!(goal_map("cube-double-v0", 36).unwrap_err().to_string().contains("19 + 9 per cube"));
+        assert!(goal_map("cube-double-v0", 28).unwrap_err().to_string().contains("a scene of 2 cubes has 37"));
+        assert!(goal_map("puzzle-3x3-v0", 10).unwrap_err().to_string().contains("not positions"));
+        assert!(goal_map("visual-cube-single-v0", 28).is_err());
+    }
+}
