@@ -31,6 +31,9 @@ def distance(metric, a, b):
     if metric == "euclidean":
         d = a.astype(np.float64) - b.astype(np.float64)
         return np.sqrt((d * d).sum(axis=1))
+    if metric == "each_object":
+        d = (a.astype(np.float64) - b.astype(np.float64)).reshape(len(a), -1, 3)
+        return np.sqrt((d * d).sum(axis=2)).max(axis=1)
     # quat_angle: gymnasium-robotics' rotation distance on components 3..7.
     dot = (a[:, 3:7].astype(np.float64) * b[:, 3:7].astype(np.float64)).sum(axis=1)
     return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
