@@ -454,3 +454,43 @@ fn cube_goals_are_the_cubes_positions() {
         .unwrap();
     assert!(!o.status.success() && text(&o.stderr).contains("a scene of 2 cubes has 37"), "{}", text(&o.stderr));
 }
+
+/// `pgser-train eval` of several checkpoints: one JSON line each, naming it, with OGBench's five
+/// tasks' success rates; each line what that checkpoint's evaluation alone gives.
+#[test]
+fn eval_reports_each_checkpoint_and_each_task() {
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("t.parquet");
+    collect_ok("pointmaze-medium-stitch-v0", 20, 0, &table, &[]);
+    let ckpt = dir.path().join("a.ckpt");
+    let train = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train")).args(args).output().unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    train(&[
+        "--data",
+        table.to_str().unwrap(),
+        "-o",
+        ckpt.to_str().unwrap(),
+        "--updates",
+        "20",
+        "--batch-size",
+        "16",
+        "--eval-episodes",
+        "0",
+        "--seeds",
+        "0",
+        "1",
+    ]);
+    let (a, b) = (ckpt.join("s0.ckpt"), ckpt.join("s1.ckpt"));
+    let both = train(&["eval", "--ckpt", a.to_str().unwrap(), b.to_str().unwrap(), "--episodes", "10", "--json"]);
+    let lines: Vec<serde_json::Value> = both.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 2, "{both}");
+    for (line, c) in lines.iter().zip([&a, &b]) {
+        assert_eq!(line["checkpoint"].as_str(), c.to_str(), "{line}");
+        assert_eq!(line["task_success"].as_array().unwrap().len(), 5, "{line}");
+        let alone = train(&["eval", "--ckpt", c.to_str().unwrap(), "--episodes", "10", "--json"]);
+        assert_eq!(&serde_json::from_str::<serde_json::Value>(&alone).unwrap(), line);
+    }
+}

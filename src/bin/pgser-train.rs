@@ -65,12 +65,16 @@ struct Run {
 enum Command {
     /// Evaluate a checkpoint's policy in its task's environment.
     #[command(after_help = "Examples:\n  pgser-train eval --ckpt run.ckpt --episodes 50 --seed 1000000 --json\n  \
-        pgser-train eval --random --task FetchPush --episodes 50")]
+        pgser-train eval --ckpt out/agents/td3bc_mem_s*.ckpt --episodes 250 --json\n  \
+        pgser-train eval --random --task FetchPush --episodes 50\n\n\
+        Several checkpoints are evaluated one after another on the same episodes, one line each (with --json, \
+        one JSON object each, naming its checkpoint). OGBench's mazes cycle through their 5 tasks by episode and \
+        report each task's success: --episodes 250 is OGBench's protocol (5 x 50).")]
     #[command(group = clap::ArgGroup::new("policy").required(true).args(["ckpt", "random"]))]
     Eval {
-        /// Checkpoint whose actor to run.
-        #[arg(long)]
-        ckpt: Option<PathBuf>,
+        /// Checkpoint(s) whose actor to run.
+        #[arg(long, num_args = 1..)]
+        ckpt: Vec<PathBuf>,
         /// Run uniform random actions instead (the baseline), in --task.
         #[arg(long, requires = "task")]
         random: bool,
@@ -192,23 +196,29 @@ pub(crate) fn main() -> ExitCode {
         let device = args.run.device.device()?;
         match args.command {
             Some(Command::Eval { ckpt, random, task, episodes, seed, json }) => {
-                let (report, what, task) = if random {
+                let runs: Vec<(eval::EvalReport, String, String)> = if random {
                     let name = task.expect("clap requires --task with --random");
                     let t = pgser::env::task(&name)?;
                     let policy = eval::RandomPolicy::new(t.act_dim, seed);
-                    (eval::evaluate(&t.name, &policy, episodes, seed)?, "random policy".to_string(), t.name)
+                    vec![(eval::evaluate(&t.name, &policy, episodes, seed)?, "random policy".to_string(), t.name)]
                 } else {
-                    let ckpt = ckpt.expect("clap requires --ckpt or --random");
-                    let (agent, _) = checkpoint::load(&ckpt, device)?;
-                    (
-                        eval::evaluate(&agent.task.name, &agent, episodes, seed)?,
-                        ckpt.display().to_string(),
-                        agent.task.name,
-                    )
+                    let mut runs = Vec::with_capacity(ckpt.len());
+                    for c in &ckpt {
+                        let (agent, _) = checkpoint::load(c, device.clone())?;
+                        let report = eval::evaluate(&agent.task.name, &agent, episodes, seed)?;
+                        runs.push((report, c.display().to_string(), agent.task.name));
+                    }
+                    runs
                 };
-                if json {
-                    println!("{}", serde_json::to_string(&report)?);
-                } else {
+                for (report, what, task) in runs {
+                    if json {
+                        let mut v = serde_json::to_value(&report)?;
+                        if !random {
+                            v["checkpoint"] = serde_json::Value::String(what);
+                        }
+                        println!("{v}");
+                        continue;
+                    }
                     let tasks = if report.task_success.is_empty() {
                         String::new()
                     } else {
