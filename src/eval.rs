@@ -184,7 +184,8 @@ fn per_task(task_of: &[Option<usize>], success: &[bool]) -> Vec<f64> {
     let Some(k) = task_of.iter().flatten().max() else { return vec![] };
     (1..=*k)
         .map(|t| {
-            let runs: Vec<bool> = task_of.iter().zip(success).filter(|(x, _)| **x == Some(t)).map(|(_, &s)| s).collect();
+            let runs: Vec<bool> =
+                task_of.iter().zip(success).filter(|(x, _)| **x == Some(t)).map(|(_, &s)| s).collect();
             runs.iter().filter(|&&s| s).count() as f64 / runs.len() as f64
         })
         .collect()

@@ -209,7 +209,11 @@ mod tests {
 
     #[test]
     fn each_object_must_be_within_the_threshold() {
-        let t = Task { metric: GoalMetric::EachObject, threshold: 0.4, ..Task::custom("cube-double-v0", 1001, 37, 6, 5, 0.4) };
+        let t = Task {
+            metric: GoalMetric::EachObject,
+            threshold: 0.4,
+            ..Task::custom("cube-double-v0", 1001, 37, 6, 5, 0.4)
+        };
         let g = [0.0; 6];
         // Both cubes 0.3 away: jointly 0.42 (Euclidean would fail), each within 0.4.
         assert!((t.distance(&[0.3, 0.0, 0.0, 0.0, 0.3, 0.0], &g) - 0.3).abs() < 1e-15);

@@ -260,7 +260,8 @@ fn evaluation_in_pointmaze_equals_ogbenchs() {
     // Per task, as OGBench reports: seed i ran task i % 5 + 1.
     let per_task: Vec<f64> = (0..5)
         .map(|t| {
-            let of: Vec<_> = runs.iter().enumerate().filter(|(i, _)| i % 5 == t).map(|(_, r)| r["success"] == true).collect();
+            let of: Vec<_> =
+                runs.iter().enumerate().filter(|(i, _)| i % 5 == t).map(|(_, r)| r["success"] == true).collect();
             of.iter().filter(|&&s| s).count() as f64 / of.len() as f64
         })
         .collect();
@@ -342,12 +343,17 @@ fn oracle_data_equal_ogbenchs_generator_run_in_ogbench() {
 fn oracle_data_match_ogbenchs_generator_in_distribution() {
     let dir = tempfile::tempdir().unwrap();
     let reference = fixture("generator_stats.json");
-    for (name, episodes) in
-        [("pointmaze-medium-navigate-v0", 200), ("pointmaze-medium-stitch-v0", 1000), ("pointmaze-large-stitch-v0", 1000)]
-    {
+    for (name, episodes) in [
+        ("pointmaze-medium-navigate-v0", 200),
+        ("pointmaze-medium-stitch-v0", 1000),
+        ("pointmaze-large-stitch-v0", 1000),
+    ] {
         let file = dir.path().join(format!("{name}.npz"));
         collect_ok(name, episodes, 1000, &file, &[]);
-        let o = py_ok("ogbench_generator_stats.py", &["compare", reference.to_str().unwrap(), name, file.to_str().unwrap()]);
+        let o = py_ok(
+            "ogbench_generator_stats.py",
+            &["compare", reference.to_str().unwrap(), name, file.to_str().unwrap()],
+        );
         let r: serde_json::Value = serde_json::from_str(&text(&o.stdout)).unwrap();
         assert!(r["statistics"].as_u64().unwrap() >= 30, "{r}");
     }
@@ -375,7 +381,10 @@ fn oracle_table_is_the_converted_npz() {
     assert_eq!(read_table(&direct).0.columns(), read_table(&converted).0.columns());
     let footer = pgser::table::read_footer(&direct).unwrap();
     assert_eq!((footer["task"].as_str(), footer["T"].as_u64()), (Some("pointmaze-large-v0"), Some(201)));
-    assert_eq!((footer["policy"].as_str(), footer["seed"].as_u64()), (Some("oracle:pointmaze-large-stitch-v0 noise 0.5"), Some(5)));
+    assert_eq!(
+        (footer["policy"].as_str(), footer["seed"].as_u64()),
+        (Some("oracle:pointmaze-large-stitch-v0 noise 0.5"), Some(5))
+    );
     // Bad requests: one line, no file.
     let fails = |task: &str, out: &Path, extra: &[&str], want: &str| {
         let o = etl()
@@ -434,7 +443,8 @@ fn cube_goals_are_the_cubes_positions() {
             let file = format!("{name}{split}.npz");
             let t = dir.path().join(format!("{scene}{split}.parquet"));
             convert_ok(&fixture(&format!("cube/{file}")), &t, &[]);
-            let o = etl().arg("export").arg(&t).args(["--format", "ogbench", "-o"]).arg(out.join(&file)).output().unwrap();
+            let o =
+                etl().arg("export").arg(&t).args(["--format", "ogbench", "-o"]).arg(out.join(&file)).output().unwrap();
             assert!(o.status.success(), "{}", text(&o.stderr));
         }
         let (ours, theirs) = (out.join(format!("{name}.npz")), src.clone());

@@ -573,3 +573,93 @@ priority = "rank"
     let e = text(&o.stderr);
     assert!(!o.status.success() && e.contains("arm 3") && e.contains("no share for priority q:2"), "{e}");
 }
+
+/// `[data] oracle`: OGBench's recipe for the dataset the task names, made by a `collect_oracle`
+/// step as the dataset's `.npz` and its `-val` file, converted under the environment's name,
+/// with every episode a positive of the report; the results score success in percent.
+#[test]
+fn an_ogbench_pipeline_makes_its_data_by_the_recipe() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("pm.toml");
+    std::fs::write(
+        &file,
+        r#"name = "pm"
+task = "pointmaze-medium-stitch-v0"
+out = "out"
+[data]
+oracle = 24
+seed = 3
+[train]
+gamma = 0.99
+batch_size = 32
+eval_every = 40
+eval_episodes = 5
+[pretrain]
+updates = 40
+[agents]
+algos = ["td3bc"]
+seeds = [0]
+updates = 40
+"#,
+    )
+    .unwrap();
+    let steps = run(&file, &[]);
+    assert!(steps.values().all(|s| s == "ran"), "{steps:?}");
+    assert!(steps.contains_key("collect_oracle"), "{steps:?}");
+    let out = dir.path().join("out");
+    for f in ["data/pointmaze-medium-stitch-v0.npz", "data/pointmaze-medium-stitch-v0-val.npz", "report/table1.md"] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let footer = pgser::table::read_footer(&out.join("traj.parquet")).unwrap();
+    assert_eq!(
+        (footer["task"].as_str(), footer["T"].as_u64(), footer["episodes"].as_u64()),
+        (Some("pointmaze-medium-v0"), Some(201), Some(24))
+    );
+    let table1: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report/table1.json")).unwrap()).unwrap();
+    assert_eq!(table1["positive_episodes"].as_u64(), Some(24), "{table1}");
+    let results = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(results.contains("| agent | success (%) |"), "{results}");
+    // The same data as `collect` makes by hand.
+    let by_hand = dir.path().join("pointmaze-medium-stitch-v0.npz");
+    let o = etl()
+        .args([
+            "collect",
+            "--task",
+            "pointmaze-medium-stitch-v0",
+            "--policy",
+            "oracle",
+            "--episodes",
+            "24",
+            "--seed",
+            "3",
+            "-o",
+        ])
+        .arg(&by_hand)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let arrays = |p: &Path| {
+        let mut v = Vec::new();
+        for key in ["observations", "actions", "terminals"] {
+            v.push(
+                pgser::ogbench::npz::with_member(p, key, |r, _| {
+                    let mut b = Vec::new();
+                    std::io::Read::read_to_end(r, &mut b)?;
+                    Ok(b)
+                })
+                .unwrap(),
+            );
+        }
+        v
+    };
+    assert_eq!(arrays(&out.join("data/pointmaze-medium-stitch-v0.npz")), arrays(&by_hand));
+    // A task that names no OGBench dataset cannot take oracle data.
+    std::fs::write(
+        &file,
+        std::fs::read_to_string(&file).unwrap().replace("pointmaze-medium-stitch-v0", "pointmaze-medium-v0"),
+    )
+    .unwrap();
+    let o = etl().args(["pipeline", "run"]).arg(&file).output().unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains("names none"), "{}", text(&o.stderr));
+}

@@ -230,7 +230,8 @@ fn score<'py>(
 fn ogbench_goal<'py>(py: Python<'py>, env: &str, observations: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
     use numpy::{IntoPyArray, PyUntypedArrayMethods};
     let np = py.import("numpy")?;
-    let a: numpy::PyReadonlyArrayDyn<'py, f64> = np.call_method1("ascontiguousarray", (observations, "float64"))?.extract()?;
+    let a: numpy::PyReadonlyArrayDyn<'py, f64> =
+        np.call_method1("ascontiguousarray", (observations, "float64"))?.extract()?;
     let shape = a.shape().to_vec();
     let (n, dim) = match shape.as_slice() {
         [d] => (None, *d),

@@ -37,8 +37,8 @@ use indicatif::ProgressBar;
 use rayon::prelude::*;
 
 use super::{CollectOptions, CollectSummary};
-use crate::env::pointmaze::{self, DatasetKind, PointMazeEnv, Recipe};
 use crate::env::GoalEnv;
+use crate::env::pointmaze::{self, DatasetKind, PointMazeEnv, Recipe};
 use crate::ogbench::npz::{Dtype, NpzWriter};
 use crate::output::AtomicFile;
 use crate::task::Task;
@@ -154,7 +154,13 @@ fn episode(env: &mut PointMazeEnv, r: &Recipe, noise: f64, seed: u32) -> Rows {
 }
 
 /// Episodes `range` (seeds S + i), in parallel; each worker makes its environment once.
-fn simulate(opts: &CollectOptions, r: &Recipe, noise: f64, range: Range<usize>, bar: &ProgressBar) -> Result<Vec<Rows>> {
+fn simulate(
+    opts: &CollectOptions,
+    r: &Recipe,
+    noise: f64,
+    range: Range<usize>,
+    bar: &ProgressBar,
+) -> Result<Vec<Rows>> {
     range
         .into_par_iter()
         .map_init(

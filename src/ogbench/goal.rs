@@ -92,7 +92,8 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
                     if cubes == 1 { "" } else { "s" }
                 );
             }
-            let ranges = (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
+            let ranges =
+                (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
             Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject })
         }
         _ => bail!(

@@ -41,7 +41,6 @@ use crate::trajectory::{
     TrajectoryWriter,
 };
 
-
 /// Which of OGBench's layouts a file holds (the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {

@@ -219,7 +219,10 @@ impl Pipeline {
             }
             (true, None, None, Some(episodes)) if d.episodes.is_none() && d.expert_checkpoint.is_none() => {
                 crate::env::pointmaze::recipe(&f.task).with_context(|| {
-                    format!("[data] oracle: OGBench's oracle makes the PointMaze datasets; task {:?} names none", f.task)
+                    format!(
+                        "[data] oracle: OGBench's oracle makes the PointMaze datasets; task {:?} names none",
+                        f.task
+                    )
                 })?;
                 if episodes == 0 {
                     bail!("[data] oracle = 0: must be at least 1 episode");
