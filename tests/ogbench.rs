@@ -504,3 +504,34 @@ fn eval_reports_each_checkpoint_and_each_task() {
         assert_eq!(&serde_json::from_str::<serde_json::Value>(&alone).unwrap(), line);
     }
 }
+
+/// OGBench's protocol scores a scripted oracle (the BFS direction without noise, and the goal
+/// itself once in its cell) at 100 % on every task of the medium and large mazes: 5 tasks × 10
+/// episodes, per task as OGBench reports.
+#[test]
+fn the_oracle_scores_full_marks_under_the_protocol() {
+    use pgser::env::pointmaze::oracle_subgoal;
+    struct Oracle(&'static str);
+    impl pgser::eval::Policy for Oracle {
+        fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32> {
+            (0..n)
+                .flat_map(|k| {
+                    let xy = [f64::from(obs[2 * k]), f64::from(obs[2 * k + 1])];
+                    let g = [f64::from(goal[2 * k]), f64::from(goal[2 * k + 1])];
+                    // In the goal's cell the oracle steers to the cell's centre; the goal itself
+                    // may lie up to √2 from it, so there it heads for the goal.
+                    let centre = oracle_subgoal(self.0, g, g).unwrap();
+                    let home = (xy[0] - centre[0]).abs() <= 2.0 && (xy[1] - centre[1]).abs() <= 2.0;
+                    let sub = if home { g } else { oracle_subgoal(self.0, xy, g).unwrap() };
+                    let d = [sub[0] - xy[0], sub[1] - xy[1]];
+                    let norm = (d[0] * d[0] + d[1] * d[1]).sqrt() + 1e-6;
+                    [(d[0] / norm) as f32, (d[1] / norm) as f32]
+                })
+                .collect()
+        }
+    }
+    for maze in ["pointmaze-medium-v0", "pointmaze-large-v0"] {
+        let r = pgser::eval::evaluate(maze, &Oracle(maze), 50, 0).unwrap();
+        assert_eq!((r.success_rate, r.task_success.clone()), (1.0, vec![1.0; 5]), "{maze}: {r:?}");
+    }
+}
