@@ -272,34 +272,50 @@ fn put(array: &mut [u8], step: usize, values: &[f64]) {
     }
 }
 
-/// A WGCSL pickle written at the end: each array's chunks go to a temporary spool file beside
-/// the output (a pickle stores all of o before any of ag), then are copied in.
-struct PickleSink {
+/// An output written at the end from arrays that arrive a chunk at a time, when its format stores
+/// one whole array before the next (a pickle all of o before any of ag; an `.npz` all
+/// observations before any action): each array's chunks go to a scratch file of its own beside
+/// the output, and the writer copies them in at the end.
+struct Spools {
     out: AtomicFile,
-    spools: [File; 4],
+    files: Vec<File>,
 }
 
-impl PickleSink {
-    fn create(dest: &Path) -> Result<Self> {
+impl Spools {
+    fn create(dest: &Path, arrays: usize) -> Result<Spools> {
         let out = AtomicFile::create(dest)?;
-        let spools = [out.scratch()?, out.scratch()?, out.scratch()?, out.scratch()?];
-        Ok(Self { out, spools })
+        let files = (0..arrays).map(|_| out.scratch()).collect::<Result<_>>()?;
+        Ok(Spools { out, files })
     }
 
-    fn append(&mut self, c: &Chunk) -> Result<()> {
-        for (f, d) in self.spools.iter_mut().zip(&c.data) {
+    /// The next chunk of each array, in order.
+    fn append<'a>(&mut self, chunks: impl IntoIterator<Item = &'a [u8]>) -> Result<()> {
+        for (f, d) in self.files.iter_mut().zip(chunks) {
             f.write_all(d).with_context(|| format!("{}: spool write failed", self.out.dest().display()))?;
         }
         Ok(())
     }
+}
 
-    fn finish(mut self, task: &Task, episodes: usize) -> Result<u64> {
-        let dest = self.out.dest().to_path_buf();
+/// A WGCSL pickle written at the end, from its four arrays' spools.
+struct PickleSink(Spools);
+
+impl PickleSink {
+    fn create(dest: &Path) -> Result<Self> {
+        Ok(PickleSink(Spools::create(dest, 4)?))
+    }
+
+    fn append(&mut self, c: &Chunk) -> Result<()> {
+        self.0.append(c.data.iter().map(Vec::as_slice))
+    }
+
+    fn finish(self, task: &Task, episodes: usize) -> Result<u64> {
+        let Spools { out, mut files } = self.0;
+        let dest = out.dest().to_path_buf();
         let fail = || format!("{}: write failed", dest.display());
-        let mut w = BufWriter::with_capacity(8 << 20, self.out.handle()?);
+        let mut w = BufWriter::with_capacity(8 << 20, out.handle()?);
         let dims = layout(task);
-        let mut arrays: Vec<ArrayOut> = self
-            .spools
+        let mut arrays: Vec<ArrayOut> = files
             .iter_mut()
             .zip(KEYS)
             .zip(dims)
@@ -315,7 +331,7 @@ impl PickleSink {
         write_f64_dict(&mut w, &mut arrays).with_context(fail)?;
         drop(arrays);
         w.into_inner().map_err(|e| e.into_error()).with_context(fail)?;
-        self.out.commit()?;
+        out.commit()?;
         Ok(std::fs::metadata(&dest)?.len())
     }
 }

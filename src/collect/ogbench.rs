@@ -26,7 +26,6 @@
 //! A `.parquet` output is the table that `pgser-etl convert` makes of the `.npz` (T = M rows per
 //! episode; goal = position; each transition's desired goal is its episode's last position).
 
-use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -36,11 +35,10 @@ use anyhow::{Context, Result, bail};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 
-use super::{CollectOptions, CollectSummary};
+use super::{CollectOptions, CollectSummary, Spools};
 use crate::env::GoalEnv;
 use crate::env::pointmaze::{self, DatasetKind, PointMazeEnv, Recipe};
 use crate::ogbench::npz::{Dtype, NpzWriter};
-use crate::output::AtomicFile;
 use crate::task::Task;
 use crate::trajectory::{EpisodeArrays, FloatArray, FloatType, Footer, TrajectoryWriter};
 
@@ -262,36 +260,26 @@ fn view(a: &[Vec<u8>; 4], origin: String, episodes: usize, t: usize) -> EpisodeA
     EpisodeArrays { origin, arrays, episodes }
 }
 
-/// An OGBench `.npz` written at the end: each member's rows go to a scratch file beside it (the
-/// archive stores all observations before any action), then are copied in, compressed.
-struct NpzSpool {
-    out: AtomicFile,
-    spools: [File; 5],
-}
+/// An OGBench `.npz` written at the end from its members' spools (the archive stores all
+/// observations before any action), compressed.
+struct NpzSpool(Spools);
 
 impl NpzSpool {
     fn create(dest: &Path) -> Result<NpzSpool> {
-        let out = AtomicFile::create(dest)?;
-        let spools = [out.scratch()?, out.scratch()?, out.scratch()?, out.scratch()?, out.scratch()?];
-        Ok(NpzSpool { out, spools })
+        Ok(NpzSpool(Spools::create(dest, MEMBERS.len())?))
     }
 
     fn append(&mut self, chunk: &[Rows]) -> Result<()> {
-        let at = self.out.dest().display().to_string();
-        for e in chunk {
-            for (f, d) in self.spools.iter_mut().zip(&e.members) {
-                f.write_all(d).with_context(|| format!("{at}: spool write failed"))?;
-            }
-        }
-        Ok(())
+        chunk.iter().try_for_each(|e| self.0.append(e.members.iter().map(Vec::as_slice)))
     }
 
-    fn finish(mut self, rows: usize) -> Result<u64> {
-        let dest = self.out.dest().to_path_buf();
+    fn finish(self, rows: usize) -> Result<u64> {
+        let Spools { out, mut files } = self.0;
+        let dest = out.dest().to_path_buf();
         let fail = || format!("{}: write failed", dest.display());
-        let mut w = NpzWriter::new(BufWriter::with_capacity(8 << 20, self.out.handle()?), true);
+        let mut w = NpzWriter::new(BufWriter::with_capacity(8 << 20, out.handle()?), true);
         let mut buf = vec![0u8; 1 << 20];
-        for ((key, dtype), f) in MEMBERS.iter().zip(&mut self.spools) {
+        for ((key, dtype), f) in MEMBERS.iter().zip(&mut files) {
             let shape: &[usize] = if *dtype == Dtype::Bool { &[rows] } else { &[rows, 2] };
             w.start(key, *dtype, shape).with_context(fail)?;
             f.rewind().with_context(fail)?;
@@ -304,7 +292,7 @@ impl NpzSpool {
             }
         }
         w.finish().with_context(fail)?.flush().with_context(fail)?;
-        self.out.commit()?;
+        out.commit()?;
         Ok(std::fs::metadata(&dest)?.len())
     }
 }
