@@ -406,7 +406,7 @@ fn oracle_table_is_the_converted_npz() {
 }
 
 /// Cube datasets (tests/fixtures/ogbench/cube, from ogbench's own cube scenes by
-/// tests/py/make_ogbench_cube_fixtures.py): the goal is each cube's position, exactly what
+/// tests/py/make_ogbench_random_fixtures.py): the goal is each cube's position, exactly what
 /// OGBench's oracle representation holds row for row (`oracle_reps`, kept in the fixture), reached
 /// when every cube is within 0.4 (0.04 m in the observation's ×10 units); and an exported file
 /// loads in ogbench as the original.

@@ -70,3 +70,19 @@ def test_ogbench_goal_is_the_goal_map_of_the_tables():
     np.testing.assert_array_equal(pgser.ogbench_goal("antmaze-large-v0", np.arange(29.0)), [0.0, 1.0])
     with pytest.raises(ValueError, match="not positions"):
         pgser.ogbench_goal("puzzle-3x3-v0", np.zeros(10))
+
+
+@pytest.mark.parametrize("dataset", ["antmaze/antmaze-medium-navigate-v0.npz", "cube/cube-single-play-v0.npz"])
+def test_example_evaluates_where_pgser_does_not_simulate(dataset, tmp_path):
+    """The example on environments only OGBench simulates: an ant in its maze and the cube arm
+    (tiny random-action datasets from ogbench's own environments), its goal map applied to
+    OGBench's full goal observations."""
+    p = subprocess.run(
+        [sys.executable, REPO / "examples/ogbench_eval.py", REPO / "tests/fixtures/ogbench" / dataset, "--out",
+         tmp_path, "--updates", "20", "--batch-size", "16", "--episodes", "1", "--pgser-etl", BIN / "pgser-etl",
+         "--pgser-train", BIN / "pgser-train"],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert p.returncode == 0, p.stderr
+    r = json.loads(p.stdout.strip().splitlines()[-1])
+    assert len(r["task_success"]) == 5 and 0.0 <= r["success"] <= 1.0, r

@@ -1,0 +1,71 @@
+#!/usr/bin/env python3
+"""Small OGBench dataset files of the environments pgser does not simulate, in OGBench's on-disk
+format, from ogbench's own environments with uniform random actions.
+
+    /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench
+
+Writes, each with its -val.npz (1 episode):
+- cube/cube-single-play-v0.npz, cube/cube-double-play-v0.npz: 2 episodes of 21 rows, in
+  `gymnasium.make("cube-single-v0", terminate_at_goal=False, max_episode_steps=21)` as OGBench's
+  `generate_manipspace.py` makes its env (its play data come from a scripted arm, which the
+  format does not depend on), with the keys it stores for a cube scene (observations, actions,
+  terminals, qpos, qvel; button_states only where the scene has buttons) plus `oracle_reps`, each
+  row's `env.unwrapped.compute_oracle_observation()` (the cubes' positions, what OGBench's
+  oraclerep datasets hold): tests/ogbench.rs checks pgser's goal against it;
+- antmaze/antmaze-medium-navigate-v0.npz: 4 episodes of 51 rows in antmaze-medium-v0, the keys of
+  `generate_locomaze.py` plus `oracle_reps` (the ant's x, y);
+for examples/ogbench_eval.py's test in OGBench's own environments (tests/python/test_ogbench.py).
+Seeded (numpy seed 0, env seed 0): a second run writes the same arrays.
+"""
+import os
+import sys
+import warnings
+
+import gymnasium
+import numpy as np
+
+import ogbench.locomaze  # noqa: F401  (registers the mazes)
+import ogbench.manipspace  # noqa: F401  (registers the scenes)
+
+warnings.filterwarnings("ignore")
+
+
+def rollout(env, episodes, rows):
+    u = env.unwrapped
+    data = {k: [] for k in ["observations", "actions", "terminals", "qpos", "qvel", "oracle_reps"]}
+    for ep in range(episodes):
+        ob, _ = env.reset()
+        for t in range(rows):
+            # numpy's seeded generator: the cube scenes' action_space.sample() is not reproducible.
+            action = np.random.uniform(env.action_space.low, env.action_space.high).astype(np.float32)
+            rep = u.compute_oracle_observation() if hasattr(u, "compute_oracle_observation") else u.get_xy()
+            next_ob, _, terminated, truncated, info = env.step(action)
+            data["observations"].append(ob)
+            data["actions"].append(action)
+            data["terminals"].append(terminated or truncated)
+            data["qpos"].append(info["prev_qpos"])
+            data["qvel"].append(info["prev_qvel"])
+            data["oracle_reps"].append(rep)
+            ob = next_ob
+    return {k: np.array(v, dtype=bool if k == "terminals" else np.float32) for k, v in data.items()}
+
+
+def main():
+    out = sys.argv[1]
+    sets = [("cube", "cube-single-v0", "cube-single-play-v0", 2, 21),
+            ("cube", "cube-double-v0", "cube-double-play-v0", 2, 21),
+            ("antmaze", "antmaze-medium-v0", "antmaze-medium-navigate-v0", 4, 51)]
+    for folder, env_id, name, episodes, rows in sets:
+        os.makedirs(os.path.join(out, folder), exist_ok=True)
+        np.random.seed(0)
+        env = gymnasium.make(env_id, terminate_at_goal=False, max_episode_steps=rows)
+        env.reset(seed=0)
+        for suffix, n in [("", episodes), ("-val", 1)]:
+            d = rollout(env, n, rows)
+            path = os.path.join(out, folder, f"{name}{suffix}.npz")
+            np.savez_compressed(path, **d)
+            print(path, {k: (v.dtype.str, v.shape) for k, v in d.items()})
+
+
+if __name__ == "__main__":
+    main()
