@@ -15,7 +15,8 @@ simulates only PointMaze, so this is how the others are evaluated). Steps:
    goals were mapped (the x, y; the cubes' positions), actions from `pgser.Policy(checkpoint).act`
    (batched, float32), until the episode terminates at its goal or the time limit truncates it;
    success is `info["success"]` of the last step. Prints each task's success rate and their mean,
-   then one JSON line.
+   then one JSON line. With --full-goal the table's goals are whole observations, and so is the
+   goal given to the agent.
 
 The dataset's name (its file name, as OGBench names its files) gives the environment. The
 `-val.npz` file is not needed. Nothing is downloaded: get the file with OGBench's own loader, or
@@ -51,6 +52,8 @@ def main():
     p.add_argument("--swap", choices=["none", "random"], default="none")
     p.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task (OGBench: 50)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--full-goal", type=float, metavar="THRESHOLD",
+                   help="train on whole-observation goals (convert --full-goal), reached within THRESHOLD")
     p.add_argument("--pgser-etl")
     p.add_argument("--pgser-train")
     a = p.parse_args()
@@ -60,7 +63,8 @@ def main():
     name = a.dataset.name.removesuffix(".npz")
     a.out.mkdir(parents=True, exist_ok=True)
     table, ckpt = a.out / "traj.parquet", a.out / "agent.ckpt"
-    subprocess.run([tool("pgser-etl", a.pgser_etl), "convert", a.dataset, "-o", table], check=True)
+    full = [] if a.full_goal is None else ["--full-goal", "--threshold", str(a.full_goal)]
+    subprocess.run([tool("pgser-etl", a.pgser_etl), "convert", a.dataset, "-o", table, *full], check=True)
     subprocess.run(
         [tool("pgser-train", a.pgser_train), "--data", table, "-o", ckpt, "--updates", str(a.updates),
          "--batch-size", str(a.batch_size), "--gamma", "0.99", "--swap", a.swap, "--seed", str(a.seed),
@@ -69,7 +73,7 @@ def main():
     )
 
     policy = pgser.Policy(str(ckpt))
-    env_name = policy.task[0]  # the environment the table was made for (cube-double-v0, ...)
+    env_name, obs_dim, goal_dim, _ = policy.task  # the environment the table was made for (cube-double-v0, ...)
     env = ogbench.make_env_and_datasets(name, env_only=True)
     tasks = env.unwrapped.task_infos
     success = []
@@ -80,7 +84,9 @@ def main():
             # seed leaves alone: seeded here so that a run repeats.
             np.random.seed(a.seed * 1000 + ep)
             ob, info = env.reset(seed=a.seed * 1000 + ep, options=dict(task_id=k))
-            goal = pgser.ogbench_goal(env_name, info["goal"])
+            goal = np.asarray(info["goal"])
+            if a.full_goal is None:
+                goal = pgser.ogbench_goal(env_name, goal)
             done = False
             while not done:
                 action = policy.act(ob[None], goal[None])[0]

@@ -22,6 +22,9 @@ use crate::{minari, ogbench, trajectory};
 /// What `convert` would write, read and validated as `convert` does, without writing anything.
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     match input(opts)? {
+        Input::Minari(_) | Input::Pickles if opts.full_goal => {
+            bail!("--full-goal: OGBench files only (a pickle or Minari dataset holds its own goals)")
+        }
         Input::Minari(dir) => minari::check(opts, dir),
         Input::Ogbench(file) => ogbench::check(opts, file),
         Input::Pickles => trajectory::check_convert(opts),
@@ -31,6 +34,9 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
 /// Convert `opts.inputs` into the trajectory table `opts.output`.
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
     match input(opts)? {
+        Input::Minari(_) | Input::Pickles if opts.full_goal => {
+            bail!("--full-goal: OGBench files only (a pickle or Minari dataset holds its own goals)")
+        }
         Input::Minari(dir) => minari::convert(opts, dir, bar),
         Input::Ogbench(file) => ogbench::convert(opts, file, bar),
         Input::Pickles => trajectory::convert(opts, bar),

@@ -535,3 +535,31 @@ fn the_oracle_scores_full_marks_under_the_protocol() {
         assert_eq!((r.success_rate, r.task_success.clone()), (1.0, vec![1.0; 5]), "{maze}: {r:?}");
     }
 }
+
+/// `convert --full-goal`: the whole observation is the goal (OGBench's evaluation goals), with
+/// the threshold the user gives; without one, and for a file that is not OGBench's, one line.
+#[test]
+fn full_observation_goals_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = fixture("antmaze/antmaze-medium-navigate-v0.npz");
+    let table = dir.path().join("full.parquet");
+    let notes = convert_ok(&src, &table, &["--full-goal", "--threshold", "0.5"]);
+    assert!(notes.contains("goal = observations[0:29], success within 0.5"), "{notes}");
+    let footer = pgser::table::read_footer(&table).unwrap();
+    assert_eq!((footer["goal_dim"].as_u64(), footer["goal_metric"].as_str()), (Some(29), Some("euclidean")));
+    let (t, _) = read_table(&table);
+    assert_eq!(t.column_by_name("achieved_goal").unwrap().to_data(), t.column_by_name("obs").unwrap().to_data());
+    // By default the ant's goal is its x, y.
+    let xy = dir.path().join("xy.parquet");
+    convert_ok(&src, &xy, &[]);
+    assert_eq!(pgser::table::read_footer(&xy).unwrap()["goal_dim"].as_u64(), Some(2));
+    let fails = |input: &Path, extra: &[&str], want: &str| {
+        let out = dir.path().join("bad.parquet");
+        let o = etl().arg("convert").arg(input).arg("-o").arg(&out).args(extra).output().unwrap();
+        let e = text(&o.stderr);
+        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
+        assert!(!out.exists());
+    };
+    fails(&src, &["--full-goal"], "--full-goal: give --threshold");
+    fails(&repo().join("data/fetch_reach_expert_50.pkl"), &["--full-goal"], "OGBench files only");
+}

@@ -140,7 +140,7 @@ fn read_footer(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
 /// trajectory table. Returns a summary dict; notes the CLI prints are in `notes`.
 #[pyfunction]
 #[pyo3(signature = (inputs, output, *, task=None, threshold=None, episodes=None, float32=false,
-    allow_nonfinite=false, exact_length=false, row_group_rows=65_536))]
+    allow_nonfinite=false, exact_length=false, row_group_rows=65_536, full_goal=false))]
 #[allow(clippy::too_many_arguments)]
 fn convert<'py>(
     py: Python<'py>,
@@ -153,6 +153,7 @@ fn convert<'py>(
     allow_nonfinite: bool,
     exact_length: bool,
     row_group_rows: usize,
+    full_goal: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     for i in &inputs {
         existing(i)?;
@@ -171,6 +172,7 @@ fn convert<'py>(
         allow_nonfinite,
         exact_length,
         row_group_rows,
+        full_goal,
         command,
     };
     let s = interruptible(py, |bar| pgser::convert::convert(&opts, bar))?;

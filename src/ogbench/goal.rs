@@ -13,6 +13,8 @@
 //!
 //! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
 //! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
+//! `convert --full-goal` makes the whole observation the goal instead ([`GoalMap::full`]), with
+//! the user's threshold.
 //! Puzzle and scene goals (button states, drawers) are not positions and are not mapped.
 
 use std::ops::Range;
@@ -34,6 +36,12 @@ pub struct GoalMap {
 }
 
 impl GoalMap {
+    /// The whole observation as the goal (`convert --full-goal`), Euclidean; its threshold must
+    /// be given (NaN until then).
+    pub fn full(obs_dim: usize) -> GoalMap {
+        GoalMap { ranges: vec![0..obs_dim], threshold: f64::NAN, metric: GoalMetric::Euclidean }
+    }
+
     pub fn goal_dim(&self) -> usize {
         self.ranges.iter().map(Range::len).sum()
     }

@@ -95,8 +95,9 @@ pub fn env_name(dataset: &str) -> Option<String> {
 
 impl Dataset {
     /// Opens the file; its environment comes from its name, or from `task` (`--task
-    /// pointmaze-medium-v0`) for a file named otherwise.
-    pub fn open(path: &Path, task: Option<&str>) -> Result<Dataset> {
+    /// pointmaze-medium-v0`) for a file named otherwise; with `full_goal` the goal is the whole
+    /// observation ([`GoalMap::full`]).
+    pub fn open(path: &Path, task: Option<&str>, full_goal: bool) -> Result<Dataset> {
         let at = path.display();
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
         let name = stem.strip_suffix("-val").unwrap_or(stem).to_string();
@@ -119,7 +120,11 @@ impl Dataset {
                 bail!("{at}: {}: a {:?} array of shape {:?}; pgser reads float rows [N, dim]", m.key, m.dtype, m.shape);
             }
         }
-        let goal = goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?;
+        let goal = if full_goal {
+            GoalMap::full(observations.row_len())
+        } else {
+            goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?
+        };
         let layout = match (get("next_observations"), get("valids")) {
             (Some(_), _) => Layout::Regular,
             (None, Some(_)) => Layout::Compact,
@@ -175,6 +180,13 @@ impl Dataset {
     /// The task: OGBench's environment, T from the data, the goal map's goal and metric, and the
     /// success threshold (`--threshold`, else OGBench's).
     pub fn task(&self, threshold: Option<f64>) -> Result<Task> {
+        if self.goal.threshold.is_nan() && threshold.is_none() {
+            bail!(
+                "{}: --full-goal: give --threshold (OGBench's success is measured on its goal map, not on the whole \
+                 observation, so no threshold on it is OGBench's)",
+                self.path.display()
+            );
+        }
         let dims = (self.t(), self.observations.row_len(), self.goal.goal_dim(), self.actions.row_len());
         let keys = ["observations", "the goal", "actions"];
         let at = self.path.display().to_string();
@@ -239,7 +251,7 @@ fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
 
 /// `convert`'s plan for an OGBench file, from its headers and episode ends.
 pub fn check(opts: &ConvertOptions, path: &Path) -> Result<ConvertPlan> {
-    let d = Dataset::open(path, opts.task.as_deref())?;
+    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal)?;
     let take = take(opts, &d)?;
     Ok(ConvertPlan {
         task: d.task(opts.threshold)?,
@@ -274,7 +286,7 @@ fn float_type(d: &Dataset, float32: bool) -> FloatType {
 /// window, not the dataset.
 pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
-    let d = Dataset::open(path, opts.task.as_deref())?;
+    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal)?;
     let episodes = take(opts, &d)?;
     let task = d.task(opts.threshold)?;
     let float = float_type(&d, opts.float32);

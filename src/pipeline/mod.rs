@@ -261,6 +261,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             allow_nonfinite: false,
             exact_length: false,
             row_group_rows: 65_536,
+            full_goal: false,
             command: cmd("convert"),
         }),
     });

@@ -53,6 +53,11 @@ pub struct ConvertOptions {
     /// Target rows per row group (row groups always hold whole episodes).
     #[arg(long, default_value_t = 65_536)]
     pub row_group_rows: usize,
+    /// OGBench files: the goal is the whole observation, as OGBench's evaluation goals are,
+    /// instead of the environment's goal map (x, y; the cubes' positions); --threshold, on the
+    /// observation's Euclidean distance, is then required.
+    #[arg(long)]
+    pub full_goal: bool,
     /// The command line, recorded in the footer (set by the caller, not a flag).
     #[arg(skip)]
     pub command: String,

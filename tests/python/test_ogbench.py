@@ -72,17 +72,21 @@ def test_ogbench_goal_is_the_goal_map_of_the_tables():
         pgser.ogbench_goal("puzzle-3x3-v0", np.zeros(10))
 
 
-@pytest.mark.parametrize("dataset", ["antmaze/antmaze-medium-navigate-v0.npz", "cube/cube-single-play-v0.npz"])
-def test_example_evaluates_where_pgser_does_not_simulate(dataset, tmp_path):
+@pytest.mark.parametrize("dataset,extra", [("antmaze/antmaze-medium-navigate-v0.npz", []),
+                                           ("antmaze/antmaze-medium-navigate-v0.npz", ["--full-goal", "0.5"]),
+                                           ("cube/cube-single-play-v0.npz", [])])
+def test_example_evaluates_where_pgser_does_not_simulate(dataset, extra, tmp_path):
     """The example on environments only OGBench simulates: an ant in its maze and the cube arm
     (tiny random-action datasets from ogbench's own environments), its goal map applied to
     OGBench's full goal observations."""
     p = subprocess.run(
         [sys.executable, REPO / "examples/ogbench_eval.py", REPO / "tests/fixtures/ogbench" / dataset, "--out",
          tmp_path, "--updates", "20", "--batch-size", "16", "--episodes", "1", "--pgser-etl", BIN / "pgser-etl",
-         "--pgser-train", BIN / "pgser-train"],
+         "--pgser-train", BIN / "pgser-train", *extra],
         capture_output=True, text=True, timeout=600,
     )
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout.strip().splitlines()[-1])
     assert len(r["task_success"]) == 5 and 0.0 <= r["success"] <= 1.0, r
+    goal_dim = pgser.read_footer(tmp_path / "traj.parquet")["goal_dim"]
+    assert goal_dim == (29 if extra else {"antmaze": 2, "cube": 3}[dataset.split("/")[0]])
