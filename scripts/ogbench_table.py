@@ -32,7 +32,8 @@ def main():
     for arm in order:
         rs = runs[arm]
         cells = [fmt([r["task_success"][k] for r in rs]) for k in range(tasks)]
-        print(f"| {arm.replace('td3bc_', 'TD3+BC ')} | " + " | ".join(cells) +
+        label = arm.replace("td3bc_", "TD3+BC ").replace("td3_", "TD3 ").replace("ddpg_", "DDPG ")
+        print(f"| {label} | " + " | ".join(cells) +
               f" | {fmt([r['success_rate'] for r in rs])} | {len(rs)} | {rs[0]['episodes']} |")
 
 
