@@ -227,33 +227,47 @@ fn xy_to_ij([x, y]: [f64; 2]) -> (i64, i64) {
 /// centre of `xy`'s own cell when none is closer. None for an unknown maze.
 pub fn oracle_subgoal(maze_name: &str, xy: [f64; 2], goal: [f64; 2]) -> Option<[f64; 2]> {
     let m = maze(maze_name)?;
-    let (h, w) = (m.map.len() as i64, m.map[0].len() as i64);
-    let free =
-        |i: i64, j: i64| (0..h).contains(&i) && (0..w).contains(&j) && m.map[i as usize].as_bytes()[j as usize] == b'0';
-    let mut dist = vec![vec![-1i64; w as usize]; h as usize];
-    let g = xy_to_ij(goal);
-    let at = |d: &Vec<Vec<i64>>, (i, j): (i64, i64)| d[i as usize][j as usize];
-    dist[g.0 as usize][g.1 as usize] = 0;
-    let mut queue = std::collections::VecDeque::from([g]);
-    const NEIGHBOURS: [(i64, i64); 4] = [(-1, 0), (0, -1), (1, 0), (0, 1)];
-    while let Some((i, j)) = queue.pop_front() {
-        for (di, dj) in NEIGHBOURS {
-            let (ni, nj) = (i + di, j + dj);
-            if free(ni, nj) && at(&dist, (ni, nj)) == -1 {
-                dist[ni as usize][nj as usize] = at(&dist, (i, j)) + 1;
-                queue.push_back((ni, nj));
-            }
-        }
-    }
+    let (dist, _) = m.bfs(xy_to_ij(goal));
+    let at = |(i, j): (i64, i64)| dist[i as usize][j as usize];
     let s = xy_to_ij(xy);
     let mut sub = s;
     for (di, dj) in NEIGHBOURS {
         let n = (s.0 + di, s.1 + dj);
-        if free(n.0, n.1) && at(&dist, n) < at(&dist, sub) {
+        if m.free(n.0, n.1) && at(n) < at(sub) {
             sub = n;
         }
     }
     Some(ij_to_xy((sub.0 as usize, sub.1 as usize)))
+}
+
+/// OGBench's neighbour order in its searches: up, left, down, right.
+const NEIGHBOURS: [(i64, i64); 4] = [(-1, 0), (0, -1), (1, 0), (0, 1)];
+
+impl Maze {
+    fn free(&self, i: i64, j: i64) -> bool {
+        i >= 0 && j >= 0 && self.map.get(i as usize).and_then(|row| row.as_bytes().get(j as usize)) == Some(&b'0')
+    }
+
+    /// Breadth-first search over the free cells from `from`, as OGBench's oracle and stitch data
+    /// search: each cell's distance in moves (−1 where unreached), and the cells other than `from`
+    /// in the order the search reached them.
+    fn bfs(&self, from: (i64, i64)) -> (Vec<Vec<i64>>, Vec<(i64, i64)>) {
+        let mut dist = vec![vec![-1i64; self.map[0].len()]; self.map.len()];
+        dist[from.0 as usize][from.1 as usize] = 0;
+        let mut queue = std::collections::VecDeque::from([from]);
+        let mut reached = Vec::new();
+        while let Some((i, j)) = queue.pop_front() {
+            for (di, dj) in NEIGHBOURS {
+                let (ni, nj) = (i + di, j + dj);
+                if self.free(ni, nj) && dist[ni as usize][nj as usize] == -1 {
+                    dist[ni as usize][nj as usize] = dist[i as usize][j as usize] + 1;
+                    queue.push_back((ni, nj));
+                    reached.push((ni, nj));
+                }
+            }
+        }
+        (dist, reached)
+    }
 }
 
 /// One PointMaze: the MuJoCo model and data, the current goal, and numpy's global generator.
@@ -343,28 +357,16 @@ impl PointMazeEnv {
     /// The cells exactly `steps` moves from `from`, in breadth-first order (neighbours up, left,
     /// down, right): the stitch data's candidate goals.
     pub fn cells_at_distance(&self, from: Cell, steps: usize) -> Vec<Cell> {
-        let m = self.maze.map;
-        let mut dist = vec![vec![usize::MAX; m[0].len()]; m.len()];
-        dist[from.0][from.1] = 0;
-        let mut queue = std::collections::VecDeque::from([from]);
-        let mut found = Vec::new();
-        while let Some((i, j)) = queue.pop_front() {
-            for (di, dj) in [(-1i64, 0i64), (0, -1), (1, 0), (0, 1)] {
-                let (ni, nj) = ((i as i64 + di) as usize, (j as i64 + dj) as usize);
-                if ni < m.len() && nj < m[0].len() && self.free(ni, nj) && dist[ni][nj] == usize::MAX {
-                    dist[ni][nj] = dist[i][j] + 1;
-                    queue.push_back((ni, nj));
-                    if dist[ni][nj] == steps {
-                        found.push((ni, nj));
-                    }
-                }
-            }
-        }
-        found
+        let (dist, reached) = self.maze.bfs((from.0 as i64, from.1 as i64));
+        reached
+            .into_iter()
+            .filter(|&(i, j)| dist[i as usize][j as usize] == steps as i64)
+            .map(|(i, j)| (i as usize, j as usize))
+            .collect()
     }
 
     fn free(&self, i: usize, j: usize) -> bool {
-        self.maze.map.get(i).and_then(|row| row.as_bytes().get(j)) == Some(&b'0')
+        self.maze.free(i as i64, j as i64)
     }
 
     /// numpy's global generator, which OGBench's data generator also draws its cells and action
