@@ -16,7 +16,7 @@ pub mod stream;
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
-use crate::agent::Batch;
+use crate::agent::{Batch, Rows, Table};
 use crate::nprandom::NpRandom;
 use crate::swap;
 use crate::trajectory::Episodes;
@@ -59,6 +59,31 @@ pub enum GoalSource {
     Swapped(usize, usize),
 }
 
+/// Where a training row's transition and goal are in β: (episode, step) of the transition and
+/// (goal_episode, goal_step) of the achieved goal it is trained on; goal_step −1 is the
+/// transition's own desired goal. Every batch row is one: β's own rows (original, HER, swapped on
+/// the fly) and the scored table's prioritized ones (which store exactly these four columns).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowKey {
+    pub episode: u32,
+    pub step: u32,
+    pub goal_episode: u32,
+    /// −1: the transition's own desired goal.
+    pub goal_step: i32,
+}
+
+impl RowKey {
+    /// The key of a row drawn from β.
+    pub fn of(e: usize, t: usize, source: GoalSource) -> RowKey {
+        let (ge, gs) = match source {
+            GoalSource::Original => (e, -1),
+            GoalSource::Future(f) => (e, f as i32),
+            GoalSource::Swapped(ge, gt) => (ge, gt as i32),
+        };
+        RowKey { episode: e as u32, step: t as u32, goal_episode: ge as u32, goal_step: gs }
+    }
+}
+
 /// Fills `out` with `n` rows sampled from `data`; returns each row's (episode, step, source).
 pub fn sample(
     data: &Episodes,
@@ -67,43 +92,72 @@ pub fn sample(
     n: usize,
     out: &mut Batch,
 ) -> Vec<(usize, usize, GoalSource)> {
-    let task = &data.task;
+    let drawn = draw(data, cfg, rng, n);
+    *out = rows(data, drawn.iter().map(|&(e, t, s)| RowKey::of(e, t, s))).gather(&table(data));
+    drawn
+}
+
+/// `n` rows' (episode, step, goal source) drawn from `data`: the random half of `sample`.
+pub fn draw(data: &Episodes, cfg: &SamplerConfig, rng: &mut NpRandom, n: usize) -> Vec<(usize, usize, GoalSource)> {
     let steps = data.t - 1;
     let swapped = match cfg.swap {
         Swap::None => 0,
         Swap::Random => ((n as f64) * cfg.swap_ratio).round() as usize,
     };
-    *out = Batch { n, ..Batch::default() };
-    out.obs.reserve(n * task.obs_dim);
-    out.next_obs.reserve(n * task.obs_dim);
-    out.goal.reserve(n * task.goal_dim);
-    out.action.reserve(n * task.act_dim);
-    let mut next_ag = Vec::with_capacity(n * task.goal_dim);
-    let mut rows = Vec::with_capacity(n);
-    for i in 0..n {
-        let (e, t) = (rng.below(data.n), rng.below(steps));
-        let source = if i < swapped {
-            let (ge, gt) = swap::random_goal(data.n, data.t, rng);
-            GoalSource::Swapped(ge, gt)
-        } else if rng.random() < cfg.her_ratio {
-            GoalSource::Future(t + 1 + rng.below(steps - t))
-        } else {
-            GoalSource::Original
-        };
-        out.obs.extend_from_slice(data.obs(e, t));
-        out.action.extend_from_slice(data.action(e, t));
-        out.next_obs.extend_from_slice(data.obs(e, t + 1));
-        next_ag.extend_from_slice(data.ag(e, t + 1));
-        out.goal.extend_from_slice(match source {
-            GoalSource::Original => data.goal(e, t),
-            GoalSource::Future(f) => data.ag(e, f),
-            GoalSource::Swapped(ge, gt) => data.ag(ge, gt),
-        });
-        rows.push((e, t, source));
+    (0..n)
+        .map(|i| {
+            let (e, t) = (rng.below(data.n), rng.below(steps));
+            let source = if i < swapped {
+                let (ge, gt) = swap::random_goal(data.n, data.t, rng);
+                GoalSource::Swapped(ge, gt)
+            } else if rng.random() < cfg.her_ratio {
+                GoalSource::Future(t + 1 + rng.below(steps - t))
+            } else {
+                GoalSource::Original
+            };
+            (e, t, source)
+        })
+        .collect()
+}
+
+/// β as an engine holds it (`Engine::hold`).
+pub fn table(data: &Episodes) -> Table<'_> {
+    let task = &data.task;
+    Table {
+        obs_dim: task.obs_dim,
+        goal_dim: task.goal_dim,
+        act_dim: task.act_dim,
+        obs: &data.obs,
+        ag: &data.ag,
+        g: &data.g,
+        u: &data.u,
     }
-    out.reward = vec![0.0; n];
-    task.rewards(&next_ag, &out.goal, &mut out.reward);
-    rows
+}
+
+/// The rows `keys` name in `table(data)`, with their rewards for the goals they are trained on
+/// (the task's reward of s′'s achieved goal): a batch that `Rows::gather` builds on the host, or
+/// an engine on its device.
+pub fn rows(data: &Episodes, keys: impl IntoIterator<Item = RowKey>) -> Rows {
+    let (t, tab) = (data.t, table(data));
+    let ag_rows = data.n * t;
+    // Row numbers are u32 (12 bytes a row to a GPU): 4 billion goal rows, far past any data set.
+    assert!(tab.goal_rows() <= u32::MAX as usize, "{} goal rows: more than u32 row numbers hold", tab.goal_rows());
+    let (mut r, mut next_ag, mut goal) = (Rows::default(), Vec::new(), Vec::new());
+    for k in keys {
+        let (e, s) = (k.episode as usize, k.step as usize);
+        r.obs.push((e * t + s) as u32);
+        r.action.push((e * (t - 1) + s) as u32);
+        let g = match k.goal_step {
+            -1 => ag_rows + e * (t - 1) + s,
+            gs => k.goal_episode as usize * t + gs as usize,
+        };
+        r.goal.push(g as u32);
+        next_ag.extend_from_slice(data.ag(e, s + 1));
+        goal.extend_from_slice(tab.goal(g));
+    }
+    r.reward = vec![0.0; r.len()];
+    data.task.rewards(&next_ag, &goal, &mut r.reward);
+    r
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -16,7 +17,7 @@ use clap::Args;
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Shards, checkpoint};
+use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Rows, Shards, checkpoint};
 use crate::eval::{self, EvalReport};
 use crate::nprandom::NpRandom;
 use crate::output::{AtomicFile, sha256_file};
@@ -24,6 +25,7 @@ use crate::progress;
 use crate::sampler::SamplerConfig;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::stream::{BatchSource, BatchStream, StreamConfig};
+use crate::trajectory::Episodes;
 use rayon::prelude::*;
 
 mod bench;
@@ -170,6 +172,13 @@ impl Run {
         Ok(self.batches.next_batch()?.0)
     }
 
+    /// The next batch as rows of held table `table` (the engine holds this cell's β there).
+    fn next_rows(&mut self, table: usize) -> Result<Rows> {
+        let mut rows = self.batches.next_rows()?.0;
+        rows.table = table;
+        Ok(rows)
+    }
+
     /// Writes agent i of the stack as this cell's checkpoint, resume state and metrics.
     fn save(&self, agents: &Shards, i: usize) -> Result<()> {
         let (agent, i) = agents.locate(i);
@@ -234,6 +243,15 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
     }
     // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
     let mut agent = Shards::new(agents, backend)?;
+    // An engine on a GPU keeps the cells' data there (each distinct β once) and is sent each
+    // batch as row numbers; elsewhere batches are gathered here. Same batches either way.
+    let (datas, table_of) = distinct_data(&runs);
+    let tables: Vec<_> = datas.iter().map(|d| crate::sampler::table(d)).collect();
+    let held = agent.hold(&tables)?;
+    if held {
+        let mb = tables.iter().map(|t| t.bytes()).sum::<usize>() as f64 / 1e6;
+        progress::milestone(bar, &format!("the device holds the data ({mb:.1} MB): batches are sent as row numbers"));
+    }
     let cfg = first.cfg.clone();
     let evaluate = |agent: &Shards| -> Result<Option<Vec<EvalReport>>> {
         if cfg.eval_episodes == 0 {
@@ -264,11 +282,17 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         }
         let t0 = Instant::now();
         // Each cell samples from its own streams, so doing it in parallel changes no draw.
-        let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
         let u = agent.updates() + 1;
         let log = cfg.log_every > 0 && u.is_multiple_of(cfg.log_every);
         // Losses only on logging steps: on a GPU, reading them waits for the update.
-        let stats = agent.step(&batches, log);
+        let stats = if held {
+            let rows: Vec<Rows> =
+                runs.par_iter_mut().zip(&table_of).map(|(r, &t)| r.next_rows(t)).collect::<Result<_>>()?;
+            agent.step_rows(&rows, log)
+        } else {
+            let batches: Vec<Batch> = runs.par_iter_mut().map(Run::next_batch).collect::<Result<_>>()?;
+            agent.step(&batches, log)
+        };
         let mut lines: Vec<MetricsLine> = (0..runs.len())
             .map(|_| MetricsLine { updates: u, critic_loss: None, actor_loss: None, q_mean: None, eval: None })
             .collect();
@@ -338,6 +362,29 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
             metrics: metrics_path(&r.cell.out),
         })
         .collect())
+}
+
+/// The cells' data, each distinct β once (a grid's cells mostly share one: the baseline's and
+/// `-swap`'s trajectory table is the one `-mem`'s scored table names), and each cell's place
+/// among them.
+fn distinct_data(runs: &[Run]) -> (Vec<Arc<Episodes>>, Vec<usize>) {
+    let same = |a: &Episodes, b: &Episodes| {
+        a.task == b.task && a.n == b.n && a.t == b.t && a.obs == b.obs && a.ag == b.ag && a.g == b.g && a.u == b.u
+    };
+    let mut datas: Vec<Arc<Episodes>> = Vec::new();
+    let mut table_of = Vec::with_capacity(runs.len());
+    for r in runs {
+        let d = r.batches.data();
+        let i = match datas.iter().position(|x| Arc::ptr_eq(x, d) || same(x, d)) {
+            Some(i) => i,
+            None => {
+                datas.push(d.clone());
+                datas.len() - 1
+            }
+        };
+        table_of.push(i);
+    }
+    (datas, table_of)
 }
 
 /// A log line at a scheduled save: "10.0k of 30.0k updates saved (15 agents), 5.1 updates/s, ≈ 1.1 h

@@ -34,7 +34,7 @@ use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 
 pub use adam::Adam;
-pub use engine::{Batch, EngineKind, Precision};
+pub use engine::{Batch, EngineKind, Precision, Rows, Table};
 pub use host::HostActor;
 pub use shards::Shards;
 pub use td3::{Agent, UpdateStats, net_sizes, td_target};

@@ -14,6 +14,7 @@
 use burn::tensor::Tensor;
 use rayon::prelude::*;
 
+use super::engine::{Rows, Table};
 use super::{Agent, Backend, Batch, UpdateStats};
 use crate::task::Task;
 
@@ -132,6 +133,21 @@ impl Shards {
             .map(|(p, (part, b))| pools[p].install(|| part.step(b, stats)))
             .collect::<Option<_>>()?;
         Some(UpdateStats::cat(stats))
+    }
+
+    /// Keeps `tables` on the device of a stack that trains as one part on a hand-written
+    /// engine (`Agent::hold`); returns whether it does. Parts on burn's CPU engine hold none.
+    pub fn hold(&mut self, tables: &[Table]) -> anyhow::Result<bool> {
+        match self.parts.as_mut_slice() {
+            [one] => one.hold(tables),
+            _ => Ok(false),
+        }
+    }
+
+    /// `step` on rows of the held tables (`Agent::step_rows`).
+    pub fn step_rows(&mut self, rows: &[Rows], stats: bool) -> Option<UpdateStats> {
+        assert_eq!(self.parts.len(), 1, "only a stack of one part holds tables");
+        self.parts[0].step_rows(rows, stats)
     }
 
     /// Every agent's policy on its rows (as [`Agent::act_all`]); the parts run side by side.

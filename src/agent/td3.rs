@@ -11,7 +11,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use anyhow::Result;
 
-use super::engine::{Batch, Engine, EngineKind, Net, Nets, State};
+use super::engine::{Batch, Engine, EngineKind, Net, Nets, Rows, State, Table};
 use super::fused::{self, Fused};
 use super::{Adam, AgentConfig, Algo, Member, Mlp, Normalizer, host, init_member};
 use crate::nprandom::NpRandom;
@@ -250,6 +250,39 @@ impl Agent {
         self.step(batches, true).expect("asked for")
     }
 
+    /// Keeps `tables` on the hand-written engine's device (`Engine::hold`); returns whether it
+    /// does, and so whether the stack trains on `step_rows`. burn's engine holds none.
+    pub fn hold(&mut self, tables: &[Table]) -> Result<bool> {
+        match self.engine.as_deref_mut() {
+            Some(e) => e.hold(tables),
+            None => Ok(false),
+        }
+    }
+
+    /// `step`, agent i on the batch `rows[i]` names in the tables the engine holds (`hold`).
+    pub fn step_rows(&mut self, rows: &[Rows], stats: bool) -> Option<UpdateStats> {
+        assert_eq!(rows.len(), self.agents(), "one batch per agent");
+        assert!(rows.iter().all(|r| r.len() == rows[0].len()), "the agents' batches differ in size");
+        let e = self.engine.as_deref_mut().expect("step_rows on a stack that holds its tables");
+        self.updates += 1;
+        self.stale = true;
+        let stats = e
+            .update_rows(&self.config, rows, &self.norms, &mut self.noise_rngs, self.updates, stats)
+            .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
+        Some(self.stats_of(stats))
+    }
+
+    /// A hand-written engine's per-agent losses as burn columns.
+    fn stats_of(&self, stats: super::engine::Stats) -> UpdateStats {
+        let column = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [stats.len()]), &self.device);
+        let actor = stats[0].2.is_some().then(|| column(stats.iter().map(|s| s.2.unwrap_or(0.0)).collect()));
+        UpdateStats {
+            critic_loss: column(stats.iter().map(|s| s.0).collect()),
+            q_mean: column(stats.iter().map(|s| s.1).collect()),
+            actor_loss: actor,
+        }
+    }
+
     /// `update`, returning the losses only when `stats` (a GPU engine then waits for the update;
     /// the trainer asks on logging steps only). Panics, with the engine's one-line error, where a
     /// hand-written engine fails mid-run (a GPU fault): nothing can be trained on after that.
@@ -265,13 +298,7 @@ impl Agent {
             let stats = e
                 .update(c, batches, &self.norms, &mut self.noise_rngs, self.updates, stats)
                 .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
-            let column = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [a]), &self.device);
-            let actor = stats[0].2.is_some().then(|| column(stats.iter().map(|s| s.2.unwrap_or(0.0)).collect()));
-            return Some(UpdateStats {
-                critic_loss: column(stats.iter().map(|s| s.0).collect()),
-                q_mean: column(stats.iter().map(|s| s.1).collect()),
-                actor_loss: actor,
-            });
+            return Some(self.stats_of(stats));
         }
         let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
         let next_sg = self.input(batches.iter().map(|b| (&b.next_obs[..], &b.goal[..])), n);

@@ -34,6 +34,7 @@ use parquet::arrow::arrow_reader::{
 };
 use rayon::prelude::*;
 
+use super::RowKey;
 use super::priority::{PriorityConfig, SumTree};
 use crate::agent::Batch;
 use crate::nprandom::NpRandom;
@@ -48,16 +49,6 @@ pub const MAX_BLOCK_BATCHES: usize = 4096;
 const STREAM_AUG: u64 = 4;
 /// The columns that name a row's transition and goal.
 const COLUMNS: [&str; 4] = ["episode", "step", "goal_episode", "goal_step"];
-
-/// Where a scored row's transition and goal are in β.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RowKey {
-    pub episode: u32,
-    pub step: u32,
-    pub goal_episode: u32,
-    /// −1: the transition's own desired goal (`--include-original`).
-    pub goal_step: i32,
-}
 
 /// A scored transition table: its footer and the shape of its row groups.
 pub struct ScoredTable {
@@ -197,23 +188,7 @@ fn append_keys(path: &Path, batch: &RecordBatch, beta: &Episodes, rows: &[usize]
 
 /// The training rows of `keys` (in that order), rebuilt from β.
 pub fn gather(beta: &Episodes, keys: impl Iterator<Item = RowKey>) -> Batch {
-    let mut b = Batch::default();
-    let mut next_ag = Vec::new();
-    for k in keys {
-        let (e, s) = (k.episode as usize, k.step as usize);
-        b.obs.extend_from_slice(beta.obs(e, s));
-        b.action.extend_from_slice(beta.action(e, s));
-        b.next_obs.extend_from_slice(beta.obs(e, s + 1));
-        next_ag.extend_from_slice(beta.ag(e, s + 1));
-        match k.goal_step {
-            -1 => b.goal.extend_from_slice(beta.goal(e, s)),
-            g => b.goal.extend_from_slice(beta.ag(k.goal_episode as usize, g as usize)),
-        }
-        b.n += 1;
-    }
-    b.reward = vec![0.0; b.n];
-    beta.task.rewards(&next_ag, &b.goal, &mut b.reward);
-    b
+    super::rows(beta, keys).gather(&super::table(beta))
 }
 
 /// A batch of prioritized rows with their importance weights (all 1 without `--is-beta`).
@@ -297,12 +272,17 @@ impl ScoredSampler {
     }
 
     pub fn next_batch(&mut self) -> Result<AugBatch> {
-        let d = match self.rx.recv() {
-            Ok(d) => d?,
+        let (rows, keys, weights) = self.next_keys()?;
+        let batch = gather(&self.beta, keys.iter().copied());
+        Ok(AugBatch { batch, keys, rows, weights })
+    }
+
+    /// The next batch as its scored rows, their keys in β and their weights, not yet gathered.
+    pub fn next_keys(&mut self) -> Result<(Vec<usize>, Vec<RowKey>, Vec<f32>)> {
+        match self.rx.recv() {
+            Ok(d) => d.map(|d| (d.rows, d.keys, d.weights)),
             Err(_) => bail!("the prioritized sampler stopped"),
-        };
-        let batch = gather(&self.beta, d.keys.iter().copied());
-        Ok(AugBatch { batch, keys: d.keys, rows: d.rows, weights: d.weights })
+        }
     }
 }
 

@@ -15,8 +15,8 @@ use anyhow::{Result, bail};
 
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
-use super::{SamplerConfig, Swap};
-use crate::agent::Batch;
+use super::{RowKey, SamplerConfig, Swap};
+use crate::agent::{Batch, Rows};
 use crate::nprandom::NpRandom;
 use crate::output::sha256_file;
 use crate::trajectory::Episodes;
@@ -138,26 +138,36 @@ impl BatchStream {
 
     /// The next batch, with where each of its rows came from.
     pub fn next_batch(&mut self) -> Result<(Batch, RowIds)> {
-        let mut batch = Batch::default();
+        let (rows, ids) = self.next_rows()?;
+        Ok((rows.gather(&super::table(&self.data)), ids))
+    }
+
+    /// The next batch as the rows it names in β (`super::table(self.data())`), with their
+    /// rewards and weights: what an engine that holds β gathers on its device.
+    pub fn next_rows(&mut self) -> Result<(Rows, RowIds)> {
         let n = self.cfg.batch_size - self.k_aug;
-        let rows = super::sample(&self.data, &self.cfg.sampler, &mut self.rng, n, &mut batch);
+        let drawn = super::draw(&self.data, &self.cfg.sampler, &mut self.rng, n);
+        let mut keys: Vec<RowKey> = drawn.iter().map(|&(e, t, s)| RowKey::of(e, t, s)).collect();
         let mut ids = RowIds {
-            episode: rows.iter().map(|r| r.0 as u32).collect(),
-            step: rows.iter().map(|r| r.1 as u32).collect(),
+            episode: drawn.iter().map(|r| r.0 as u32).collect(),
+            step: drawn.iter().map(|r| r.1 as u32).collect(),
             scored_row: vec![-1; n],
         };
+        let mut weight = Vec::new();
         if let Some(aug) = self.aug.as_mut() {
-            let a = aug.next_batch()?;
+            let (scored, aug_keys, aug_weights) = aug.next_keys()?;
             if self.cfg.priority.is_beta.is_some() {
-                batch.weight = vec![1.0; batch.n];
-                batch.weight.extend_from_slice(&a.weights);
+                weight = vec![1.0; n];
+                weight.extend_from_slice(&aug_weights);
             }
-            batch.append(&a.batch);
-            ids.episode.extend(a.keys.iter().map(|k| k.episode));
-            ids.step.extend(a.keys.iter().map(|k| k.step));
-            ids.scored_row.extend(a.rows.iter().map(|&r| r as i64));
+            ids.episode.extend(aug_keys.iter().map(|k| k.episode));
+            ids.step.extend(aug_keys.iter().map(|k| k.step));
+            ids.scored_row.extend(scored.iter().map(|&r| r as i64));
+            keys.extend(aug_keys);
         }
-        Ok((batch, ids))
+        let mut rows = super::rows(&self.data, keys);
+        rows.weight = weight;
+        Ok((rows, ids))
     }
 }
 

@@ -58,6 +58,8 @@ pub enum Arg {
 pub trait Gpu: Send {
     /// `bytes` of zeroed device memory, 256-byte aligned, owned by the device until it is dropped.
     fn alloc(&mut self, bytes: usize) -> Result<Ptr>;
+    /// Bytes of device memory free now.
+    fn free_memory(&mut self) -> Result<usize>;
     fn upload(&mut self, dst: Ptr, src: &[u8]) -> Result<()>;
     fn download(&mut self, src: Ptr, dst: &mut [u8]) -> Result<()>;
     /// Returns memory from `alloc` (after the work queued before has finished with it).

@@ -142,6 +142,11 @@ impl Gpu for CudaGpu {
         Ok(p)
     }
 
+    fn free_memory(&mut self) -> Result<usize> {
+        self.ctx.bind_to_thread()?;
+        Ok(result::mem_get_info().context("cuMemGetInfo")?.0)
+    }
+
     fn free(&mut self, ptr: Ptr) -> Result<()> {
         self.ctx.bind_to_thread()?;
         let i = self.allocs.iter().position(|&p| p == ptr).context("free of memory this device did not allocate")?;

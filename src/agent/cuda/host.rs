@@ -26,13 +26,20 @@ enum Op {
 
 /// Host memory posing as a device's; graphs are recorded lists of operations, replayed in order
 /// (what a CUDA graph is, less the speed).
-#[derive(Default)]
 pub struct HostGpu {
     allocs: Vec<(Ptr, Layout)>,
     recording: Option<Vec<Op>>,
     graphs: Vec<Vec<Op>>,
     /// The host buffer `stage` fills.
     staging: Vec<f32>,
+    /// What `free_memory` answers: 1 TB, unless a test plays a small device.
+    pub free_bytes: usize,
+}
+
+impl Default for HostGpu {
+    fn default() -> Self {
+        HostGpu { allocs: Vec::new(), recording: None, graphs: Vec::new(), staging: Vec::new(), free_bytes: 1 << 40 }
+    }
 }
 
 // SAFETY: the allocations are owned by this value alone and only touched through `&mut self`.
@@ -77,6 +84,11 @@ impl Gpu for HostGpu {
         }
         self.allocs.push((ptr as Ptr, layout));
         Ok(ptr as Ptr)
+    }
+
+    /// The host's memory stands for the device's; tests set `free` to try a device too small.
+    fn free_memory(&mut self) -> Result<usize> {
+        Ok(self.free_bytes)
     }
 
     fn free(&mut self, ptr: Ptr) -> Result<()> {

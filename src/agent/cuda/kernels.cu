@@ -54,6 +54,32 @@ __device__ inline float pgser_clamp(float x, float lo, float hi) {
 
 __device__ inline long long pgser_part_start(int n, int p, int q) { return (long long)n * q / p; }
 
+// The batch from the episodes the engine holds (`CudaEngine::hold`), every agent's rows at once:
+// row r (of agents·n) is s = obs[io[r]], s' = obs[io[r] + 1], a = act[ia[r]], g = goals[ig[r]],
+// with idx = [io; ia; ig], each `rows` long. One thread per value written; a copy, so exact.
+extern "C" __global__ void pgser_gather(long long rows, int od, int gd, int act,
+                                        const unsigned* __restrict__ idx, const float* __restrict__ obs_t,
+                                        const float* __restrict__ goal_t, const float* __restrict__ act_t,
+                                        float* __restrict__ obs, float* __restrict__ goal,
+                                        float* __restrict__ next_obs, float* __restrict__ action) {
+    const int W = 2 * od + gd + act;
+    PGSER_FOR(i, rows * W) {
+        const long long r = i / W;
+        const int c = (int)(i % W);
+        if (c < od) {
+            obs[r * od + c] = obs_t[(long long)idx[r] * od + c];
+        } else if (c < 2 * od) {
+            next_obs[r * od + c - od] = obs_t[((long long)idx[r] + 1) * od + c - od];
+        } else if (c < 2 * od + gd) {
+            const int j = c - 2 * od;
+            goal[r * gd + j] = goal_t[(long long)idx[2 * rows + r] * gd + j];
+        } else {
+            const int j = c - 2 * od - gd;
+            action[r * act + j] = act_t[(long long)idx[rows + r] * act + j];
+        }
+    }
+}
+
 // The critics' inputs of every member (members = A·K: agent a's critics k at a·K + k, each with
 // its own copy of the agent's rows, so that every critic product is one batch):
 // sa = [clip((o − μ)/σ), clip((g − μ)/σ), a] and next_sa = the same of (o', g), its action columns

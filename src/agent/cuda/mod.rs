@@ -42,9 +42,9 @@ mod tests;
 
 use std::sync::Mutex;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 
-use super::engine::{Batch, Engine, Net, Nets, State, Stats};
+use super::engine::{Batch, Engine, Net, Nets, Rows, State, Stats, Table};
 use super::fused::{Shape, parts};
 use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
@@ -53,7 +53,7 @@ pub use device::{Arg, Gemm, Gpu, Mat, Ptr, arg_pointers};
 use device::{Temp, at, download_f32, f32_bytes};
 pub use driver::{CudaGpu, driver_present, open};
 use net::{View, adam, backward, forward, inputs};
-use staging::{CONSTS, Staged};
+use staging::{Base, CONSTS, Staged};
 
 /// Per-(agent, part) sums (kernels.cu's PGSER_SUMS, in its order).
 const SUMS: usize = 6;
@@ -65,6 +65,20 @@ struct NetBufs {
     v: Ptr,
     target: Ptr,
 }
+
+/// The tables a stack's batches come from, on the device (`Engine::hold`): every table's
+/// observations, goals (achieved, then desired) and actions, concatenated, and where each
+/// table starts.
+struct Held {
+    obs: Ptr,
+    goals: Ptr,
+    actions: Ptr,
+    bases: Vec<Base>,
+}
+
+/// The part of free device memory that held tables may take: the rest stays for the update's
+/// buffers (small: tens of MB at 60 agents), cuBLAS, and whatever else shares the GPU.
+const HOLD_SHARE: f64 = 0.5;
 
 /// The scratch of updates with batches of `n` rows.
 struct Scratch {
@@ -91,8 +105,16 @@ struct Scratch {
     graphs: Mutex<Vec<(UpdateKind, Option<usize>)>>,
 }
 
-/// What decides an update's launches: the batch size and whether the actor moves.
-type UpdateKind = (usize, bool);
+/// What decides an update's launches: the batch size, whether the actor moves, and whether the
+/// batch is gathered from held tables.
+type UpdateKind = (usize, bool, bool);
+
+/// An update's batches: from the host, or rows of the held tables.
+#[derive(Clone, Copy)]
+enum Input<'a> {
+    Batches(&'a [Batch]),
+    Rows(&'a [Rows]),
+}
 
 /// The stack's training state on a device, and the scratch of its update.
 pub struct CudaEngine<G: Gpu> {
@@ -114,6 +136,8 @@ pub struct CudaEngine<G: Gpu> {
     norm_clip: Ptr,
     norms: Vec<Normalizer>,
     scratch: Option<Scratch>,
+    /// The episodes the device holds (`hold`), when it does.
+    held: Option<Held>,
     /// Whether updates are captured once as CUDA graphs and replayed (the default), or every
     /// kernel launched each time (PGSER_CUDA_GRAPHS=0: to time what graphs save).
     pub graphs: bool,
@@ -167,6 +191,7 @@ impl<G: Gpu> CudaEngine<G> {
             norm_clip,
             norms: Vec::new(),
             scratch: None,
+            held: None,
             graphs: std::env::var_os("PGSER_CUDA_GRAPHS").is_none_or(|v| v != "0"),
         };
         engine.set_norms(norms)?;
@@ -220,7 +245,8 @@ impl<G: Gpu> CudaEngine<G> {
         let (a, k, p, act) = (self.agents, self.k, parts(n), self.act_dim());
         let w = self.critic.sizes[0];
         let widest = self.actor.widest().max(self.critic.widest());
-        let staged = Staged::new(a, n, self.obs_dim, self.goal_dim, act);
+        // The block laid out for rows of held tables: the larger, so it serves both inputs.
+        let staged = Staged::new(a, n, self.obs_dim, self.goal_dim, act, true);
         let gpu = self.gpu.get_mut().expect("the device lock");
         let mut f32s = |len: usize| gpu.alloc(4 * len.max(1));
         let outs = |f32s: &mut dyn FnMut(usize) -> Result<Ptr>, s: &Shape, members: usize| -> Result<Vec<Ptr>> {
@@ -277,6 +303,28 @@ impl<G: Gpu> CudaEngine<G> {
         let sa_rows = Mat { ptr: s.sa, ld: w, trans: false, stride: n * w };
         // The actor reads its agent's first critic copy of sa: member a·K.
         let actor_in = |ptr: Ptr| Mat { ptr, ld: w, trans: false, stride: k * n * w };
+
+        // 0. The batch from the held tables, when the host sent row numbers.
+        if let (Some(index), Some(h)) = (staged.index, self.held.as_ref()) {
+            gpu.launch(
+                "pgser_gather",
+                a * n * (2 * od + gd + act),
+                &[
+                    Arg::L((a * n) as i64),
+                    Arg::I(od as i32),
+                    Arg::I(gd as i32),
+                    Arg::I(act as i32),
+                    Arg::P(batch(index)),
+                    Arg::P(h.obs),
+                    Arg::P(h.goals),
+                    Arg::P(h.actions),
+                    Arg::P(batch(staged.obs)),
+                    Arg::P(batch(staged.goal)),
+                    Arg::P(batch(staged.next_obs)),
+                    Arg::P(batch(staged.action)),
+                ],
+            )?;
+        }
 
         // 1. Inputs; the TD target from the target networks; the critics' gradients.
         let src = (batch(staged.obs), batch(staged.goal), batch(staged.next_obs), batch(staged.action));
@@ -439,20 +487,24 @@ impl<G: Gpu> CudaEngine<G> {
     }
 }
 
-impl<G: Gpu + 'static> Engine for CudaEngine<G> {
-    /// One update of every agent, agent i on `batches[i]`, with its normalizer and noise stream;
-    /// `updates` is the count after this update (it decides the delayed actor and targets). With
-    /// `stats`, waits for the update and returns its losses (the trainer asks on logging steps).
-    fn update(
+impl<G: Gpu> CudaEngine<G> {
+    /// One update of every agent on `input`, with its normalizer and noise stream; `updates` is
+    /// the count after this update (it decides the delayed actor and targets). With `stats`,
+    /// waits for the update and returns its losses (the trainer asks on logging steps).
+    fn step(
         &mut self,
         c: &AgentConfig,
-        batches: &[Batch],
+        input: Input,
         norms: &[Normalizer],
         noise_rngs: &mut [NpRandom],
         updates: u64,
         stats: bool,
     ) -> Result<Option<Stats>> {
-        let (a, n, act) = (self.agents, batches[0].n, self.act_dim());
+        let n = match input {
+            Input::Batches(b) => b[0].n,
+            Input::Rows(r) => r[0].len(),
+        };
+        let (a, act) = (self.agents, self.act_dim());
         let ddpg = c.algo == Algo::Ddpg;
         let p = parts(n);
         self.set_norms(norms)?;
@@ -463,23 +515,29 @@ impl<G: Gpu + 'static> Engine for CudaEngine<G> {
         let critic_step = self.critic_step + 1;
         let actor_step = self.actor_step + u64::from(actor_moves);
 
-        // The host's part: Adam's constants and the batch (and TD3's target noise, drawn from
-        // each agent's stream in the CPU engine's order), written straight into the staging
-        // buffer and copied in one transfer.
+        // The host's part: Adam's constants and the batch, or its rows' numbers in the held
+        // tables (and TD3's target noise, drawn from each agent's stream in the CPU engine's
+        // order), written straight into the staging buffer and copied in one transfer.
         let (od, gd) = (self.obs_dim, self.goal_dim);
-        let staged = Staged::new(a, n, od, gd, act);
+        let held = matches!(input, Input::Rows(_));
+        let staged = Staged::new(a, n, od, gd, act, held);
         let s = self.scratch.as_ref().expect("sized");
-        debug_assert_eq!(s.staging_len, staged.len);
+        debug_assert!(staged.len <= s.staging_len);
+        let steps = (actor_step, critic_step);
         let gpu = &mut *self.gpu.lock().expect("the device lock");
-        gpu.stage(s.staging, staged.len, &mut |host: &mut [f32]| {
-            staged.fill(host, c, batches, noise_rngs, (actor_step, critic_step), tau)
+        gpu.stage(s.staging, staged.upload, &mut |host: &mut [f32]| match input {
+            Input::Batches(b) => staged.fill(host, c, b, noise_rngs, steps, tau),
+            Input::Rows(r) => {
+                let bases = &self.held.as_ref().expect("rows come only once tables are held").bases;
+                staged.fill_rows(host, c, r, bases, noise_rngs, steps, tau)
+            }
         })?;
 
-        // The device's part: one captured graph per (batch size, whether the actor moves),
-        // replayed. The first update of a kind runs eagerly: cuBLAS and the driver load what they
-        // load lazily then, which a capture forbids; the second is captured. PGSER_CUDA_GRAPHS=0
-        // launches every kernel every time instead (to time what graphs save).
-        let key = (n, actor_moves);
+        // The device's part: one captured graph per kind of update, replayed. The first update
+        // of a kind runs eagerly: cuBLAS and the driver load what they load lazily then, which a
+        // capture forbids; the second is captured. PGSER_CUDA_GRAPHS=0 launches every kernel
+        // every time instead (to time what graphs save).
+        let key = (n, actor_moves, held);
         let seen = s.graphs.lock().expect("graphs").iter().find(|g| g.0 == key).map(|g| g.1);
         match seen {
             Some(Some(id)) => gpu.replay(id)?,
@@ -508,6 +566,82 @@ impl<G: Gpu + 'static> Engine for CudaEngine<G> {
         let bytes = unsafe { std::slice::from_raw_parts_mut(sums.as_mut_ptr().cast::<u8>(), 8 * sums.len()) };
         gpu.download(s.sums, bytes)?;
         Ok(Some(stats_from_sums(c, &sums, a, p, n, act, actor_moves)))
+    }
+}
+
+impl<G: Gpu + 'static> Engine for CudaEngine<G> {
+    fn update(
+        &mut self,
+        c: &AgentConfig,
+        batches: &[Batch],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        stats: bool,
+    ) -> Result<Option<Stats>> {
+        self.step(c, Input::Batches(batches), norms, noise_rngs, updates, stats)
+    }
+
+    /// Uploads `tables` once (concatenated: observations, goals, actions), when they take at most
+    /// `HOLD_SHARE` of the free device memory; a FetchPush data set of the paper's size is 18 MB.
+    /// From then on an update's upload is 12 bytes of row numbers, a reward, a weight and the
+    /// target noise per row instead of the rows (232 bytes on FetchPush), and `pgser_gather`
+    /// builds the batch on the device: the copy the host made per row is gone. The rewards stay
+    /// the host's (the task's reward function in f64, exactly the CPU engine's), 4 bytes a row.
+    /// PGSER_CUDA_HOLD=0 declines (to time what holding saves).
+    fn hold(&mut self, tables: &[Table]) -> Result<bool> {
+        if std::env::var_os("PGSER_CUDA_HOLD").is_some_and(|v| v == "0") || tables.is_empty() {
+            return Ok(false);
+        }
+        let t0 = tables[0];
+        anyhow::ensure!(
+            tables.iter().all(|t| (t.obs_dim, t.goal_dim, t.act_dim) == (self.obs_dim, self.goal_dim, self.act_dim())),
+            "held tables must have the stack's dimensions"
+        );
+        let bytes: usize = tables.iter().map(Table::bytes).sum();
+        let gpu = self.gpu.get_mut().expect("the device lock");
+        if bytes as f64 > HOLD_SHARE * gpu.free_memory()? as f64 {
+            return Ok(false);
+        }
+        let (od, gd, ad) = (t0.obs_dim, t0.goal_dim, t0.act_dim);
+        let rows = |len: usize, d: usize| -> Result<u32> {
+            u32::try_from(len / d).map_err(|_| anyhow::anyhow!("a held table of {} rows: more than u32 numbers", len / d))
+        };
+        let mut bases = Vec::with_capacity(tables.len());
+        let mut end = Base::default();
+        for t in tables {
+            bases.push(end);
+            end.obs = end.obs.checked_add(rows(t.obs.len(), od)?).context("held observations: more than u32 rows")?;
+            end.goal = end.goal.checked_add(rows(t.ag.len() + t.g.len(), gd)?).context("held goals: more than u32 rows")?;
+            end.action = end.action.checked_add(rows(t.u.len(), ad)?).context("held actions: more than u32 rows")?;
+        }
+        let mut upload = |parts: &mut dyn Iterator<Item = &[f32]>, len: usize| -> Result<Ptr> {
+            let ptr = gpu.alloc(4 * len)?;
+            let mut off = 0;
+            for part in parts {
+                gpu.upload(at(ptr, off), f32_bytes(part))?;
+                off += part.len();
+            }
+            Ok(ptr)
+        };
+        let obs = upload(&mut tables.iter().map(|t| t.obs), end.obs as usize * od)?;
+        let goals = upload(&mut tables.iter().flat_map(|t| [t.ag, t.g]), end.goal as usize * gd)?;
+        let actions = upload(&mut tables.iter().map(|t| t.u), end.action as usize * ad)?;
+        self.held = Some(Held { obs, goals, actions, bases });
+        Ok(true)
+    }
+
+    fn update_rows(
+        &mut self,
+        c: &AgentConfig,
+        rows: &[Rows],
+        norms: &[Normalizer],
+        noise_rngs: &mut [NpRandom],
+        updates: u64,
+        stats: bool,
+    ) -> Result<Option<Stats>> {
+        anyhow::ensure!(self.held.is_some(), "rows for an engine that holds no tables");
+        self.step(c, Input::Rows(rows), norms, noise_rngs, updates, stats)
     }
 
     /// Every agent's policy, agent i on `rows[i]` (raw observations and goals, `n` rows each),

@@ -25,6 +25,7 @@ pub const SOURCE: &str = include_str!("kernels.cu");
 
 /// Every kernel the engine launches (and `shim.cpp`'s table holds).
 pub const KERNELS: &[&str] = &[
+    "pgser_gather",
     "pgser_inputs",
     "pgser_bias_act",
     "pgser_target_action",

@@ -46,7 +46,7 @@ const Entry KERNELS[] = {
     PGSER_KERNEL(pgser_bias_grad),   PGSER_KERNEL(pgser_relu_mask),    PGSER_KERNEL(pgser_policy_input),
     PGSER_KERNEL(pgser_pi_sums),     PGSER_KERNEL(pgser_fill),         PGSER_KERNEL(pgser_lambdas),
     PGSER_KERNEL(pgser_actor_grad),  PGSER_KERNEL(pgser_actor_sums),   PGSER_KERNEL(pgser_adam),
-    PGSER_KERNEL(pgser_min_q),       PGSER_KERNEL(pgser_tanh),
+    PGSER_KERNEL(pgser_min_q),       PGSER_KERNEL(pgser_tanh),         PGSER_KERNEL(pgser_gather),
 };
 
 }  // namespace

@@ -5,7 +5,7 @@ use burn::tensor::Device;
 
 use super::host::HostGpu;
 use super::*;
-use crate::agent::engine::Nets;
+use crate::agent::engine::{Nets, Rows, Table};
 use crate::agent::fused::Fused;
 use crate::agent::testdata::{batch, norms};
 use crate::agent::{Agent, AgentConfig, Algo};
@@ -105,6 +105,101 @@ fn the_shim_engine_is_the_cpu_engine_with_one_part_and_with_four() {
         }
         assert_eq!(worst(&f.nets, &engine.nets().unwrap()), 0.0, "n = {n} ({} parts)", parts(n));
     }
+}
+
+/// A table of `episodes` episodes of T = 7 (random values), as the sampler lends it to an engine.
+struct OwnedTable {
+    obs: Vec<f32>,
+    ag: Vec<f32>,
+    g: Vec<f32>,
+    u: Vec<f32>,
+    dims: (usize, usize, usize),
+    episodes: usize,
+}
+
+const T: usize = 7;
+
+impl OwnedTable {
+    fn new(task: &Task, episodes: usize, seed: u64) -> OwnedTable {
+        let mut rng = NpRandom::new(seed);
+        let mut u = |k: usize| (0..k).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<_>>();
+        let (od, gd, ad) = (task.obs_dim, task.goal_dim, task.act_dim);
+        let (rows, steps) = (episodes * T, episodes * (T - 1));
+        OwnedTable { obs: u(rows * od), ag: u(rows * gd), g: u(steps * gd), u: u(steps * ad), dims: (od, gd, ad), episodes }
+    }
+
+    fn table(&self) -> Table<'_> {
+        let (obs_dim, goal_dim, act_dim) = self.dims;
+        Table { obs_dim, goal_dim, act_dim, obs: &self.obs, ag: &self.ag, g: &self.g, u: &self.u }
+    }
+
+    /// `n` random rows of this table (as table `index`): transitions, goals of either kind,
+    /// rewards, and weights when `weighted`.
+    fn rows(&self, index: usize, n: usize, seed: u64, weighted: bool) -> Rows {
+        let mut rng = NpRandom::new(seed);
+        let goal_rows = self.table().goal_rows();
+        let mut r = Rows { table: index, ..Rows::default() };
+        for _ in 0..n {
+            let (e, t) = (rng.below(self.episodes), rng.below(T - 1));
+            r.obs.push((e * T + t) as u32);
+            r.action.push((e * (T - 1) + t) as u32);
+            r.goal.push(rng.below(goal_rows) as u32);
+            r.reward.push(if rng.random() < 0.5 { -1.0 } else { 0.0 });
+            if weighted {
+                r.weight.push(0.5 + rng.random() as f32);
+            }
+        }
+        r
+    }
+}
+
+#[test]
+fn batches_gathered_from_held_tables_train_as_the_cpu_engine_on_the_hosts_batches() {
+    // The trainer's path on a GPU: the tables held on the device, each update's rows sent as
+    // numbers, `pgser_gather` building the batch. Against the CPU engine trained on the same rows
+    // gathered on the host (`Rows::gather`, what it trains on everywhere else): the same bits.
+    // Two tables (a grid's cells may bring different data), agents 0 and 2 on the first, the
+    // second table's rows offset in the device's concatenation, priorities' weights on agent 1.
+    let task = Task::known("FetchPush").unwrap();
+    let tables = [OwnedTable::new(&task, 40, 1), OwnedTable::new(&task, 25, 2)];
+    let views: Vec<Table> = tables.iter().map(OwnedTable::table).collect();
+    for algo in [Algo::Td3bc, Algo::Td3] {
+        let cfg = AgentConfig { algo, hidden: 64, layers: 2, lr: Some(3e-4), ..AgentConfig::default() };
+        let (mut f, mut engine, norms, mut cpu_rngs) = pair(&cfg, &task, &[3, 8, 21]);
+        assert!(engine.hold(&views).unwrap(), "the shim holds them");
+        let mut rngs = cpu_rngs.clone();
+        for u in 0..40u64 {
+            let rows: Vec<Rows> = (0..3)
+                .map(|i| {
+                    let t = usize::from(i == 1);
+                    tables[t].rows(t, 300, 100 * u + i as u64, i == 1)
+                })
+                .collect();
+            let b: Vec<Batch> = rows.iter().map(|r| r.gather(&views[r.table])).collect();
+            let x = f.update(&cfg, &b, &norms, &mut cpu_rngs, u + 1);
+            let y = engine.update_rows(&cfg, &rows, &norms, &mut rngs, u + 1, true).unwrap().unwrap();
+            assert_eq!(x, y, "{algo:?} update {u}: logged losses");
+        }
+        assert_eq!(cpu_rngs, rngs, "{algo:?}: noise streams");
+        assert_eq!(worst(&f.nets, &engine.nets().unwrap()), 0.0, "{algo:?}: the state differs");
+    }
+}
+
+#[test]
+fn tables_too_large_for_the_device_are_not_held_and_rows_are_refused_then() {
+    let task = Task::known("FetchReach").unwrap();
+    let table = OwnedTable::new(&task, 10, 3);
+    let cfg = AgentConfig { hidden: 16, layers: 2, ..AgentConfig::default() };
+    let (_, mut engine, norms, mut rngs) = pair(&cfg, &task, &[1]);
+    // The table is 10 · 7 · (10 + 3) + 10 · 6 · (3 + 4) floats: 5.3 kB, over half of 8 kB.
+    engine.gpu.get_mut().unwrap().free_bytes = 8_000;
+    assert!(!engine.hold(&[table.table()]).unwrap());
+    let rows = [table.rows(0, 8, 1, false)];
+    let err = engine.update_rows(&cfg, &rows, &norms, &mut rngs, 1, false).unwrap_err().to_string();
+    assert!(err.contains("holds no tables"), "{err}");
+    engine.gpu.get_mut().unwrap().free_bytes = 16_000;
+    assert!(engine.hold(&[table.table()]).unwrap());
+    engine.update_rows(&cfg, &rows, &norms, &mut rngs, 1, false).unwrap();
 }
 
 #[test]
