@@ -8,7 +8,9 @@
             precision (fp32: pgser `cuda` against JAX `highest`; tf32: `cuda-tf32` against
             JAX's default);
   stacks    each real `pgser-train --seeds` stack: agent-updates/s, sampling included, and its
-            share of the bench's pgser rate at the same A (FP32).
+            share of the bench's pgser rate at the same A (FP32); `staged-A60` with whole
+            batches sent (PGSER_CUDA_HOLD=0) instead of the data held on the GPU;
+  holding   the held stack's bytes against the staged one's (a gather is a copy: tolerance 0).
 
 Prints the ratios and the stacks' shares, the lines a reader wants first.
 
@@ -29,7 +31,7 @@ def rate(grid: dict, peer: str, agents) -> float | None:
 
 def main(out: str, work: str) -> None:
     doc: dict = {}
-    for name in ("machine", "correctness", "correctness-fp32", "determinism", "stacking"):
+    for name in ("machine", "correctness", "correctness-fp32", "determinism", "stacking", "holding"):
         path = os.path.join(work, name + ".json")
         if os.path.exists(path):
             doc[name] = json.load(open(path))
@@ -45,15 +47,17 @@ def main(out: str, work: str) -> None:
             ratios[key] = {"pgser": p, "jax": j, "pgser_over_jax": p / j}
     doc["pgser_over_jax"] = ratios
     stacks = {}
-    for path in sorted(glob.glob(os.path.join(work, "stack-A*.json"))):
-        agents = int(os.path.basename(path)[len("stack-A"):-len(".json")])
+    for path in sorted(glob.glob(os.path.join(work, "stack-*A*.json"))):
+        # stack-A60: the data held on the GPU (the default); stack-staged-A60: PGSER_CUDA_HOLD=0.
+        name = os.path.basename(path)[len("stack-"):-len(".json")]
+        agents = int(name.rsplit("A", 1)[1])
         try:
             runs = json.load(open(path))
         except (OSError, ValueError):
             continue
         ups = runs[0].get("updates_per_sec") if isinstance(runs, list) and runs else None
         bench = rate(doc["grid"].get(f"fp32-A{agents}", {}), "pgser", agents)
-        stacks[f"A{agents}"] = {
+        stacks[name] = {
             "agents": agents,
             "agent_updates_per_sec": ups * agents if ups else None,
             "bench_agent_updates_per_sec": bench,

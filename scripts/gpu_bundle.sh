@@ -3,12 +3,11 @@
 # run (its run.sh is scripts/gpu_run.sh; docs/gpu.md). Our GPU machines start bare, reach no
 # package registry and receive at most 64 MiB of files per run, so the folder holds everything
 # and, with the repo's own files (which travel with every run), stays under 64 MiB (checked here):
-#   bin/    pgser-train from `make build` (cpu and the hand-written cuda engine: in every build),
-#           and, where `make build-cuda` was run, its pgser-train as pgser-train-burn (burn's
-#           cuda-burn and wgpu, the GPU references), stripped, xz. Not pgser-etl: with
-#           polars it is 48 MB under xz against pgser-train's 33, and the two do not fit together
-#           (measured 2026-11-27); the device check of `score` is the critic's Q logged in training
-#           (run.sh), and BUNDLE_ETL=1 adds pgser-etl for a machine that can receive it.
+#   bin/    pgser-train and pgser-etl from `make build` (cpu and the hand-written cuda engine: in
+#           every build), and, where `make build-cuda` was run, its pgser-train as
+#           pgser-train-burn (burn's cuda-burn and wgpu, the GPU references), stripped, xz
+#           (5.4 and 21 MB, measured 2026-11-27). pgser-etl runs `score` on the device and the
+#           grid's pipeline (grid.sh); BUNDLE_ETL=0 leaves it out.
 #   lib/    MuJoCo 3.17.0's library, xz (the binaries link it)
 #   debs/   the Vulkan loader and libglvnd (Debian packages), for wgpu
 #   kernels/ the CUDA engine's kernels as an sm_90 cubin (H100, H200), compiled here by NVRTC 13.0
@@ -17,7 +16,10 @@
 #           expert + 400 random episodes, a 200-update Q, K = 4: the real stacks' timing), made
 #           here on the CPU by the same binaries
 #   bench/  bench_grid.py and the JAX / PyTorch peers it runs, gpu_compare.py
-#   run.sh, VERSION
+#   run.sh  the measurements (scripts/gpu_run.sh); grid.sh: FetchPush's TD3+BC grid at the
+#           paper's scale (scripts/gpu_grid.sh: its data are collected on the device, its Q is
+#           the repository's results/fetch_push_q1m); env.sh: what both source
+#   VERSION
 # Built beside its place and moved there, so an interrupted build leaves the previous bundle.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,7 +28,7 @@ burn=${BUNDLE_BURN:-target-gpu/release}
 dest=${BUNDLE_DEST:-target-gpu/bundle}
 tmp=$dest.tmp
 bins=(pgser-train)
-[ "${BUNDLE_ETL:-0}" = 1 ] && bins+=(pgser-etl)
+[ "${BUNDLE_ETL:-1}" = 1 ] && bins+=(pgser-etl)
 for x in pgser-train pgser-etl; do
   [ -x "$rel/$x" ] || { echo "gpu-bundle: $rel/$x is missing: run make build first" >&2; exit 1; }
 done
@@ -80,7 +82,9 @@ rm -f "$d"/push_*.pkl "$d"/push.parquet "$d"/push_q.ckpt*
 cp bench/bench_grid.py bench/train_peer.py bench/train_peer_stacked.py bench/train_peer_jax.py \
   bench/train_flops.py bench/peer_python.py bench/sgemm_peak.py bench/gpu_compare.py bench/gpu_summary.py "$tmp/bench/"
 cp scripts/gpu_run.sh "$tmp/run.sh"
-chmod +x "$tmp/run.sh"
+cp scripts/gpu_grid.sh "$tmp/grid.sh"
+cp scripts/gpu_env.sh "$tmp/env.sh"
+chmod +x "$tmp/run.sh" "$tmp/grid.sh"
 echo "pgser $(git describe --always --dirty 2>/dev/null || echo unknown), bundled $(date -u +%FT%TZ)" >"$tmp/VERSION"
 
 size=$(du -sb "$tmp" | cut -f1)

@@ -2,7 +2,7 @@
 # pgser on a GPU machine, in one run: the bundle's script (`make gpu-bundle` copies this file into
 # target-gpu/bundle/ as run.sh; docs/gpu.md). Everything it needs is in the bundle: pgser-train
 # with every GPU engine (the hand-written `cuda` and `cuda-tf32`, burn's `cuda-burn` and `wgpu`;
-# xz; pgser-etl too where the bundle was made with BUNDLE_ETL=1), the CUDA engine's kernels as
+# xz; and pgser-etl, for `score` on the device), the CUDA engine's kernels as
 # an sm_90 cubin built with NVRTC 13.0, MuJoCo's library, the Vulkan loader and libglvnd as
 # Debian packages, FetchReach and FetchPush tables and Qs made on the CPU, and the benchmark
 # peers' scripts. It installs nothing outside a temporary folder; cuBLAS comes from the machine
@@ -26,6 +26,7 @@
 #     120 agents, in that order, each A only while enough of SECONDS is left. At A = 60 and 1 also
 #     pgser without CUDA graphs (PGSER_CUDA_GRAPHS=0); wgpu at A = 60 if time is left.
 #  4. the real thing: `pgser-train --seeds` stacks of 10 and 60 -mem agents on FetchPush data
+#     (at 60 also with PGSER_CUDA_HOLD=0: whole batches sent instead of row numbers)
 #     (sampling, priorities and staging included), against the bench's rate at the same A.
 # Out: OUT_DIR/gpu.json (every figure), run.log, logs.tar.gz (each child's output): three files,
 # within what a device run brings back.
@@ -37,47 +38,13 @@ mkdir -p "$1" && out=$(cd "$1" && pwd)
 budget=${2:-480}
 work=$(mktemp -d)
 logs=$work/logs
-mkdir -p "$logs" "$work/bin" "$work/lib" "$work/vk"
+mkdir -p "$logs"
 : >"$out/run.log"
 say() { echo "gpu-run [$((SECONDS))s]: $*" | tee -a "$out/run.log" >&2; }
 left() { echo $((budget - SECONDS)); }
 
 # ---- 1. unpack, and what this machine is --------------------------------------------------------
-for f in "$here"/bin/*.xz; do xz -dc "$f" >"$work/bin/$(basename "$f" .xz)" && chmod +x "$work/bin/$(basename "$f" .xz)"; done
-for f in "$here"/lib/*.xz; do xz -dc "$f" >"$work/lib/$(basename "$f" .xz)"; done
-ln -sf libmujoco.so.3.17.0 "$work/lib/libmujoco.so"
-# The Vulkan loader and libglvnd in a private folder: wgpu opens libvulkan.so.1 by name, the
-# NVIDIA driver brings its own ICD (in libGLX_nvidia, which needs libglvnd), and the loader finds
-# it through VK_DRIVER_FILES where the image does not register it.
-for d in "$here"/debs/*.deb; do [ -e "$d" ] && dpkg-deb -x "$d" "$work/vk"; done
-export LD_LIBRARY_PATH="$work/lib:$work/vk/usr/lib/x86_64-linux-gnu${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -f "$icd" ] && ! grep -qs nvidia /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json; then
-  export VK_DRIVER_FILES=$icd
-fi
-# cubecl compiles pgser's kernels through LLVM's NVPTX and links math functions (tanh, exp) from
-# the CUDA toolkit's libdevice.10.bc, which it looks for under $CUDA_PATH, then /usr/local/cuda,
-# /opt/cuda, /usr/lib/cuda, /usr. Where none has it, the first one found on the machine is used.
-if [ -z "${CUDA_PATH:-}" ] && ! ls /usr/local/cuda/nvvm/libdevice /opt/cuda/nvvm/libdevice /usr/lib/cuda/nvvm/libdevice \
-    /usr/nvvm/libdevice >/dev/null 2>&1; then
-  bc=$(find /usr/local /opt /usr/lib -name libdevice.10.bc -path '*nvvm/libdevice/*' 2>/dev/null | head -1)
-  [ -n "$bc" ] && export CUDA_PATH=${bc%/nvvm/libdevice/libdevice.10.bc}
-fi
-export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-$work}
-export PYTHONUNBUFFERED=1
-# JAX's Triton GEMM autotuning costs ~40 s per A and changes its speed by ~2 % (bench_grid.py).
-export XLA_FLAGS=${XLA_FLAGS:---xla_gpu_enable_triton_gemm=false}
-# The CUDA engine's kernels: on an sm_90 GPU the cubin built with the bundle (NVRTC 13.0, as
-# `make test` checks it); elsewhere the engine compiles them with the machine's own NVRTC.
-if [ "$(nvidia-smi --query-gpu=compute_cap --format=csv,noheader 2>/dev/null | head -1)" = "9.0" ] &&
-  [ -f "$here/kernels/kernels_sm90.cubin" ]; then
-  export PGSER_CUDA_CUBIN=$here/kernels/kernels_sm90.cubin
-fi
-train=$work/bin/pgser-train
-# burn's GPU backends (cuda-burn, wgpu) are in their own build, where the bundle has it.
-burn=$work/bin/pgser-train-burn
-etl=$work/bin/pgser-etl
-data=$here/data
+. "$here/env.sh"
 say "bundle $(cat "$here/VERSION" 2>/dev/null || echo '(no VERSION)'); host $(uname -n), $(nproc) CPUs"
 
 summary() {  # gpu.json from the parts written so far (pgser / JAX per A and precision), and the logs
@@ -153,6 +120,12 @@ python3 "$here/bench/gpu_compare.py" --tol 0 --cpu-train "$work/train-cuda" --ba
   --json "$work/determinism.json" 2>&1 | tee -a "$out/run.log"
 python3 "$here/bench/gpu_compare.py" --tol 0 --cpu-train "$work/train-cuda-alone" --backend cuda-in-a-stack "$work/train-cuda" - \
   --json "$work/stacking.json" 2>&1 | tee -a "$out/run.log"
+# The engine holds the data on the GPU and gathers each batch there (pgser_gather); with
+# PGSER_CUDA_HOLD=0 the host sends whole batches instead. A gather is a copy: the same bytes.
+PGSER_CUDA_HOLD=0 step cuda-staged "$train" --data "$data/scored.parquet" -o "$work/train-cuda-staged" --seeds 0,1,2 \
+  --updates 50 --batch-size 256 --eval-episodes 0 --log-every 10 --device cuda
+python3 "$here/bench/gpu_compare.py" --tol 0 --cpu-train "$work/train-cuda-staged" --backend cuda-held "$work/train-cuda" - \
+  --json "$work/holding.json" 2>&1 | tee -a "$out/run.log"
 others=(--backend cuda-tf32 "$work/train-cuda-tf32" "$(sc cuda-tf32)")
 [ -x "$burn" ] && others+=(--backend cuda-burn "$work/train-cuda-burn" "$(sc cuda-burn)" --backend wgpu "$work/train-wgpu" "$(sc wgpu)")
 python3 "$here/bench/gpu_compare.py" --tol 1e-4 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" "${others[@]}" \
@@ -181,6 +154,11 @@ for A in 60 1 10 30 120; do
     step "stack-A$A" "$train" --data "$data/push_scored.parquet" -o "$work/stack-A$A" --seeds "$(seq -s, 0 $((A - 1)))" \
       --updates 3000 --batch-size 512 --eval-episodes 0 --log-every 1000 --device cuda --json
     tail -1 "$logs/stack-A$A.out" >"$work/stack-A$A.json" 2>/dev/null
+    if [ "$A" = 60 ]; then  # what holding the data on the GPU saves: whole batches sent instead
+      PGSER_CUDA_HOLD=0 step "stack-staged-A$A" "$train" --data "$data/push_scored.parquet" -o "$work/stack-staged-A$A" \
+        --seeds "$(seq -s, 0 $((A - 1)))" --updates 3000 --batch-size 512 --eval-episodes 0 --log-every 1000 --device cuda --json
+      tail -1 "$logs/stack-staged-A$A.out" >"$work/stack-staged-A$A.json" 2>/dev/null
+    fi
     summary
   fi
 done

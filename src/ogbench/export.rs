@@ -72,7 +72,7 @@ fn stream_f32(table: &Path, column: &str, mut each: impl FnMut(usize, &[u8]) -> 
         check_keys(&at, &batch, row, &footer)?;
         let list = batch.column_by_name(column).expect("projected").as_fixed_size_list();
         let dim = list.value_length() as usize;
-        let (values, offset) = (list.values(), list.value_offset_at(0) as usize);
+        let (values, offset) = (list.values(), list.value_offset_at(0));
         for r in 0..batch.num_rows() {
             let step = (row + r) % t;
             if short && step == t - 1 {

@@ -116,6 +116,7 @@ impl Staged {
     /// This update's block from rows of the held tables starting at `bases` (per table): the
     /// constants, rewards, weights and noise as `fill` writes them, and each row's numbers in the
     /// device's tables.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn fill_rows(
         &self,
         host: &mut [f32],
