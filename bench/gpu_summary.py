@@ -10,7 +10,9 @@
   stacks    each real `pgser-train --seeds` stack: agent-updates/s, sampling included, and its
             share of the bench's pgser rate at the same A (FP32); `staged-A60` with whole
             batches sent (PGSER_CUDA_HOLD=0) instead of the data held on the GPU;
-  holding   the held stack's bytes against the staged one's (a gather is a copy: tolerance 0).
+  holding   the held stack's bytes against the staged one's (a gather is a copy: tolerance 0);
+  host      the host's half alone (bench-sampler --stream, 60 -mem cells): agent-updates/s of
+            batches it can draw, as row numbers (host-rows) and built (host-gather).
 
 Prints the ratios and the stacks' shares, the lines a reader wants first.
 
@@ -64,9 +66,19 @@ def main(out: str, work: str) -> None:
             "share_of_bench": ups * agents / bench if ups and bench else None,
         }
     doc["stacks"] = stacks
+    # The host's half alone (bench-sampler --stream): rows = row numbers, gather = whole batches.
+    host = {}
+    for path in sorted(glob.glob(os.path.join(work, "host-*-A*.json"))):
+        try:
+            host[os.path.basename(path)[len("host-"):-len(".json")]] = json.load(open(path))
+        except (OSError, ValueError):
+            continue
+    doc["host"] = host
     json.dump(doc, open(os.path.join(out, "gpu.json"), "w"), indent=1)
     for key, r in sorted(ratios.items()):
         print(f"  {key:12s} pgser {r['pgser']:10.0f}  jax {r['jax']:10.0f}  pgser/jax {r['pgser_over_jax']:.2f}")
+    for key, h in sorted(host.items()):
+        print(f"  host {key}: {h.get('agent_updates_per_sec', 0):.0f} agent-updates/s of batches drawn on {h.get('threads')} threads")
     for key, s in sorted(stacks.items()):
         share = s["share_of_bench"]
         print(f"  stack {key}: {s['agent_updates_per_sec']} agent-updates/s" + (f", {share:.0%} of the bench's" if share else ""))

@@ -76,7 +76,8 @@ rm -f "$d"/q.ckpt.* "$d"/q.metrics* 2>/dev/null || true
 "$rel/pgser-train" --data "$d/push.parquet" -o "$d/push_q.ckpt" --updates 200 --batch-size 256 --swap random \
   --eval-episodes 0 --device cpu >/dev/null
 "$rel/pgser-etl" score --q "$d/push_q.ckpt" --data "$d/push.parquet" -o "$d/push_scored.parquet" --swaps 4 --include-original
-rm -f "$d"/push_*.pkl "$d"/push.parquet "$d"/push_q.ckpt*
+# push.parquet stays: the scored table names it, and the stacks read their β from it.
+rm -f "$d"/push_*.pkl "$d"/push_q.ckpt*
 "$rel/pgser-train" cuda-kernels --arch sm_90 --cubin "$tmp/kernels/kernels_sm90.cubin"
 
 cp bench/bench_grid.py bench/train_peer.py bench/train_peer_stacked.py bench/train_peer_jax.py \

@@ -27,7 +27,9 @@
 #     pgser without CUDA graphs (PGSER_CUDA_GRAPHS=0); wgpu at A = 60 if time is left.
 #  4. the real thing: `pgser-train --seeds` stacks of 10 and 60 -mem agents on FetchPush data
 #     (at 60 also with PGSER_CUDA_HOLD=0: whole batches sent instead of row numbers)
-#     (sampling, priorities and staging included), against the bench's rate at the same A.
+#     (sampling, priorities and staging included), against the bench's rate at the same A; and
+#     before the bench, the host's half alone (`bench-sampler --stream`, 60 cells): the rate this
+#     machine's CPUs can feed, as row numbers and as whole batches.
 # Out: OUT_DIR/gpu.json (every figure), run.log, logs.tar.gz (each child's output): three files,
 # within what a device run brings back.
 set -uo pipefail
@@ -131,6 +133,16 @@ others=(--backend cuda-tf32 "$work/train-cuda-tf32" "$(sc cuda-tf32)")
 python3 "$here/bench/gpu_compare.py" --tol 1e-4 --cpu-train "$work/train-cpu" --cpu-score "$(sc cpu)" "${others[@]}" \
   --json "$work/correctness.json" 2>&1 | tee -a "$out/run.log"
 summary
+
+# ---- the host's half of an update, alone: can this machine's CPUs feed the GPU? ------------------
+# A stack of 60 -mem cells drawing their batches as row numbers (what the engine is sent when it
+# holds the data) and built on the host (what it is sent otherwise), in agent-updates/s.
+for g in rows gather; do
+  flag=; [ $g = gather ] && flag=--gather
+  step "host-$g-A60" "$train" bench-sampler --stream --agents 60 --batch-size 512 --batches 1500 \
+    --data "$data/push_scored.parquet" --in-memory $flag --json
+  tail -1 "$logs/host-$g-A60.out" >"$work/host-$g-A60.json" 2>/dev/null
+done
 
 # ---- 3. speed: pgser beside JAX and PyTorch, the same run, at each precision ---------------------
 grid() {  # grid NAME A [bench_grid args...]: one cell of the speed grid, logged and kept as JSON

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 mod bench;
 pub mod online;
 pub mod stop;
-pub use bench::{BenchReport, SamplerBenchReport, bench_agents, bench_sampler};
+pub use bench::{BenchReport, SamplerBenchReport, StreamBenchReport, bench_agents, bench_sampler, bench_stream};
 
 /// The training job's settings; with the agent's, this is everything a run depends on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]

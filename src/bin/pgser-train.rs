@@ -145,6 +145,22 @@ enum Command {
         in_memory: bool,
         #[command(flatten)]
         priority: pgser::sampler::priority::PriorityConfig,
+        /// Time the whole batch stream of a stack instead (what the host does per update on a
+        /// GPU): --agents cells, each drawing β's rows (HER, --swap) and, from a scored table,
+        /// --aug-ratio of its rows by priority, as row numbers with their rewards.
+        #[arg(long)]
+        stream: bool,
+        /// With --stream: cells in the stack.
+        #[arg(long, default_value_t = 1)]
+        agents: usize,
+        /// With --stream: also build the batches on the host (what the CPU engine trains on).
+        #[arg(long)]
+        gather: bool,
+        /// With --stream and a scored table: the share of each batch drawn by priority.
+        #[arg(long, default_value_t = 0.5)]
+        aug_ratio: f64,
+        #[command(flatten)]
+        sampler: pgser::sampler::SamplerConfig,
         #[arg(long)]
         json: bool,
     },
@@ -268,7 +284,45 @@ pub(crate) fn main() -> ExitCode {
                     println!("{}: {} batches, {} rows, {} bytes", r.output.display(), r.batches, r.rows, r.bytes);
                 }
             }
-            Some(Command::BenchSampler { data, batch_size, batches, in_memory, priority, json }) => {
+            Some(Command::BenchSampler {
+                data,
+                batch_size,
+                batches,
+                in_memory,
+                priority,
+                stream: true,
+                agents,
+                gather,
+                aug_ratio,
+                sampler,
+                json,
+            }) => {
+                let cfg = pgser::sampler::stream::StreamConfig {
+                    sampler,
+                    batch_size,
+                    aug_ratio,
+                    priority,
+                    aug_in_memory: in_memory,
+                    seed: 0,
+                };
+                let r = train::bench_stream(&data, &cfg, agents.max(1), batches.max(1), gather)?;
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!(
+                        "{}: {} cells × batches of {}{} on {} threads: {:.0} stack updates/s, {:.0} agent-updates/s, {:.2e} rows/s",
+                        data.display(),
+                        r.agents,
+                        r.batch_size,
+                        if r.gather { ", built on the host" } else { " as row numbers" },
+                        r.threads,
+                        r.updates_per_sec,
+                        r.agent_updates_per_sec,
+                        r.rows_per_sec
+                    );
+                }
+            }
+            Some(Command::BenchSampler { data, batch_size, batches, in_memory, priority, json, .. }) => {
                 let r = train::bench_sampler(&data, &priority, batch_size, batches.max(2), in_memory)?;
                 if json {
                     println!("{}", serde_json::to_string(&r)?);

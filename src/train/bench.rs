@@ -146,3 +146,70 @@ pub fn bench_sampler(
         samples_per_sec: per_sec * k as f64,
     })
 }
+
+/// `pgser-train bench-sampler --stream`: the host's half of a stack's update on a GPU, timed
+/// alone. A stack of `agents` cells (seeds 0…) draws one batch each per update, side by side on
+/// the worker threads, as the trainer does (`train_stack`): β's rows with HER and swaps, the
+/// scored table's prioritized rows with a scored table, the rewards, as the row numbers an engine
+/// that holds the data is sent (`BatchStream::next_rows`); with `gather`, also built into batches
+/// on the host (what the CPU engine, and a GPU that does not hold the data, train on).
+#[derive(Debug, Clone, Serialize)]
+pub struct StreamBenchReport {
+    pub agents: usize,
+    pub batch_size: usize,
+    pub batches: u64,
+    pub gather: bool,
+    pub threads: usize,
+    pub seconds: f64,
+    /// Stack updates/s the host can feed, and agent-updates/s (× agents).
+    pub updates_per_sec: f64,
+    pub agent_updates_per_sec: f64,
+    pub rows_per_sec: f64,
+}
+
+pub fn bench_stream(
+    path: &Path,
+    cfg: &crate::sampler::stream::StreamConfig,
+    agents: usize,
+    batches: u64,
+    gather: bool,
+) -> Result<StreamBenchReport> {
+    use crate::sampler::stream::BatchSource;
+    use rayon::prelude::*;
+    let mut streams = (0..agents as u64)
+        .map(|seed| {
+            let c = crate::sampler::stream::StreamConfig { seed, ..cfg.clone() };
+            BatchSource::open(path, &c)?.start(&c)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let draw = |streams: &mut Vec<crate::sampler::stream::BatchStream>| -> Result<()> {
+        streams
+            .par_iter_mut()
+            .map(|s| {
+                let rows = s.next_rows()?.0;
+                if gather {
+                    std::hint::black_box(rows.gather(&crate::sampler::table(s.data())));
+                }
+                Ok(())
+            })
+            .collect::<Result<()>>()
+    };
+    draw(&mut streams)?; // the prioritized samplers' first blocks: setup, not drawing
+    let t = Instant::now();
+    for _ in 0..batches {
+        draw(&mut streams)?;
+    }
+    let seconds = t.elapsed().as_secs_f64();
+    let updates_per_sec = batches as f64 / seconds;
+    Ok(StreamBenchReport {
+        agents,
+        batch_size: cfg.batch_size,
+        batches,
+        gather,
+        threads: rayon::current_num_threads(),
+        seconds,
+        updates_per_sec,
+        agent_updates_per_sec: updates_per_sec * agents as f64,
+        rows_per_sec: updates_per_sec * (agents * cfg.batch_size) as f64,
+    })
+}
