@@ -12,7 +12,8 @@
 #                 pipeline)
 #       PIPELINE  default: pipelines/fetch_push_td3bc_gpu.toml of the repository it runs in
 #
-# The grid stops itself (SIGTERM: the trainer saves every agent where it is and exits) when
+# It starts with run.sh's check of the engine against the CPU (30 s; an FP32 engine off by more
+# than 1e-5 stops it there). The grid stops itself (SIGTERM: the trainer saves every agent where it is and exits) when
 # SECONDS − 45 have passed, so that what it reached comes back: the curves of every agent up to
 # its last evaluation. A run that finishes also brings the pipeline's results (results.md, .csv,
 # scores, curves). Out: OUT_DIR/grid.json (the machine, the data check, each agent's updates
@@ -46,6 +47,27 @@ case $device in
     fi;;
 esac
 say "GPU: ${gpu:-none}"
+
+# First the engine's check from run.sh, in ~30 s, so that a session that runs only the grid does
+# not train 30 agents on a wrong engine: a stack of three -mem agents, 50 updates, on the CPU and
+# on DEVICE, every weight and logged loss compared (bench/gpu_compare.py). FP32 (`cuda`) must be
+# within 1e-5 or the grid does not start (GRID_FORCE=1 starts it anyway); TF32 is reported.
+case $device in cuda*)
+  for d in cpu "$device"; do
+    timeout 240 "$train" --data "$data/scored.parquet" -o "$work/check-$d" --seeds 0,1,2 --updates 50 --batch-size 256 \
+      --eval-episodes 0 --log-every 10 --device "$d" >"$logs/check-$d.out" 2>"$logs/check-$d.log" ||
+      say "the check's $d run failed: $(tail -1 "$logs/check-$d.log")"
+  done
+  tol=1e-5; [ "$device" = cuda ] || tol=1e-4
+  python3 "$here/bench/gpu_compare.py" --tol $tol --cpu-train "$work/check-cpu" --backend "$device" "$work/check-$device" - \
+    --json "$out/check.json" 2>&1 | tee -a "$out/grid.log"
+  ok=$(python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(int(all(v.get("ok") for b in d.values() if isinstance(b, dict) for v in b.values() if isinstance(v, dict) and "ok" in v)))' "$out/check.json" 2>/dev/null || echo 0)
+  if [ "$ok" != 1 ] && [ "$device" = cuda ] && [ "${GRID_FORCE:-0}" != 1 ]; then
+    say "the engine is not within $tol of the CPU here: the grid does not start (GRID_FORCE=1 to start it anyway)"
+    tar -czf "$out/logs.tar.gz" -C "$work" logs 2>/dev/null
+    exit 1
+  fi;;
+esac
 
 # The pipeline's folders: its `out` is relative to the pipeline file.
 rel_out=$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$pipeline" | head -1)
