@@ -143,6 +143,13 @@ stack_s = sum(s for name, s in steps if name.startswith("agent "))
 if not stack_s:
     stack_s = int(wall) - sum(s for name, s in steps if not name.startswith("agent "))
 done = sum(a["updates"] for a in agents.values())
+# Stopped between logging steps, the metrics lag the checkpoints: the trainer's own last words
+# ("stopped by SIGTERM at update 721 of 500000") say where every agent of the stack saved.
+stopped = re.findall(r"stopped by SIGTERM at update (\d+) of (\d+)", text)
+if stopped and agents:
+    doc["stopped_at"] = int(stopped[-1][0])
+    doc["updates_reached"] = max(doc["updates_reached"], doc["stopped_at"])
+    done = max(done, doc["stopped_at"] * len(agents))
 doc["stack_s"] = stack_s
 doc["agent_updates_per_s"] = done / stack_s if done and stack_s > 0 else None
 json.dump(doc, open(path, "w"), indent=1)
@@ -150,7 +157,7 @@ print(f"  {len(agents)} agents, {doc['updates_reached']} updates reached in {wal
       + (f", {doc['agent_updates_per_s']:.0f} agent-updates/s" if doc["agent_updates_per_s"] else "")
       + " (evaluations and saves included)")
 for name, c in check.items():
-    print(f"  data {name}: {'the same bytes' if c['same'] else 'DIFFERS from'} the data the Q was trained on")
+    print(f"  data {name}: {'the same bytes as' if c['same'] else 'DIFFERS from'} the data the Q was trained on")
 EOF
 tar -czf "$out/logs.tar.gz" -C "$work" logs 2>/dev/null
 say "done: $out/grid.json"
