@@ -10,7 +10,8 @@
 #       SECONDS   the time it may take, default 560 (a device run's limit is 600)
 #       DEVICE    cuda (FP32, default) or cuda-tf32; cpu runs it here (for a check, with a small
 #                 pipeline)
-#       PIPELINE  default: pipelines/fetch_push_td3bc_gpu.toml of the repository it runs in
+#       PIPELINE  default: pipelines/fetch_push_td3bc_gpu.toml of the repository it runs in;
+#                 pipelines/fetch_push_td3_gpu.toml is the grid's TD3 half
 #
 # It starts with run.sh's check of the engine against the CPU (30 s; an FP32 engine off by more
 # than 1e-5 stops it there). The grid stops itself (SIGTERM: the trainer saves every agent where it is and exits) when
@@ -102,9 +103,10 @@ done
 cp "$dest"/curves_*.png "$out/results/" 2>/dev/null
 mkdir -p "$out/results/agents"
 cp "$dest"/agents/*.metrics.jsonl "$out/results/agents/" 2>/dev/null
-# The data check applies to the grid's own pipeline, whose data are those of the 1M-update Q.
+# The data check applies to pipelines that score with the committed 1M-update Q: their data must be
+# the data it was trained on.
 shas=-
-[ "$(basename "$pipeline")" = fetch_push_td3bc_gpu.toml ] && shas=$repo/results/fetch_push_q1m/data.sha256
+grep -q 'results/fetch_push_q1m/q.ckpt' "$pipeline" && shas=$repo/results/fetch_push_q1m/data.sha256
 python3 - "$out/grid.json" "$dest" "$shas" "$device" "${gpu:-}" "$rc" "$wall" \
   "$logs/pipeline.log" <<'EOF'
 import glob, hashlib, json, os, re, sys
