@@ -232,3 +232,50 @@ fn simulated_data_is_checked_too() {
     fails_before_any_work(&with("expert = 3\nrandom = 0"), &[], "[data] random (step collect_random)");
     fails_before_any_work(&with("expert = 3\nrandom = 5\nnoise = -1.0"), &[], "[data] expert (step collect_expert)");
 }
+
+#[test]
+fn every_committed_pipeline_plans_and_is_listed_in_the_pipelines_readme() {
+    // The experiment files are what users run (and what the GPU bundle runs on a machine where
+    // nothing can be edited): each must still parse and plan with today's spec, from a fresh out
+    // folder, and the README's table must name it. A copy of pipelines/ beside links to data/
+    // and results/ keeps their relative paths (pickles, experts, committed Qs) and puts `out`
+    // in a temporary folder; a dry run writes nothing there.
+    let dir = tempfile::tempdir().unwrap();
+    let root = repo();
+    for d in ["data", "results"] {
+        std::os::unix::fs::symlink(root.join(d), dir.path().join(d)).unwrap();
+    }
+    let copy = dir.path().join("pipelines");
+    std::fs::create_dir(&copy).unwrap();
+    let readme = std::fs::read_to_string(root.join("pipelines/README.md")).unwrap();
+    let mut planned = 0;
+    for e in std::fs::read_dir(root.join("pipelines")).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_str().unwrap().to_string();
+        if !name.ends_with(".toml") {
+            continue;
+        }
+        assert!(listed(&readme).contains(&name), "pipelines/README.md does not list {name}");
+        // Study files join other pipelines' results (`pgser-etl study`); they are not pipelines.
+        if name.ends_with("_study.toml") {
+            continue;
+        }
+        std::fs::copy(&p, copy.join(&name)).unwrap();
+        let out = etl().args(["pipeline", "run"]).arg(copy.join(&name)).args(["--dry-run", "--no-measure"]).output().unwrap();
+        assert!(out.status.success(), "{name}: {}", text(&out.stderr));
+        let said = text(&out.stderr) + &text(&out.stdout);
+        assert!(said.contains("would run (dry run)"), "{name}: {said}");
+        planned += 1;
+    }
+    assert!(planned >= 20, "only {planned} pipelines found");
+    assert!(!dir.path().join("out").exists(), "a dry run wrote its out folder");
+}
+
+/// The file names a README's `code` spans name: `a.toml`, and `a_{b,c}_d.toml` as both names.
+fn listed(readme: &str) -> Vec<String> {
+    fn expand(t: &str) -> Vec<String> {
+        let (Some(open), Some(close)) = (t.find('{'), t.find('}')) else { return vec![t.to_string()] };
+        t[open + 1..close].split(',').flat_map(|alt| expand(&format!("{}{alt}{}", &t[..open], &t[close + 1..]))).collect()
+    }
+    readme.split('`').skip(1).step_by(2).filter(|t| t.ends_with(".toml")).flat_map(expand).collect()
+}
