@@ -76,7 +76,11 @@ running_on() { grep -m1 -- ": running on" "$1" 2>/dev/null | sed 's/.*running on
 step() {
   local name=$1 t0=$SECONDS rc on
   shift
-  timeout 240 "$@" >"$logs/$name.out" 2>"$logs/$name.log"
+  # At most 240 s, and never past the run's own budget (a hung step must not eat the rest).
+  local limit=$(($(left) - 20))
+  [ $limit -gt 240 ] && limit=240
+  [ $limit -lt 30 ] && limit=30
+  timeout $limit "$@" >"$logs/$name.out" 2>"$logs/$name.log"
   rc=$?
   on=$(running_on "$logs/$name.log")
   local label=$name
@@ -166,7 +170,7 @@ for A in 60 1 10 30 120; do
     step "stack-A$A" "$train" --data "$data/push_scored.parquet" -o "$work/stack-A$A" --seeds "$(seq -s, 0 $((A - 1)))" \
       --updates 3000 --batch-size 512 --eval-episodes 0 --log-every 1000 --device cuda --json
     tail -1 "$logs/stack-A$A.out" >"$work/stack-A$A.json" 2>/dev/null
-    if [ "$A" = 60 ]; then  # what holding the data on the GPU saves: whole batches sent instead
+    if [ "$A" = 60 ] && [ "$(left)" -gt 120 ]; then  # what holding the data saves: whole batches sent instead
       PGSER_CUDA_HOLD=0 step "stack-staged-A$A" "$train" --data "$data/push_scored.parquet" -o "$work/stack-staged-A$A" \
         --seeds "$(seq -s, 0 $((A - 1)))" --updates 3000 --batch-size 512 --eval-episodes 0 --log-every 1000 --device cuda --json
       tail -1 "$logs/stack-staged-A$A.out" >"$work/stack-staged-A$A.json" 2>/dev/null
