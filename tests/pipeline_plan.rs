@@ -261,7 +261,8 @@ fn every_committed_pipeline_plans_and_is_listed_in_the_pipelines_readme() {
             continue;
         }
         std::fs::copy(&p, copy.join(&name)).unwrap();
-        let out = etl().args(["pipeline", "run"]).arg(copy.join(&name)).args(["--dry-run", "--no-measure"]).output().unwrap();
+        let out =
+            etl().args(["pipeline", "run"]).arg(copy.join(&name)).args(["--dry-run", "--no-measure"]).output().unwrap();
         assert!(out.status.success(), "{name}: {}", text(&out.stderr));
         let said = text(&out.stderr) + &text(&out.stdout);
         assert!(said.contains("would run (dry run)"), "{name}: {said}");
@@ -275,7 +276,10 @@ fn every_committed_pipeline_plans_and_is_listed_in_the_pipelines_readme() {
 fn listed(readme: &str) -> Vec<String> {
     fn expand(t: &str) -> Vec<String> {
         let (Some(open), Some(close)) = (t.find('{'), t.find('}')) else { return vec![t.to_string()] };
-        t[open + 1..close].split(',').flat_map(|alt| expand(&format!("{}{alt}{}", &t[..open], &t[close + 1..]))).collect()
+        t[open + 1..close]
+            .split(',')
+            .flat_map(|alt| expand(&format!("{}{alt}{}", &t[..open], &t[close + 1..])))
+            .collect()
     }
     readme.split('`').skip(1).step_by(2).filter(|t| t.ends_with(".toml")).flat_map(expand).collect()
 }

@@ -39,7 +39,10 @@ impl GoalMap {
     /// The whole observation as the goal (`convert --full-goal`), Euclidean; its threshold must
     /// be given (NaN until then).
     pub fn full(obs_dim: usize) -> GoalMap {
-        GoalMap { ranges: vec![0..obs_dim], threshold: f64::NAN, metric: GoalMetric::Euclidean }
+        // One range: the goal is the whole observation (a Vec of ranges, not a range of values).
+        #[allow(clippy::single_range_in_vec_init)]
+        let ranges = vec![0..obs_dim];
+        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean }
     }
 
     pub fn goal_dim(&self) -> usize {
@@ -73,7 +76,9 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
         if obs_dim < 2 {
             bail!("{env}: observations have {obs_dim} values; the goal is the first 2 (the agent's x, y)");
         }
-        Ok(GoalMap { ranges: vec![0..2], threshold: tol, metric: GoalMetric::Euclidean })
+        #[allow(clippy::single_range_in_vec_init)]
+        let ranges = vec![0..2];
+        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean })
     };
     match family {
         "pointmaze" => maze(1.0),

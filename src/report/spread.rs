@@ -112,7 +112,8 @@ pub fn read_scores(path: &Path) -> Result<Vec<ScoreCell>> {
     let episodes = if has("episodes") { float("episodes")? } else { vec![Some(1.0); df.height()] };
     let std = if has("episode_std") { float("episode_std")? } else { vec![Some(0.0); df.height()] };
     // Per cell: its first line, and (seed, block) in file order.
-    let mut cells: Vec<(String, String, String, usize, Vec<(u64, Block)>)> = Vec::new();
+    type Cell = (String, String, String, usize, Vec<(u64, Block)>);
+    let mut cells: Vec<Cell> = Vec::new();
     for i in 0..df.height() {
         let pos = format!("{at}:{}", i + 2);
         let field = |v: &Option<String>, name: &str| v.clone().ok_or_else(|| anyhow!("{pos}: no {name}"));

@@ -199,7 +199,10 @@ fn read_row(path: &Path, task: &str, algo: &str, variant: &str) -> Result<Measur
     let seeds = float("seeds")?;
     let (mean, std, success) =
         (float("paper_score_mean")?, float("paper_score_std").unwrap_or(f64::NAN), float("success_mean")?);
-    if !(seeds >= 1.0 && seeds.fract() == 0.0) || !mean.is_finite() {
+    // Written as what is accepted, negated: NaN seeds fail it too.
+    #[allow(clippy::nonminimal_bool)]
+    let bad = !(seeds >= 1.0 && seeds.fract() == 0.0) || !mean.is_finite();
+    if bad {
         bail!("{source}: seeds must be a count ≥ 1 and paper_score_mean a number");
     }
     Ok(Measured { seeds: seeds as usize, mean, std, success, source })

@@ -605,14 +605,16 @@ impl<G: Gpu + 'static> Engine for CudaEngine<G> {
         }
         let (od, gd, ad) = (t0.obs_dim, t0.goal_dim, t0.act_dim);
         let rows = |len: usize, d: usize| -> Result<u32> {
-            u32::try_from(len / d).map_err(|_| anyhow::anyhow!("a held table of {} rows: more than u32 numbers", len / d))
+            u32::try_from(len / d)
+                .map_err(|_| anyhow::anyhow!("a held table of {} rows: more than u32 numbers", len / d))
         };
         let mut bases = Vec::with_capacity(tables.len());
         let mut end = Base::default();
         for t in tables {
             bases.push(end);
             end.obs = end.obs.checked_add(rows(t.obs.len(), od)?).context("held observations: more than u32 rows")?;
-            end.goal = end.goal.checked_add(rows(t.ag.len() + t.g.len(), gd)?).context("held goals: more than u32 rows")?;
+            end.goal =
+                end.goal.checked_add(rows(t.ag.len() + t.g.len(), gd)?).context("held goals: more than u32 rows")?;
             end.action = end.action.checked_add(rows(t.u.len(), ad)?).context("held actions: more than u32 rows")?;
         }
         let mut upload = |parts: &mut dyn Iterator<Item = &[f32]>, len: usize| -> Result<Ptr> {

@@ -125,7 +125,14 @@ impl OwnedTable {
         let mut u = |k: usize| (0..k).map(|_| rng.uniform(-1.0, 1.0) as f32).collect::<Vec<_>>();
         let (od, gd, ad) = (task.obs_dim, task.goal_dim, task.act_dim);
         let (rows, steps) = (episodes * T, episodes * (T - 1));
-        OwnedTable { obs: u(rows * od), ag: u(rows * gd), g: u(steps * gd), u: u(steps * ad), dims: (od, gd, ad), episodes }
+        OwnedTable {
+            obs: u(rows * od),
+            ag: u(rows * gd),
+            g: u(steps * gd),
+            u: u(steps * ad),
+            dims: (od, gd, ad),
+            episodes,
+        }
     }
 
     fn table(&self) -> Table<'_> {
