@@ -79,7 +79,7 @@ impl Table<'_> {
 /// `Table::goal`), with its reward already computed for that goal on the host (by the task's
 /// reward function, as for a `Batch`: so an engine that gathers on a GPU trains on the very
 /// rewards the CPU engine does, whatever the goal metric). 12 bytes of indices a row instead of
-/// its floats (232 bytes on FetchPush).
+/// its floats (228 bytes on FetchPush).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Rows {
     /// Which of the tables given to `Engine::hold` the rows are in.

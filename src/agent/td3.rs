@@ -11,7 +11,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use anyhow::Result;
 
-use super::engine::{Batch, Engine, EngineKind, Net, Nets, Rows, State, Table};
+use super::engine::{Batch, Engine, EngineKind, Net, Nets, Rows, State, Stats, Table};
 use super::fused::{self, Fused};
 use super::{Adam, AgentConfig, Algo, Member, Mlp, Normalizer, host, init_member};
 use crate::nprandom::NpRandom;
@@ -263,24 +263,28 @@ impl Agent {
     pub fn step_rows(&mut self, rows: &[Rows], stats: bool) -> Option<UpdateStats> {
         assert_eq!(rows.len(), self.agents(), "one batch per agent");
         assert!(rows.iter().all(|r| r.len() == rows[0].len()), "the agents' batches differ in size");
-        let e = self.engine.as_deref_mut().expect("step_rows on a stack that holds its tables");
-        self.updates += 1;
-        self.stale = true;
-        let stats = e
-            .update_rows(&self.config, rows, &self.norms, &mut self.noise_rngs, self.updates, stats)
-            .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
-        Some(self.stats_of(stats))
+        assert!(self.engine.is_some(), "step_rows on a stack that holds its tables");
+        self.engine_step(|e, c, norms, rngs, u| e.update_rows(c, rows, norms, rngs, u, stats))
     }
 
-    /// A hand-written engine's per-agent losses as burn columns.
-    fn stats_of(&self, stats: super::engine::Stats) -> UpdateStats {
+    /// One update on the hand-written engine (`run` calls it with the update's count), and its
+    /// per-agent losses, if it returned them, as burn columns.
+    fn engine_step(
+        &mut self,
+        run: impl FnOnce(&mut dyn Engine, &AgentConfig, &[Normalizer], &mut [NpRandom], u64) -> Result<Option<Stats>>,
+    ) -> Option<UpdateStats> {
+        let e = self.engine.as_deref_mut().expect("a hand-written engine");
+        self.updates += 1;
+        self.stale = true;
+        let stats = run(e, &self.config, &self.norms, &mut self.noise_rngs, self.updates)
+            .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
         let column = |v: Vec<f32>| Tensor::from_data(TensorData::new(v, [stats.len()]), &self.device);
         let actor = stats[0].2.is_some().then(|| column(stats.iter().map(|s| s.2.unwrap_or(0.0)).collect()));
-        UpdateStats {
+        Some(UpdateStats {
             critic_loss: column(stats.iter().map(|s| s.0).collect()),
             q_mean: column(stats.iter().map(|s| s.1).collect()),
             actor_loss: actor,
-        }
+        })
     }
 
     /// `update`, returning the losses only when `stats` (a GPU engine then waits for the update;
@@ -292,13 +296,8 @@ impl Agent {
         let ddpg = c.algo == Algo::Ddpg;
         assert_eq!(batches.len(), a, "one batch per agent");
         assert!(batches.iter().all(|b| b.n == n), "the agents' batches differ in size");
-        if let Some(e) = self.engine.as_deref_mut() {
-            self.updates += 1;
-            self.stale = true;
-            let stats = e
-                .update(c, batches, &self.norms, &mut self.noise_rngs, self.updates, stats)
-                .unwrap_or_else(|err| panic!("update {}: {err:#}", self.updates))?;
-            return Some(self.stats_of(stats));
+        if self.engine.is_some() {
+            return self.engine_step(|e, c, norms, rngs, u| e.update(c, batches, norms, rngs, u, stats));
         }
         let sg = self.input(batches.iter().map(|b| (&b.obs[..], &b.goal[..])), n);
         let next_sg = self.input(batches.iter().map(|b| (&b.next_obs[..], &b.goal[..])), n);

@@ -57,33 +57,17 @@ impl Staged {
             at += a * n * d;
             o
         };
-        let s = |obs, goal, next_obs, action, reward, weight, noise, index, upload, len| Staged {
-            a,
-            n,
-            od,
-            gd,
-            act,
-            obs,
-            goal,
-            next_obs,
-            action,
-            reward,
-            weight,
-            noise,
-            index,
-            upload,
-            len,
-        };
-        if held {
+        // Held: what the host sends first (reward, weight, noise, row numbers), then what
+        // `pgser_gather` writes on the device. Otherwise the batch, then the rest.
+        let (reward, weight, noise, index, obs, goal, next_obs, action) = if held {
             let (reward, weight, noise, index) = (take(1), take(1), take(act), take(3));
-            let upload = index + 3 * a * n;
-            let (obs, goal, next_obs, action) = (take(od), take(gd), take(od), take(act));
-            s(obs, goal, next_obs, action, reward, weight, noise, Some(index), upload, at)
+            (reward, weight, noise, Some(index), take(od), take(gd), take(od), take(act))
         } else {
             let (obs, goal, next_obs, action) = (take(od), take(gd), take(od), take(act));
-            let (reward, weight, noise) = (take(1), take(1), take(act));
-            s(obs, goal, next_obs, action, reward, weight, noise, None, at, at)
-        }
+            (take(1), take(1), take(act), None, obs, goal, next_obs, action)
+        };
+        let upload = index.map_or(at, |i| i + 3 * a * n);
+        Staged { a, n, od, gd, act, obs, goal, next_obs, action, reward, weight, noise, index, upload, len: at }
     }
 
     /// This update's block from the host's batches: Adam's constants for the (actor, critic)
