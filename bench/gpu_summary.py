@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """The GPU bundle's gpu.json, from the parts scripts/gpu_run.sh has written so far in WORK.
 
-  machine, correctness, correctness-fp32, determinism, stacking
-            as gpu_run.sh and gpu_compare.py wrote them;
+  machine, correctness, correctness-fp32, determinism, stacking, correctness-blocking
+            as gpu_run.sh and gpu_compare.py wrote them (the last only when the FP32 check
+            failed and was repeated with synchronous launches and no graphs);
   grid      each bench_grid.py cell, by NAME-A<agents> (fp32, tf32, nograph, wgpu);
   pgser_over_jax   per cell: pgser's and JAX's agent-updates/s and their ratio, at the same
             precision (fp32: pgser `cuda` against JAX `highest`; tf32: `cuda-tf32` against
@@ -33,7 +34,7 @@ def rate(grid: dict, peer: str, agents) -> float | None:
 
 def main(out: str, work: str) -> None:
     doc: dict = {}
-    for name in ("machine", "correctness", "correctness-fp32", "determinism", "stacking", "holding"):
+    for name in ("machine", "correctness", "correctness-fp32", "determinism", "stacking", "holding", "correctness-blocking"):
         path = os.path.join(work, name + ".json")
         if os.path.exists(path):
             doc[name] = json.load(open(path))

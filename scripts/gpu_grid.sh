@@ -62,9 +62,11 @@ case $device in cuda*)
   tol=1e-5; [ "$device" = cuda ] || tol=1e-4
   python3 "$here/bench/gpu_compare.py" --tol $tol --cpu-train "$work/check-cpu" --backend "$device" "$work/check-$device" - \
     --json "$out/check.json" 2>&1 | tee -a "$out/grid.log"
-  ok=$(python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); print(int(all(v.get("ok") for b in d.values() if isinstance(b, dict) for v in b.values() if isinstance(v, dict) and "ok" in v)))' "$out/check.json" 2>/dev/null || echo 0)
+  ok=$(compare_ok "$out/check.json")
   if [ "$ok" != 1 ] && [ "$device" = cuda ] && [ "${GRID_FORCE:-0}" != 1 ]; then
     say "the engine is not within $tol of the CPU here: the grid does not start (GRID_FORCE=1 to start it anyway)"
+    cuda_diagnose check-cuda "$work/check-cpu" --data "$data/scored.parquet" --seeds 0,1,2 --batch-size 256 \
+      --eval-episodes 0 --log-every 10 --device cuda
     tar -czf "$out/logs.tar.gz" -C "$work" logs 2>/dev/null
     exit 1
   fi;;

@@ -1,6 +1,7 @@
 //! The engine's device: an NVIDIA GPU through cudarc (the driver API, cuBLAS and NVRTC, all
 //! loaded at run time, so a build needs no CUDA). One stream; every call is queued on it.
 
+use std::mem::ManuallyDrop;
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
@@ -24,7 +25,10 @@ struct Pinned {
 pub struct CudaGpu {
     ctx: Arc<CudaContext>,
     stream: Arc<CudaStream>,
-    blas: CudaBlas,
+    /// Destroyed by hand in `drop`, before the workspace it was given, and not at all after a
+    /// device fault: cudarc's own drop unwraps the destroy call, and a second panic while the
+    /// first unwinds aborts the process before the fault is reported.
+    blas: ManuallyDrop<CudaBlas>,
     functions: Vec<(&'static str, CudaFunction)>,
     allocs: Vec<Ptr>,
     /// `stage`'s two pinned buffers, used in turn.
@@ -41,8 +45,14 @@ unsafe impl Send for CudaGpu {}
 
 impl Drop for CudaGpu {
     fn drop(&mut self) {
-        let _ = self.stream.synchronize();
+        // A sticky error (an illegal address in a kernel) makes every later call fail: then the
+        // cuBLAS handle is left as it is (the process is about to report the fault and exit).
+        let healthy = self.stream.synchronize().is_ok();
         self.graphs.clear();
+        if healthy {
+            // SAFETY: dropped once, here, while its workspace (in `allocs`) is still allocated.
+            unsafe { ManuallyDrop::drop(&mut self.blas) };
+        }
         for p in self.pinned.iter_mut().filter_map(Option::take) {
             // SAFETY: allocated by malloc_host with its event in `stage`, freed once, stream idle.
             unsafe {
@@ -85,6 +95,26 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
     let (major, minor) = ctx.compute_capability()?;
     let name = format!("{} (sm_{major}{minor})", ctx.name()?);
     let cubin = nvrtc::cubin_for(&format!("sm_{major}{minor}")).context("--device cuda: compiling the kernels")?;
+    let module = ctx.load_module(Ptx::from_binary(cubin)).context("--device cuda: loading the kernels")?;
+    let functions = nvrtc::KERNELS
+        .iter()
+        .map(|&k| Ok((k, module.load_function(k).with_context(|| format!("kernel {k}"))?)))
+        .collect::<Result<Vec<_>>>()?;
+    let stream = ctx.new_stream()?;
+    let blas = ManuallyDrop::new(CudaBlas::new(stream.clone()).context("--device cuda: cuBLAS")?);
+    let mut version = 0;
+    // SAFETY: a live handle and an out-pointer to a live integer.
+    unsafe { blas::cublasGetVersion_v2(*blas.handle(), &mut version) }.result().context("cublasGetVersion")?;
+    let libraries = nvrtc::loaded_libraries();
+    // The build binds CUDA 13's API (CUDARC_CUDA_VERSION); cuBLAS 12 would take the same calls
+    // and compute with another library's kernels, or fail later in a way that names nothing.
+    if version / 10_000 != 13 {
+        drop(ManuallyDrop::into_inner(blas));
+        bail!(
+            "--device cuda: the cuBLAS loaded is version {version}, not 13 ({}): put the nvidia-cublas wheel's nvidia/cu13/lib folder first on LD_LIBRARY_PATH, or set PGSER_CUDA_LIBS to it",
+            libraries.iter().filter(|l| l.contains("cublas")).cloned().collect::<Vec<_>>().join(", ")
+        );
+    }
     // Once per process, as burn's backends name their adapter: which GPU, precision and kernels.
     static LOGGED: std::sync::Once = std::sync::Once::new();
     LOGGED.call_once(|| {
@@ -96,15 +126,11 @@ pub fn open(ordinal: usize, precision: Precision) -> Result<CudaGpu> {
             ),
         };
         let device = if precision == Precision::Tf32 { "cuda-tf32" } else { "cuda" };
-        eprintln!("--device {device}: running on {name}, {precision:?} products, {kernels}");
+        eprintln!(
+            "--device {device}: running on {name}, {precision:?} products, {kernels}, cuBLAS {version}; libraries: {}",
+            libraries.join(", ")
+        );
     });
-    let module = ctx.load_module(Ptx::from_binary(cubin)).context("--device cuda: loading the kernels")?;
-    let functions = nvrtc::KERNELS
-        .iter()
-        .map(|&k| Ok((k, module.load_function(k).with_context(|| format!("kernel {k}"))?)))
-        .collect::<Result<Vec<_>>>()?;
-    let stream = ctx.new_stream()?;
-    let blas = CudaBlas::new(stream.clone()).context("--device cuda: cuBLAS")?;
     let mode = match precision {
         Precision::F32 => blas::cublasMath_t::CUBLAS_DEFAULT_MATH,
         Precision::Tf32 => blas::cublasMath_t::CUBLAS_TF32_TENSOR_OP_MATH,
@@ -135,9 +161,11 @@ impl Gpu for CudaGpu {
         // Raw driver calls act on the calling thread's current context: every method binds it
         // (the trainer, an evaluation and the scorer may call from different threads).
         self.ctx.bind_to_thread()?;
-        // SAFETY: a plain allocation, zeroed before use; freed on drop.
+        // SAFETY: a plain allocation, freed on drop. Zeroed on the engine's stream, which orders
+        // the fill before every later use: `cuMemsetD8` would run on the legacy default stream,
+        // which a non-blocking stream does not wait for.
         let p = unsafe { result::malloc_sync(bytes.max(1).next_multiple_of(256)) }.context("cuMemAlloc")?;
-        unsafe { result::memset_d8_sync(p, 0, bytes.max(1)) }.context("cuMemset")?;
+        unsafe { result::memset_d8_async(p, 0, bytes.max(1), self.stream.cu_stream()) }.context("cuMemsetD8Async")?;
         self.allocs.push(p);
         Ok(p)
     }

@@ -34,11 +34,23 @@ pub struct HostGpu {
     staging: Vec<f32>,
     /// What `free_memory` answers: 1 TB, unless a test plays a small device.
     pub free_bytes: usize,
+    /// Tests play a driver that refuses graphs: `end_capture` fails after recording.
+    pub refuse_capture: bool,
+    /// Tests play a kernel launch that fails: launching this kernel is an error.
+    pub fail_launch: Option<&'static str>,
 }
 
 impl Default for HostGpu {
     fn default() -> Self {
-        HostGpu { allocs: Vec::new(), recording: None, graphs: Vec::new(), staging: Vec::new(), free_bytes: 1 << 40 }
+        HostGpu {
+            allocs: Vec::new(),
+            recording: None,
+            graphs: Vec::new(),
+            staging: Vec::new(),
+            free_bytes: 1 << 40,
+            refuse_capture: false,
+            fail_launch: None,
+        }
     }
 }
 
@@ -55,6 +67,11 @@ impl Drop for HostGpu {
 }
 
 impl HostGpu {
+    /// Whether a capture is under way (a test checks that a failed one was ended).
+    pub fn capturing(&self) -> bool {
+        self.recording.is_some()
+    }
+
     /// Fails unless `[ptr, ptr + bytes)` lies inside one allocation.
     fn check(&self, ptr: Ptr, bytes: usize, what: &str) -> Result<()> {
         let inside = self.allocs.iter().any(|&(base, l)| ptr >= base && ptr + bytes as u64 <= base + l.size() as u64);
@@ -116,6 +133,9 @@ impl Gpu for HostGpu {
     }
 
     fn launch(&mut self, name: &'static str, items: usize, args: &[Arg]) -> Result<()> {
+        if self.fail_launch == Some(name) {
+            bail!("host shim: launching {name} failed (a test's fault)");
+        }
         if let Some(ops) = self.recording.as_mut() {
             ops.push(Op::Launch(name, items, args.to_vec()));
             return Ok(());
@@ -178,6 +198,9 @@ impl Gpu for HostGpu {
 
     fn end_capture(&mut self) -> Result<usize> {
         let ops = self.recording.take().ok_or_else(|| anyhow::anyhow!("host shim: no capture under way"))?;
+        if self.refuse_capture {
+            bail!("host shim: the capture was invalidated (a test's fault)");
+        }
         self.graphs.push(ops);
         Ok(self.graphs.len() - 1)
     }

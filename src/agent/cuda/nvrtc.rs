@@ -90,6 +90,29 @@ pub fn preload(names: &[&str]) -> Option<PathBuf> {
     })
 }
 
+/// The CUDA libraries this process has mapped (cuBLAS, cuBLASLt, NVRTC, the driver), by path,
+/// once each: what the engine prints when it starts. cudarc opens a library by trying names in
+/// its own order, the unversioned `libcublas.so` and the CUDA 12 names among them, so where two
+/// CUDA versions sit on the loader's path only this says which one was taken.
+pub fn loaded_libraries() -> Vec<String> {
+    std::fs::read_to_string("/proc/self/maps").map(|m| cuda_libraries_in(&m)).unwrap_or_default()
+}
+
+/// `loaded_libraries` over the text of a `/proc/PID/maps`.
+pub fn cuda_libraries_in(maps: &str) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for path in maps.lines().filter_map(|l| l.split_whitespace().nth(5)) {
+        let file = path.rsplit('/').next().unwrap_or(path);
+        let cuda = ["libcublas.so", "libcublasLt.so", "libnvrtc.so", "libnvrtc-builtins.so", "libcuda.so"]
+            .iter()
+            .any(|lib| file.starts_with(lib));
+        if cuda && !out.iter().any(|p| p == path) {
+            out.push(path.to_string());
+        }
+    }
+    out
+}
+
 /// NVRTC's libraries (the builtins first: libnvrtc opens it by name).
 pub fn preload_nvrtc() -> Option<PathBuf> {
     preload(&["libnvrtc-builtins.so.13.0", "libnvrtc.so.13"])

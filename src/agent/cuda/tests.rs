@@ -107,6 +107,49 @@ fn the_shim_engine_is_the_cpu_engine_with_one_part_and_with_four() {
     }
 }
 
+#[test]
+fn a_refused_graph_capture_falls_back_to_plain_launches_with_the_same_bits() {
+    // A driver that cannot capture (the second update of a kind is the one captured): the engine
+    // warns, launches that update as it comes, stops capturing, and trains exactly as an engine
+    // that never captured.
+    let task = Task::known("FetchReach").unwrap();
+    let cfg = AgentConfig { algo: Algo::Td3, hidden: 32, layers: 2, ..AgentConfig::default() };
+    let (_, mut refused, norms, rngs) = pair(&cfg, &task, &[4, 9]);
+    let (_, mut plain, _, _) = pair(&cfg, &task, &[4, 9]);
+    refused.gpu.lock().unwrap().refuse_capture = true;
+    plain.graphs = false;
+    let (mut r1, mut r2) = (rngs.clone(), rngs);
+    for u in 0..8u64 {
+        let b: Vec<Batch> = (0..2).map(|i| batch(&task, 64, 17 * u + i, false)).collect();
+        let x = refused.update(&cfg, &b, &norms, &mut r1, u + 1, true).unwrap();
+        let y = plain.update(&cfg, &b, &norms, &mut r2, u + 1, true).unwrap();
+        assert_eq!(x, y, "update {u}");
+    }
+    assert!(!refused.graphs, "the engine goes on without graphs");
+    assert_eq!(worst(&refused.nets().unwrap(), &plain.nets().unwrap()), 0.0);
+    assert_eq!(r1, r2);
+}
+
+#[test]
+fn a_launch_that_fails_under_capture_is_the_error_reported() {
+    // The capture of a failed launch is invalid too; the error must name the launch.
+    let task = Task::known("FetchReach").unwrap();
+    let cfg = AgentConfig { algo: Algo::Td3bc, hidden: 32, layers: 2, ..AgentConfig::default() };
+    let (_, mut engine, norms, mut rngs) = pair(&cfg, &task, &[1]);
+    let b = vec![batch(&task, 64, 5, false)];
+    // Updates 1 and 3 are of one kind (the delayed actor rests in both): the first runs eagerly,
+    // the second is captured.
+    engine.update(&cfg, &b, &norms, &mut rngs, 1, false).unwrap();
+    {
+        let mut gpu = engine.gpu.lock().unwrap();
+        gpu.fail_launch = Some("pgser_td_target");
+        gpu.refuse_capture = true;
+    }
+    let e = engine.update(&cfg, &b, &norms, &mut rngs, 3, false).unwrap_err();
+    assert!(format!("{e:#}").contains("launching pgser_td_target failed"), "{e:#}");
+    assert!(!engine.gpu.lock().unwrap().capturing(), "the capture was ended");
+}
+
 /// A table of `episodes` episodes of T = 7 (random values), as the sampler lends it to an engine.
 struct OwnedTable {
     obs: Vec<f32>,
@@ -286,4 +329,26 @@ fn the_kernel_lists_agree() {
         listed.sort_unstable();
         assert_eq!(v, listed);
     }
+}
+
+#[test]
+fn the_engine_names_each_cuda_library_it_mapped_once() {
+    let maps = "\
+7f0000000000-7f0000001000 r--p 00000000 08:01 1 /usr/local/cuda-12/lib64/libcublas.so.12.4.5.8
+7f0000001000-7f0000002000 r-xp 00001000 08:01 1 /usr/local/cuda-12/lib64/libcublas.so.12.4.5.8
+7f0000002000-7f0000003000 r--p 00000000 08:01 2 /venv/nvidia/cu13/lib/libcublasLt.so.13
+7f0000003000-7f0000004000 r--p 00000000 08:01 3 /usr/lib/x86_64-linux-gnu/libcudart.so.12
+7f0000004000-7f0000005000 r--p 00000000 08:01 4 /usr/lib/x86_64-linux-gnu/libcuda.so.580.65.06
+7f0000005000-7f0000006000 rw-p 00000000 00:00 0
+7f0000006000-7f0000007000 r--p 00000000 08:01 5 /venv/nvidia/cu13/lib/libnvrtc.so.13
+";
+    assert_eq!(
+        nvrtc::cuda_libraries_in(maps),
+        [
+            "/usr/local/cuda-12/lib64/libcublas.so.12.4.5.8",
+            "/venv/nvidia/cu13/lib/libcublasLt.so.13",
+            "/usr/lib/x86_64-linux-gnu/libcuda.so.580.65.06",
+            "/venv/nvidia/cu13/lib/libnvrtc.so.13",
+        ]
+    );
 }

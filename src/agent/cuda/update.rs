@@ -284,10 +284,25 @@ impl<G: Gpu> CudaEngine<G> {
             Some(None) if self.graphs => {
                 gpu.begin_capture()?;
                 let recorded = self.launches(gpu, c, s, &staged, actor_moves);
-                let id = gpu.end_capture()?;
+                let captured = gpu.end_capture();
+                // A launch's own error comes first: a failed launch invalidates the capture, and
+                // the capture's error would name only the capture.
                 recorded?;
-                s.graphs.lock().expect("graphs").iter_mut().find(|g| g.0 == key).expect("seen").1 = Some(id);
-                gpu.replay(id)?;
+                match captured {
+                    Ok(id) => {
+                        s.graphs.lock().expect("graphs").iter_mut().find(|g| g.0 == key).expect("seen").1 = Some(id);
+                        gpu.replay(id)?;
+                    }
+                    // Nothing recorded has run, so the update is launched again as it comes, and
+                    // every later one too: graphs save launch time, never change a result.
+                    Err(e) => {
+                        eprintln!(
+                            "--device cuda: capturing the update as a CUDA graph failed ({e:#}); every kernel is launched as it comes from now on (PGSER_CUDA_GRAPHS=0)"
+                        );
+                        self.graphs = false;
+                        self.launches(gpu, c, s, &staged, actor_moves)?;
+                    }
+                }
             }
             _ => {
                 self.launches(gpu, c, s, &staged, actor_moves)?;
