@@ -17,6 +17,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::env::{self, GoalEnv, Obs};
 
+/// Whether a task is scored by its success rate in percent, as OGBench scores its datasets
+/// (`pointmaze-medium-navigate-v0`), rather than by the paper's score: a maze episode ends at
+/// its goal, so T + return would count the steps it took, not whether it arrived.
+pub fn scored_by_success(task: &str) -> bool {
+    env::pointmaze::resolve(task).is_some()
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub episodes: usize,

@@ -241,6 +241,8 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
         runs.push(run);
         agents.push(agent);
     }
+    // OGBench's mazes are scored by success in percent, as their results tables are.
+    let by_success = eval::scored_by_success(&agents[0].task.name);
     // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
     let mut agent = Shards::new(agents, backend)?;
     // An engine on a GPU keeps the cells' data there (each distinct β once) and is sent each
@@ -326,7 +328,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
                 run.save(&agent, i)?;
             }
             saved_at = Some(u);
-            progress::milestone(bar, &saved_line(&runs, u, cfg.updates, (u - start_updates, started.elapsed())));
+            progress::milestone(bar, &saved_line(&runs, u, cfg.updates, (u - start_updates, started.elapsed()), by_success));
         }
         bar.set_position(u);
     }
@@ -388,9 +390,11 @@ fn distinct_data(runs: &[Run]) -> (Vec<Arc<Episodes>>, Vec<usize>) {
 }
 
 /// A log line at a scheduled save: "10.0k of 30.0k updates saved (15 agents), 5.1 updates/s, ≈ 1.1 h
-/// left; last evaluation (10.0k): paper score 20.12 (15.98–25.04)". The rate counts this run's
-/// updates over its wall time, evaluations and saves included, as the time left will.
-fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Duration)) -> String {
+/// left; last evaluation (10.0k): paper score 20.12 (15.98–25.04)", or "success 42.0 % (…)" on
+/// a task scored by success (`by_success`: OGBench's, where T + return means nothing). The rate
+/// counts this run's updates over its wall time, evaluations and saves included, as the time left
+/// will.
+fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Duration), by_success: bool) -> String {
     let k = progress::count;
     let mut s = format!("{} of {} updates saved", k(u), k(of));
     if runs.len() > 1 {
@@ -403,16 +407,27 @@ fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Dura
     // Each agent's latest evaluation line (the agents of a stack are evaluated together).
     let last: Vec<(u64, f64)> = runs
         .iter()
-        .filter_map(|r| r.metrics.iter().rev().find_map(|m| Some((m.updates, m.eval.as_ref()?.paper_score))))
+        .filter_map(|r| {
+            r.metrics.iter().rev().find_map(|m| {
+                let e = m.eval.as_ref()?;
+                Some((m.updates, if by_success { 100.0 * e.success_rate } else { e.paper_score }))
+            })
+        })
         .collect();
-    if let Some(at) = last.iter().map(|&(u, _)| u).max() {
-        let scores: Vec<f64> = last.iter().map(|&(_, p)| p).collect();
-        let mean = scores.iter().sum::<f64>() / scores.len() as f64;
-        s += &format!("; last evaluation ({}): paper score {mean:.2}", k(at));
-        if scores.len() > 1 {
-            let (lo, hi) = scores.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-            s += &format!(" ({lo:.2}–{hi:.2})");
-        }
+    s + &last_evaluation(&last, by_success)
+}
+
+/// "; last evaluation (10.0k): paper score 20.12 (15.98–25.04)" from each agent's (update, score)
+/// of its latest evaluation, or "success 42.0 % (…)" on a task scored by success; "" with none.
+fn last_evaluation(last: &[(u64, f64)], by_success: bool) -> String {
+    let Some(at) = last.iter().map(|&(u, _)| u).max() else { return String::new() };
+    let scores: Vec<f64> = last.iter().map(|&(_, p)| p).collect();
+    let mean = scores.iter().sum::<f64>() / scores.len() as f64;
+    let (name, unit, digits) = if by_success { ("success", " %", 1) } else { ("paper score", "", 2) };
+    let mut s = format!("; last evaluation ({}): {name} {mean:.digits$}{unit}", progress::count(at));
+    if scores.len() > 1 {
+        let (lo, hi) = scores.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        s += &format!(" ({lo:.digits$}–{hi:.digits$}{unit})");
     }
     s
 }
@@ -582,4 +597,20 @@ pub fn read_metrics<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T
                 .with_context(|| format!("{}: line {} is not a metrics record", path.display(), i + 1))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::last_evaluation;
+
+    #[test]
+    fn the_progress_line_shows_the_score_the_task_is_judged_by() {
+        let last = [(10_000, 20.0), (10_000, 24.0), (7_500, 16.0)];
+        assert_eq!(last_evaluation(&last, false), "; last evaluation (10.0k): paper score 20.00 (16.00–24.00)");
+        // OGBench's mazes: success in percent (T + return would be 150–550 there, and mean nothing).
+        let last = [(20_000, 40.0), (20_000, 60.0)];
+        assert_eq!(last_evaluation(&last, true), "; last evaluation (20.0k): success 50.0 % (40.0–60.0 %)");
+        assert_eq!(last_evaluation(&[(500, 12.5)], true), "; last evaluation (500): success 12.5 %");
+        assert_eq!(last_evaluation(&[], false), "");
+    }
 }

@@ -143,15 +143,23 @@ fn report_cli_writes_fig5_and_table1() {
         std::fs::read(rep2.join("fig5_q_hist.png")).unwrap()
     );
 
-    // Fig. 5's histograms are in table1.json as drawn: densities over [−1/(1−γ), 0] that
-    // integrate to 1, one per class.
+    // Fig. 5's histograms are in table1.json as drawn: densities that integrate to 1, one per
+    // class, over an axis fitted to the data (not Q's whole range [−1/(1−γ), 0], where data a
+    // few units below 0 would be two thin bars): the lowest and the highest Q fall in the first
+    // and the last bin.
     let h = &j["fig5_hist"];
-    let width = (h["hi"].as_f64().unwrap() - h["lo"].as_f64().unwrap()) / 50.0;
+    let (lo, hi) = (h["lo"].as_f64().unwrap(), h["hi"].as_f64().unwrap());
+    let (pos, neg) = (j["positive_q_mean"].as_f64().unwrap(), j["negative_q_mean"].as_f64().unwrap());
+    assert!(lo < pos.min(neg) && pos.max(neg) < hi, "{lo} {hi}");
+    let width = (hi - lo) / 50.0;
+    let mut edges = (false, false);
     for class in ["positives", "negatives"] {
         let d: Vec<f64> = h[class].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         assert_eq!(d.len(), 50);
         assert!((d.iter().sum::<f64>() * width - 1.0).abs() < 1e-9, "{class}");
+        edges = (edges.0 || d[0] > 0.0, edges.1 || d[49] > 0.0);
     }
+    assert_eq!(edges, (true, true), "the axis [{lo}, {hi}] is not fitted to the data");
     fig5_across_tasks(d, &rep, &j);
 
     // A checkpoint changed since scoring is refused in one line that names it.

@@ -115,16 +115,17 @@ fn progress(p: &Pipeline, step: &Step, f: &state::Forecast) -> Option<Progress> 
     Some(Progress { updates, of: cfg.updates, last_eval })
 }
 
-/// "7.5k of 30.0k updates saved; last evaluation at 5.0k: paper score 1.38, success 0.04".
-fn render_progress(g: &Progress) -> String {
+/// "7.5k of 30.0k updates saved; last evaluation at 5.0k: paper score 1.38, success 0.04", or on
+/// a task scored by success alone (OGBench's): "…: success 4.0 %".
+fn render_progress(g: &Progress, task: &str) -> String {
     let mut s = format!("{} of {} updates saved", progress::count(g.updates), progress::count(g.of));
     if let Some((m, e)) = g.last_eval.as_ref().and_then(|m| Some((m, m.eval.as_ref()?))) {
-        s += &format!(
-            "; last evaluation at {}: paper score {:.2}, success {:.2}",
-            progress::count(m.updates),
-            e.paper_score,
-            e.success_rate
-        );
+        let at = progress::count(m.updates);
+        if crate::eval::scored_by_success(task) {
+            s += &format!("; last evaluation at {at}: success {:.1} %", 100.0 * e.success_rate);
+        } else {
+            s += &format!("; last evaluation at {at}: paper score {:.2}, success {:.2}", e.paper_score, e.success_rate);
+        }
     }
     s
 }
@@ -144,7 +145,7 @@ pub fn render(p: &Pipeline, states: &[StepState]) -> String {
             line += &format!(" ({h})");
         }
         if let Some(g) = &s.progress {
-            line += &format!(" — {}", render_progress(g));
+            line += &format!(" — {}", render_progress(g, &p.task));
         }
         text += &line;
         text.push('\n');

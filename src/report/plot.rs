@@ -218,6 +218,23 @@ pub struct HistSeries<'a> {
 /// The densities of `values` in `bins` equal bins over `[lo, hi]`. Values outside the range
 /// count in the end bins: Q is clipped to [−1/(1−γ), 0] only in the targets, so a critic may
 /// overshoot a little, and dropping those rows would bias the picture.
+/// The axis a histogram of `series` is drawn over: their finite values' span, widened by 2 % on
+/// each side so the extreme bins show, and not past `bound` where the data stop short of it. A
+/// Q histogram drawn over Q's whole range [−1/(1−γ), 0] puts data that lie in [−4, 0] into two
+/// thin bars at the right edge.
+pub fn fitted_range(series: &[&[f64]], bound: (f64, f64)) -> (f64, f64) {
+    let finite = series.iter().flat_map(|s| s.iter().copied()).filter(|v| v.is_finite());
+    let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if lo > hi {
+        return bound;
+    }
+    let pad = if hi > lo { 0.02 * (hi - lo) } else { 0.5 };
+    // Data beyond a bound (a critic can overshoot Q's range) stay on the axis.
+    let lo = if lo >= bound.0 { (lo - pad).max(bound.0) } else { lo - pad };
+    let hi = if hi <= bound.1 { (hi + pad).min(bound.1) } else { hi + pad };
+    (lo, hi)
+}
+
 pub fn densities(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<f64> {
     let width = (hi - lo) / bins as f64;
     let mut counts = vec![0usize; bins];
@@ -471,6 +488,24 @@ mod tests {
         let mut both = bottom.clone();
         both.extend(curve_spans(&crossing));
         assert_eq!(quietest_corner(&both, range, (800, 500), (150.0, 60.0)), 2);
+    }
+
+    #[test]
+    fn a_histogram_axis_fits_its_data_inside_the_bound() {
+        // Data in [−4, −0.5] of Q's range [−50, 0]: 2 % of the span beyond each end.
+        let (a, b) = ([-4.0, -1.0, f64::NAN], [-0.5, -2.0]);
+        let (lo, hi) = fitted_range(&[&a, &b], (-50.0, 0.0));
+        assert!((lo + 4.07).abs() < 1e-12 && (hi + 0.43).abs() < 1e-12, "{lo} {hi}");
+        // Not past the bound where the data reach it; past it where the data do.
+        assert_eq!(fitted_range(&[&[-50.0, 0.0]], (-50.0, 0.0)), (-50.0, 0.0));
+        let (lo, hi) = fitted_range(&[&[-60.0, 1.0]], (-50.0, 0.0));
+        assert!(lo < -60.0 && hi > 1.0);
+        // One value, and none.
+        assert_eq!(fitted_range(&[&[-3.0]], (-50.0, 0.0)), (-3.5, -2.5));
+        assert_eq!(fitted_range(&[&[]], (-50.0, 0.0)), (-50.0, 0.0));
+        // Every value lands inside: the first and last bins hold the extremes.
+        let d = densities(&[-4.0, -1.0, -0.5, -2.0], -4.07, -0.43, 50);
+        assert!(d[0] > 0.0 && d[49] > 0.0);
     }
 
     #[test]

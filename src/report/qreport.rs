@@ -104,8 +104,9 @@ pub struct QReport {
     pub json: PathBuf,
 }
 
-/// Fig. 5's histograms: [`HIST_BINS`] densities of Q over [lo, hi] = [−1/(1−γ), 0] for the
-/// positives (own goals) and the paper's negatives (random goal swaps).
+/// Fig. 5's histograms: [`HIST_BINS`] densities of Q over [lo, hi] for the positives (own goals)
+/// and the paper's negatives (random goal swaps); [lo, hi] is where their Q lie
+/// ([`plot::fitted_range`]), inside Q's range [−1/(1−γ), 0] unless the critic overshoots it.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Fig5Hist {
     pub lo: f64,
@@ -198,14 +199,14 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
 
     ensure_dir(&o.out_dir)?;
     let fig5 = o.out_dir.join("fig5_q_hist.png");
-    let lo = -1.0 / (1.0 - footer.gamma);
+    let (lo, hi) = plot::fitted_range(&[&positives, negatives], (-1.0 / (1.0 - footer.gamma), 0.0));
     plot::density_histograms(
         &fig5,
         FIG_SIZE,
         &format!("{}: Q of own vs swapped goals", footer.task),
         "Q(s, g, a)",
         "density",
-        (lo, 0.0),
+        (lo, hi),
         HIST_BINS,
         &[
             HistSeries {
@@ -243,9 +244,9 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
         priority: t.shares,
         fig5_hist: Fig5Hist {
             lo,
-            hi: 0.0,
-            positives: plot::densities(&positives, lo, 0.0, HIST_BINS),
-            negatives: plot::densities(negatives, lo, 0.0, HIST_BINS),
+            hi,
+            positives: plot::densities(&positives, lo, hi, HIST_BINS),
+            negatives: plot::densities(negatives, lo, hi, HIST_BINS),
         },
         fig5,
         table1_md,

@@ -29,6 +29,7 @@ use super::plot::{self, Curve};
 use super::spread::{Block, ScoreRow, pool, scores_csv};
 use super::welch::{ALPHA, BETTER, WORSE, fmt_p_above, mean_std, welch_from_summary, welch_greater, welch_t_test};
 use super::{FIG_SIZE, ensure_dir, file_safe, fmt3, write_text};
+use crate::eval::scored_by_success;
 use crate::train::MetricsLine;
 
 /// One training run: which cell of Table 2 it belongs to, and its metrics file
@@ -216,16 +217,9 @@ struct Group {
     seeds: Vec<u64>,
 }
 
-/// Whether a task is scored by its success rate in percent, as OGBench scores its datasets
-/// (`pointmaze-medium-navigate-v0`), rather than by the paper's score: a maze episode ends at
-/// its goal, so T + return would count the steps it took, not whether it arrived.
-fn success_scored(task: &str) -> bool {
-    crate::env::pointmaze::resolve(task).is_some()
-}
-
 /// The score column's name for a task's table and curves.
 fn score_name(task: &str) -> &'static str {
-    if success_scored(task) { "success (%)" } else { "paper score" }
+    if scored_by_success(task) { "success (%)" } else { "paper score" }
 }
 
 /// Every evaluation line of every run: the group columns, the run's index, and the line.
@@ -246,7 +240,7 @@ fn evals_frame(runs: &[Run]) -> Result<DataFrame> {
             success.push(e.success_rate);
             seed.push(r.seed);
             episodes.push(e.episodes);
-            if success_scored(&r.task) {
+            if scored_by_success(&r.task) {
                 // Each episode a success (100) or not (0): their std, n not n − 1, as return_std.
                 let p = e.success_rate;
                 score.push(100.0 * p);
@@ -416,7 +410,7 @@ pub fn results_markdown(r: &Results) -> String {
         }
     }
     s += &legend();
-    if r.rows.iter().any(|row| success_scored(&row.task)) {
+    if r.rows.iter().any(|row| scored_by_success(&row.task)) {
         s += "\nOGBench's tasks (pointmaze-…) are scored as OGBench scores them, by the success rate in percent (the \
               share of evaluation episodes that reached the goal; an episode ends there), in place of the paper \
               score; their p values test those.\n";
