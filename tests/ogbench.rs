@@ -191,6 +191,21 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
         ],
     );
     fails(&uneven, &[], "the last row (5) ends no episode");
+    // A NaN is named by the key as the file names it (not pgser's internal `o` or `u`).
+    let mut term = vec![0u8; 6];
+    term[2] = 1;
+    term[5] = 1;
+    let mut acts = f32s(12);
+    acts[4 * 9..4 * 10].copy_from_slice(&f32::NAN.to_le_bytes()); // row 4, index 1
+    write(
+        &uneven,
+        &[
+            ("observations", npz::Dtype::F32, vec![6, 2], f32s(12)),
+            ("actions", npz::Dtype::F32, vec![6, 2], acts),
+            ("terminals", npz::Dtype::Bool, vec![6], term),
+        ],
+    );
+    fails(&uneven, &[], "non-finite value NaN in key 'actions' at episode 1, step 1, index 1");
     // Export: not a .npz name.
     let table = dir.path().join("t.parquet");
     convert_ok(&fixture("pointmaze-medium-navigate-v0.npz"), &table, &[]);

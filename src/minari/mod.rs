@@ -43,6 +43,10 @@ use crate::trajectory::{
 /// which come the actions).
 pub const OBS_KEYS: [&str; 3] = ["observation", "achieved_goal", "desired_goal"];
 
+/// Minari's names of the arrays pgser reads as o, ag, u and g, as error messages give them.
+pub const ARRAY_KEYS: [&str; 4] =
+    ["observations/observation", "observations/achieved_goal", "actions", "observations/desired_goal"];
+
 /// The two storages Minari writes and pgser reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Storage {
@@ -264,7 +268,7 @@ impl Source {
             steps: steps[k],
             dim: dims[k],
         });
-        EpisodeArrays { origin: self.meta.data.display().to_string(), arrays, episodes: w.episodes }
+        EpisodeArrays { origin: self.meta.data.display().to_string(), keys: ARRAY_KEYS, arrays, episodes: w.episodes }
     }
 
     /// float64 when any array is (float32 widens exactly), float32 when all are or `--float32`.

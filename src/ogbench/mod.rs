@@ -41,6 +41,10 @@ use crate::trajectory::{
     TrajectoryWriter,
 };
 
+/// OGBench's names of the arrays pgser reads as o, ag, u and g, as error messages give them: the
+/// goals are parts of the observations.
+pub const ARRAY_KEYS: [&str; 4] = ["observations", "observations", "actions", "observations"];
+
 /// Which of OGBench's layouts a file holds (the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {
@@ -426,7 +430,7 @@ impl Window {
             steps: spec[i].0,
             dim: spec[i].1,
         });
-        EpisodeArrays { origin: at.to_string(), arrays, episodes: k }
+        EpisodeArrays { origin: at.to_string(), keys: ARRAY_KEYS, arrays, episodes: k }
     }
 }
 

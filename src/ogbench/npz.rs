@@ -1,14 +1,19 @@
 //! numpy's `.npz` files (`np.savez`, `np.savez_compressed`): a zip archive of `.npy` arrays.
 //!
 //! An `.npy` member is a magic string, a format version, a header (a Python dict literal with the
-//! dtype `descr`, `fortran_order` and `shape`) and the array's bytes in C order. Only that much of
-//! the format is read, and only little-endian numbers and booleans: what OGBench's files hold. The
+//! dtype `descr`, `fortran_order` and `shape`) and the array's bytes. Only that much of the format
+//! is read: numbers and booleans, in either byte order and either memory order, as `np.save`
+//! writes them (OGBench's files are little-endian C order; a user's own `np.savez` of a
+//! `.byteswap()`ed or `np.asfortranarray` array is not, and the pickle reader takes both too). The
 //! header is parsed as data, never evaluated. Members are streamed: a reader gets the bytes after
-//! the header as they decompress, so a dataset of gigabytes is read a window at a time, and two
-//! members (observations and actions) are read side by side through two opens of the archive.
+//! the header as they decompress, little-endian and in C order, so a dataset of gigabytes is read
+//! a window at a time, and two members (observations and actions) are read side by side through
+//! two opens of the archive. A big-endian member is byte-swapped as it streams; a Fortran-order
+//! one is read whole and transposed, as `np.load` does: its rows' values lie a column apart, so no
+//! window of the stream holds a row.
 
 use std::fs::File;
-use std::io::{BufReader, Read, Write};
+use std::io::{BufReader, Cursor, Read, Write};
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
@@ -42,16 +47,31 @@ impl Dtype {
         }
     }
 
-    fn parse(descr: &str) -> Option<Dtype> {
-        Some(match descr {
-            "|b1" | "<b1" | "?" => Dtype::Bool,
-            "<f4" => Dtype::F32,
-            "<f8" => Dtype::F64,
-            "<i4" => Dtype::I32,
-            "<i8" => Dtype::I64,
+    /// The dtype of a `descr` and whether its numbers are big-endian (`>f4`; `=` and `|` are
+    /// this machine's order, little-endian).
+    fn parse(descr: &str) -> Option<(Dtype, bool)> {
+        let (order, code) = match descr.as_bytes().first()? {
+            b'<' | b'=' | b'|' => (false, &descr[1..]),
+            b'>' => (true, &descr[1..]),
+            _ => (false, descr),
+        };
+        let dtype = match code {
+            "b1" | "?" => Dtype::Bool,
+            "f4" => Dtype::F32,
+            "f8" => Dtype::F64,
+            "i4" => Dtype::I32,
+            "i8" => Dtype::I64,
             _ => return None,
-        })
+        };
+        Some((dtype, order && dtype.size() > 1))
     }
+}
+
+/// How a member's bytes lie in the file, where not as readers get them (little-endian, C order).
+#[derive(Debug, Clone, Copy, Default)]
+struct Storage {
+    big_endian: bool,
+    fortran: bool,
 }
 
 /// One array of an archive, as its header describes it.
@@ -93,7 +113,7 @@ pub fn members(path: &Path) -> Result<Vec<Member>> {
     for i in 0..z.len() {
         let mut f = z.by_index(i).with_context(|| format!("{}: member {i} cannot be read", path.display()))?;
         let Some(key) = f.name().strip_suffix(".npy").map(str::to_string) else { continue };
-        let m = header(&mut f, &key).with_context(|| format!("{}: {key}", path.display()))?;
+        let (m, _) = header(&mut f, &key).with_context(|| format!("{}: {key}", path.display()))?;
         let have = f.size();
         let want = m.bytes();
         // The member's size is its header and its data; a shorter one was cut short.
@@ -110,18 +130,77 @@ pub fn members(path: &Path) -> Result<Vec<Member>> {
     Ok(out)
 }
 
-/// Calls `f` with a reader of member `key`'s data (the bytes after its header) and its header.
+/// Calls `f` with a reader of member `key`'s data (the bytes after its header, little-endian and
+/// in C order whatever the file's) and its header.
 pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Member) -> Result<T>) -> Result<T> {
     let mut z = archive(path)?;
     let mut file = z
         .by_name(&format!("{key}.npy"))
         .with_context(|| format!("{}: no array {key:?} in the archive", path.display()))?;
-    let m = header(&mut file, key).with_context(|| format!("{}: {key}", path.display()))?;
+    let (m, storage) = header(&mut file, key).with_context(|| format!("{}: {key}", path.display()))?;
+    let size = m.dtype.size();
+    // A Fortran array with one dimension above 1 has C order's bytes already.
+    if storage.fortran && m.shape.iter().filter(|&&d| d > 1).count() > 1 {
+        let mut raw = Vec::new();
+        (&mut file).take(m.bytes()).read_to_end(&mut raw).with_context(|| format!("{}: {key}", path.display()))?;
+        if raw.len() as u64 != m.bytes() {
+            bail!("{}: {key}: {} bytes, less than the {} bytes of its {:?} array", path.display(), raw.len(), m.bytes(), m.shape);
+        }
+        let mut c = crate::pickle::fortran_to_c(&raw, &m.shape, size);
+        if storage.big_endian {
+            c.chunks_exact_mut(size).for_each(<[u8]>::reverse);
+        }
+        return f(&mut Cursor::new(c), &m);
+    }
+    if storage.big_endian {
+        return f(&mut SwapBytes::new(&mut file, size), &m);
+    }
     f(&mut file, &m)
 }
 
+/// A reader of big-endian numbers of `size` bytes that hands them out little-endian, a buffer
+/// of whole numbers at a time.
+struct SwapBytes<R: Read> {
+    inner: R,
+    size: usize,
+    buf: Vec<u8>,
+    at: usize,
+    end: usize,
+}
+
+impl<R: Read> SwapBytes<R> {
+    fn new(inner: R, size: usize) -> SwapBytes<R> {
+        SwapBytes { inner, size, buf: vec![0; (64 << 10) / size * size], at: 0, end: 0 }
+    }
+}
+
+impl<R: Read> Read for SwapBytes<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        if self.at == self.end {
+            // Fill the buffer as far as the stream goes, so that numbers are whole before a swap.
+            let mut n = 0;
+            while n < self.buf.len() {
+                match self.inner.read(&mut self.buf[n..]) {
+                    Ok(0) => break,
+                    Ok(k) => n += k,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    Err(e) => return Err(e),
+                }
+            }
+            // A partial number at the end is a member cut short: handed out as it is, and the
+            // caller's read_exact of whole rows fails on it.
+            self.buf[..n - n % self.size].chunks_exact_mut(self.size).for_each(<[u8]>::reverse);
+            (self.at, self.end) = (0, n);
+        }
+        let k = out.len().min(self.end - self.at);
+        out[..k].copy_from_slice(&self.buf[self.at..self.at + k]);
+        self.at += k;
+        Ok(k)
+    }
+}
+
 /// Reads and parses an `.npy` header, leaving `r` at the first data byte.
-fn header(r: &mut dyn Read, key: &str) -> Result<Member> {
+fn header(r: &mut dyn Read, key: &str) -> Result<(Member, Storage)> {
     let mut start = [0u8; 8];
     r.read_exact(&mut start).context("too short for an .npy header")?;
     if &start[..6] != MAGIC {
@@ -152,11 +231,9 @@ fn header(r: &mut dyn Read, key: &str) -> Result<Member> {
     };
     let descr = field("descr")?;
     let descr = descr.strip_prefix('\'').and_then(|d| d.split('\'').next()).context("'descr' is not a string")?;
-    let dtype = Dtype::parse(descr)
-        .with_context(|| format!("dtype {descr:?}: pgser reads little-endian float32/64, int32/64 and bool arrays"))?;
-    if field("fortran_order")?.starts_with("True") {
-        bail!("a Fortran-order array: pgser reads C order (what np.save writes by default)");
-    }
+    let (dtype, big_endian) =
+        Dtype::parse(descr).with_context(|| format!("dtype {descr:?}: pgser reads float32/64, int32/64 and bool arrays"))?;
+    let fortran = field("fortran_order")?.starts_with("True");
     let shape = field("shape")?;
     let inner = shape.strip_prefix('(').and_then(|s| s.split(')').next()).context("'shape' is not a tuple")?;
     let shape = inner
@@ -165,7 +242,7 @@ fn header(r: &mut dyn Read, key: &str) -> Result<Member> {
         .filter(|s| !s.is_empty())
         .map(|s| s.trim_end_matches('L').parse::<usize>().with_context(|| format!("shape entry {s:?}")))
         .collect::<Result<Vec<_>>>()?;
-    Ok(Member { key: key.to_string(), dtype, shape })
+    Ok((Member { key: key.to_string(), dtype, shape }, Storage { big_endian, fortran }))
 }
 
 /// Writes an `.npz` archive one array at a time, each streamed in: `np.load` reads it, and with
@@ -263,6 +340,79 @@ mod tests {
             let e = with_member(&path, "actions", |_, _| Ok(())).unwrap_err();
             assert!(format!("{e:#}").contains("no array \"actions\""), "{e:#}");
         }
+    }
+
+    /// An `.npy` member as `np.save` writes it, for any `descr` and memory order.
+    fn raw_npy(descr: &str, fortran: bool, shape: &str, data: &[u8]) -> Vec<u8> {
+        let order = if fortran { "True" } else { "False" };
+        let mut dict = format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': {shape}, }}");
+        let total = MAGIC.len() + 4 + dict.len() + 1;
+        dict.push_str(&" ".repeat(total.next_multiple_of(64) - total));
+        dict.push('\n');
+        let mut out = MAGIC.to_vec();
+        out.extend([1, 0]);
+        out.extend((dict.len() as u16).to_le_bytes());
+        out.extend(dict.as_bytes());
+        out.extend(data);
+        out
+    }
+
+    fn read_all(path: &Path, key: &str) -> (Vec<u8>, Member) {
+        with_member(path, key, |r, m| {
+            let mut b = Vec::new();
+            r.read_to_end(&mut b)?;
+            Ok((b, m.clone()))
+        })
+        .unwrap()
+    }
+
+    /// Big-endian and Fortran-order members (`np.save` of `a.byteswap().view(a.dtype.newbyteorder())`
+    /// and of `np.asfortranarray(a)`) read as the little-endian C-order array they hold.
+    #[test]
+    fn big_endian_and_fortran_members_read_as_c_order_little_endian() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("orders.npz");
+        // a[i][j] = 10·i + j, shape (3, 4), as f32 and i64; the big f64 array spans several buffers.
+        let a: Vec<f32> = (0..3).flat_map(|i| (0..4).map(move |j| (10 * i + j) as f32)).collect();
+        let le: Vec<u8> = a.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let be: Vec<u8> = a.iter().flat_map(|x| x.to_be_bytes()).collect();
+        let fortran = |v: &[f32], bytes: fn(f32) -> [u8; 4]| -> Vec<u8> {
+            (0..4).flat_map(|j| (0..3).map(move |i| v[i * 4 + j])).flat_map(bytes).collect()
+        };
+        let ints: Vec<i64> = (0..12).map(|k| k * 1_000_000_007).collect();
+        let ints_f: Vec<u8> = (0..4).flat_map(|j| (0..3).map(move |i| i * 4 + j)).flat_map(|k| ints[k].to_be_bytes()).collect();
+        let big: Vec<f64> = (0..20_000).map(|k| k as f64 * 0.25 - 7.0).collect();
+        let big_be: Vec<u8> = big.iter().flat_map(|x| x.to_be_bytes()).collect();
+        let members: Vec<(&str, Vec<u8>)> = vec![
+            ("le", raw_npy("<f4", false, "(3, 4)", &le)),
+            ("be", raw_npy(">f4", false, "(3, 4)", &be)),
+            ("f_le", raw_npy("<f4", true, "(3, 4)", &fortran(&a, f32::to_le_bytes))),
+            ("f_be", raw_npy(">f4", true, "(3, 4)", &fortran(&a, f32::to_be_bytes))),
+            ("f_be_i8", raw_npy(">i8", true, "(3, 4)", &ints_f)),
+            ("f_row", raw_npy("<f4", true, "(1, 12)", &le)),
+            ("be_big", raw_npy(">f8", false, "(20000,)", &big_be)),
+            ("flags", raw_npy("|b1", true, "(2, 2)", &[1, 0, 0, 1])),
+        ];
+        let mut z = zip::ZipWriter::new(File::create(&path).unwrap());
+        for (k, bytes) in &members {
+            z.start_file(format!("{k}.npy"), zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Deflated)).unwrap();
+            z.write_all(bytes).unwrap();
+        }
+        z.finish().unwrap();
+        for key in ["le", "be", "f_le", "f_be", "f_row"] {
+            let (got, m) = read_all(&path, key);
+            assert_eq!(got, le, "{key}");
+            assert_eq!(m.dtype, Dtype::F32, "{key}");
+        }
+        let (got, m) = read_all(&path, "f_be_i8");
+        assert_eq!((m.dtype, m.shape.clone()), (Dtype::I64, vec![3, 4]));
+        assert_eq!(got, ints.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<_>>());
+        let (got, _) = read_all(&path, "be_big");
+        assert_eq!(got, big.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<_>>());
+        // Booleans have no byte order; a Fortran (2, 2) is transposed: [[1, 0], [0, 1]] either way,
+        // so check [[T, F], [F, T]] stored column-major as 1, 0, 0, 1.
+        assert_eq!(read_all(&path, "flags").0, vec![1, 0, 0, 1]);
+        assert_eq!(members(&path).unwrap().len(), members.len());
     }
 
     #[test]

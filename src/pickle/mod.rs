@@ -25,6 +25,8 @@ use std::fmt;
 use std::path::Path;
 
 pub use numpy::{DType, DTypeKind, NdArray, shape_text};
+/// numpy's Fortran → C reorder, which the `.npz` reader shares.
+pub(crate) use numpy::fortran_to_c;
 
 /// Index of an object in a [`Pickle`]'s arena.
 pub type Id = usize;

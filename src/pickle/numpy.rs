@@ -197,7 +197,7 @@ pub fn shape_text(shape: &[usize]) -> String {
 
 /// Reorder elements from column-major to row-major: walk the C-order output with an odometer
 /// over the multi-index, keeping the Fortran offset of that index up to date.
-fn fortran_to_c(src: &[u8], shape: &[usize], size: usize) -> Vec<u8> {
+pub(crate) fn fortran_to_c(src: &[u8], shape: &[usize], size: usize) -> Vec<u8> {
     let n: usize = shape.iter().product();
     let mut out = vec![0u8; src.len()];
     let ndim = shape.len();

@@ -21,7 +21,7 @@ use crate::agent::Batch;
 use crate::nprandom::NpRandom;
 use crate::output::AtomicFile;
 use crate::task::Task;
-use crate::trajectory::{EpisodeArrays, Episodes, FloatArray, FloatType, Footer, TrajectoryWriter};
+use crate::trajectory::{EpisodeArrays, Episodes, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
 
 /// Rows per row group of a saved buffer (whole episodes), as `convert` and `collect` default to.
 const ROW_GROUP_ROWS: usize = 65_536;
@@ -120,7 +120,7 @@ impl Replay {
                 .collect();
             let arrays =
                 std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
-            let src = EpisodeArrays { origin: path.display().to_string(), arrays, episodes: end - start };
+            let src = EpisodeArrays { origin: path.display().to_string(), keys: KEYS, arrays, episodes: end - start };
             w.append(&src, 0, end - start)?;
         }
         let mut footer = Footer::new(&d.task, FloatType::Float32, d.n, command.to_string());

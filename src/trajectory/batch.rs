@@ -41,6 +41,10 @@ pub struct FloatArray<'a> {
 pub struct EpisodeArrays<'a> {
     /// Names the data in error messages: a file path, or what was simulated.
     pub origin: String,
+    /// What the source calls o, ag, u and g, for error messages: [`KEYS`] for WGCSL's pickles and
+    /// what pgser simulates, `observations` and `actions` for OGBench's files, and so on. An
+    /// error names the array as its user wrote it.
+    pub keys: [&'static str; 4],
     /// o, ag, u, g.
     pub arrays: [FloatArray<'a>; 4],
     pub episodes: usize,
@@ -277,7 +281,7 @@ fn check_finite(src: &EpisodeArrays, key_index: usize, e0: usize, out: FloatType
     bail!(
         "{}: {what} in key '{}' at episode {episode}, step {step}, index {index}; pass --allow-nonfinite to keep it",
         src.origin,
-        KEYS[key_index]
+        src.keys[key_index]
     )
 }
 
@@ -302,7 +306,7 @@ mod tests {
     fn view<'a>(data: &'a [Vec<u8>; 4], task: &Task) -> EpisodeArrays<'a> {
         let dims = [(task.t, 2), (task.t, 1), (task.t - 1, 1), (task.t - 1, 1)];
         let arrays = std::array::from_fn(|k| FloatArray { data: &data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
-        EpisodeArrays { origin: "tiny.pkl".into(), arrays, episodes: 5 }
+        EpisodeArrays { origin: "tiny.pkl".into(), keys: KEYS, arrays, episodes: 5 }
     }
 
     #[test]

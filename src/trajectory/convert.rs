@@ -99,7 +99,7 @@ impl Source<'_> {
             let a = &self.arrays[k];
             FloatArray { data: &a.data, size: a.dtype.size, steps: a.shape[1], dim: a.shape[2] }
         });
-        EpisodeArrays { origin: self.path.display().to_string(), arrays, episodes: self.episodes }
+        EpisodeArrays { origin: self.path.display().to_string(), keys: super::batch::KEYS, arrays, episodes: self.episodes }
     }
 }
 
