@@ -32,7 +32,7 @@ use rayon::prelude::*;
 use self::policy::{EpisodePolicy, PolicyKind, PolicySpec};
 use crate::env::{self, GoalEnv};
 use crate::output::AtomicFile;
-use crate::pickle::write::{ArrayOut, write_f64_dict};
+use crate::pickle::write::{ArrayOut, write_dict};
 use crate::task::Task;
 use crate::trajectory::{self, EpisodeArrays, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
 
@@ -197,7 +197,7 @@ impl Chunk {
         let dims = layout(task);
         let arrays =
             std::array::from_fn(|k| FloatArray { data: &self.data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
-        EpisodeArrays { origin, keys: KEYS, arrays, episodes: self.episodes }
+        EpisodeArrays { origin, keys: KEYS, arrays, episodes: self.episodes , extras: Vec::new() }
     }
 }
 
@@ -321,6 +321,7 @@ impl PickleSink {
             .zip(dims)
             .map(|((f, key), (steps, dim))| ArrayOut {
                 key,
+                descr: "<f8".into(),
                 shape: vec![episodes, steps, dim],
                 data: Box::new(move |w: &mut dyn Write| {
                     f.rewind()?;
@@ -328,7 +329,7 @@ impl PickleSink {
                 }),
             })
             .collect();
-        write_f64_dict(&mut w, &mut arrays).with_context(fail)?;
+        write_dict(&mut w, &mut arrays).with_context(fail)?;
         drop(arrays);
         w.into_inner().map_err(|e| e.into_error()).with_context(fail)?;
         out.commit()?;

@@ -49,7 +49,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
 pub fn export(opts: &minari::ExportOptions) -> Result<minari::ExportSummary> {
     match opts.format {
         minari::ExportFormat::Ogbench => {
-            let f = ogbench::export_npz(&opts.table, &opts.output)?;
+            let f = ogbench::export_npz(&opts.table, &opts.output, &opts.drop)?;
             Ok(minari::ExportSummary { task: f.task, episodes: f.episodes, t: f.t })
         }
         _ => minari::export(opts),

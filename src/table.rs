@@ -47,7 +47,10 @@ fn writer_properties(schema: &Schema) -> WriterProperties {
         .set_statistics_enabled(EnabledStatistics::Chunk)
         .set_created_by(format!("pgser {}", env!("CARGO_PKG_VERSION")));
     for f in schema.fields() {
-        if let DataType::FixedSizeList(item, _) = f.data_type() {
+        // Float leaves only: a passthrough column may hold lists of bools or integers.
+        if let DataType::FixedSizeList(item, _) = f.data_type()
+            && matches!(item.data_type(), DataType::Float32 | DataType::Float64)
+        {
             let leaf = ColumnPath::new(vec![f.name().clone(), "list".into(), item.name().clone()]);
             b = b
                 .set_column_encoding(leaf.clone(), Encoding::BYTE_STREAM_SPLIT)
@@ -338,8 +341,10 @@ impl Verifier {
 
     /// The leaf columns under the top-level columns `names` (a vector column has one leaf).
     pub fn columns_of(&self, names: &[&str]) -> Vec<usize> {
-        let top = |leaf: &str| leaf.split('.').next().unwrap_or(leaf).to_string();
-        (0..self.leaves.len()).filter(|&i| names.contains(&top(&self.leaves[i]).as_str())).collect()
+        // A column's leaves are `name` or `name.list.item`; a passthrough column's name may hold
+        // dots of its own, so the name is matched whole, not cut at the first dot.
+        let of = |leaf: &str, name: &str| leaf == name || leaf.strip_prefix(name) == Some(".list.item");
+        (0..self.leaves.len()).filter(|&i| names.iter().any(|n| of(&self.leaves[i], n))).collect()
     }
 
     /// Checks `columns` (leaf indices) of every row group, in parallel; the first mismatch names

@@ -33,6 +33,8 @@ pub fn convert(input: PathBuf) {
         allow_nonfinite: false,
         exact_length: false,
         row_group_rows: 65_536,
+        full_goal: false,
+        drop: Vec::new(),
         command: String::new(),
     };
     let _ = pgser::convert::convert(&opts, &indicatif::ProgressBar::hidden());

@@ -140,7 +140,7 @@ fn read_footer(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
 /// trajectory table. Returns a summary dict; notes the CLI prints are in `notes`.
 #[pyfunction]
 #[pyo3(signature = (inputs, output, *, task=None, threshold=None, episodes=None, float32=false,
-    allow_nonfinite=false, exact_length=false, row_group_rows=65_536, full_goal=false))]
+    allow_nonfinite=false, exact_length=false, row_group_rows=65_536, full_goal=false, drop=Vec::new()))]
 #[allow(clippy::too_many_arguments)]
 fn convert<'py>(
     py: Python<'py>,
@@ -154,6 +154,7 @@ fn convert<'py>(
     exact_length: bool,
     row_group_rows: usize,
     full_goal: bool,
+    drop: Vec<String>,
 ) -> PyResult<Bound<'py, PyAny>> {
     for i in &inputs {
         existing(i)?;
@@ -173,15 +174,15 @@ fn convert<'py>(
         exact_length,
         row_group_rows,
         full_goal,
+        drop,
         command,
     };
     let s = interruptible(py, |bar| pgser::convert::convert(&opts, bar))?;
-    let mut notes: Vec<String> =
-        s.skipped_keys.iter().map(|k| format!("skipped {k} (not part of the WGCSL format)")).collect();
+    let mut notes: Vec<String> = s.skipped_keys.iter().map(|k| format!("left out {k} (drop=)")).collect();
     notes.extend(s.notes.iter().cloned());
     let summary = serde_json::json!({
         "output": output, "task": s.task.name, "float_type": s.float_type.name(), "episodes": s.episodes,
-        "rows": s.rows, "bytes": s.bytes, "notes": notes,
+        "rows": s.rows, "bytes": s.bytes, "notes": notes, "kept": s.kept,
     });
     json_to_py(py, &summary)
 }

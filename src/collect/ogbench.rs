@@ -257,7 +257,7 @@ fn table_arrays(chunk: &[Rows], t: usize) -> [Vec<u8>; 4] {
 fn view(a: &[Vec<u8>; 4], origin: String, episodes: usize, t: usize) -> EpisodeArrays<'_> {
     let steps = [t, t, t - 1, t - 1];
     let arrays = std::array::from_fn(|k| FloatArray { data: &a[k], size: 4, steps: steps[k], dim: 2 });
-    EpisodeArrays { origin, keys: crate::ogbench::ARRAY_KEYS, arrays, episodes }
+    EpisodeArrays { origin, keys: crate::ogbench::ARRAY_KEYS, arrays, episodes , extras: Vec::new() }
 }
 
 /// An OGBench `.npz` written at the end from its members' spools (the archive stores all

@@ -19,10 +19,11 @@ use serde_json::json;
 use super::arrow_storage::{self, EpisodeOut};
 use super::{BoxSpace, Spaces};
 use crate::output::AtomicFile;
-use crate::pickle::write::{ArrayOut, write_f64_dict};
+use crate::pickle::write::{ArrayOut, write_dict};
 use crate::task::{GoalMetric, Task};
+use crate::trajectory::extra::{append_source_bytes, kept_for};
 use crate::trajectory::read::{check_all_read, check_keys, open_checked};
-use crate::trajectory::{FloatType, Footer};
+use crate::trajectory::{FloatType, Footer, Passthrough, Per};
 
 /// The Minari version whose dataset layout the export writes (and `minari.load_dataset` checks
 /// against the versions it supports).
@@ -44,7 +45,11 @@ pub struct ExportOptions {
     pub table: PathBuf,
     pub format: ExportFormat,
     pub output: PathBuf,
+    /// Passthrough columns (or `last_action`, each episode's last action) to leave out: the
+    /// explicit choice where the format cannot hold them, which the export otherwise refuses.
+    pub drop: Vec<String>,
 }
+
 
 #[derive(Debug, Clone)]
 pub struct ExportSummary {
@@ -54,10 +59,12 @@ pub struct ExportSummary {
     pub t: usize,
 }
 
-/// A trajectory table in memory as float64: o, ag (`[N, T, ·]`), g, u (`[N, T−1, ·]`).
+/// A trajectory table in memory as float64: o, ag (`[N, T, ·]`), g, u (`[N, T−1, ·]`), and the
+/// passthrough columns to write, each as its source's bytes.
 struct Table {
     footer: Footer,
     arrays: [Vec<f64>; 4],
+    extras: Vec<(Passthrough, Vec<u8>)>,
 }
 
 pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
@@ -73,7 +80,15 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
             bail!("{}: OGBench files are written by pgser's convert::export, not the Minari writer", out.display())
         }
     };
-    let table = read_table(&opts.table)?;
+    let footer = crate::table::read_footer(&opts.table)?;
+    let footer: Footer = serde_json::from_value(footer).with_context(|| format!("{}: not a trajectory table", opts.table.display()))?;
+    // WGCSL keeps any array whose first dimension is the episodes; pgser's Minari writer keeps
+    // none yet (Minari's `infos` could hold them).
+    let (extras, _) = match dataset_id {
+        Some(_) => kept_for(&footer, &opts.table, "Minari dataset (pgser's writer: no infos yet)", &opts.drop, |_| false, false)?,
+        None => kept_for(&footer, &opts.table, "WGCSL pickle", &opts.drop, |_| true, false)?,
+    };
+    let table = read_table(&opts.table, &extras)?;
     match dataset_id {
         Some(id) => write_minari(&table, &opts.table, out, &id)?,
         None => write_wgcsl(&table, out)?,
@@ -101,12 +116,14 @@ fn dataset_id(out: &Path) -> Result<String> {
     Ok(name)
 }
 
-fn read_table(path: &Path) -> Result<Table> {
+fn read_table(path: &Path, extras: &[Passthrough]) -> Result<Table> {
     let at = path.display().to_string();
     let names = ["obs", "achieved_goal", "desired_goal", "action"];
-    let (footer, reader) = open_checked(path, &names, 64)?;
+    let columns: Vec<&str> = names.iter().copied().chain(extras.iter().map(|p| p.column.as_str())).collect();
+    let (footer, reader) = open_checked(path, &columns, 64)?;
     let t = footer.t;
     let mut arrays: [Vec<f64>; 4] = Default::default();
+    let mut extra_bytes: Vec<Vec<u8>> = vec![Vec::new(); extras.len()];
     let mut row = 0;
     for batch in reader {
         let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
@@ -130,15 +147,24 @@ fn read_table(path: &Path) -> Result<Table> {
                 arrays[k].extend_from_slice(&values[offset + r * dim..offset + (r + 1) * dim]);
             }
         }
+        for (p, out) in extras.iter().zip(&mut extra_bytes) {
+            let col = batch.column_by_name(&p.column).expect("projected");
+            append_source_bytes(out, p, col, row, t, &at)?;
+        }
         row += batch.num_rows();
     }
     check_all_read(&at, row, &footer)?;
-    Ok(Table { footer, arrays })
+    Ok(Table { footer, arrays, extras: extras.iter().cloned().zip(extra_bytes).collect() })
 }
 
+/// The pickle's o, ag, u, g in float64 (WGCSL's type), or in the table's float type when the
+/// table was converted from WGCSL pickles (so a float32 buffer comes back float32); then every
+/// passthrough array, `[N, T, …]`, `[N, T − 1, …]` or `[N, …]` as its layout says, in its dtype.
 fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
     let f = &table.footer;
     let (n, t) = (f.episodes, f.t);
+    let from_wgcsl = f.sources.first().is_some_and(|s| s.format == "wgcsl-pickle");
+    let f32s = from_wgcsl && f.float_type == FloatType::Float32;
     let file = AtomicFile::create(out)?;
     let mut w = std::io::BufWriter::with_capacity(8 << 20, file.handle()?);
     // Pickle key order o, ag, u, g (what `collect` writes); the table holds o, ag, g, u.
@@ -150,10 +176,15 @@ fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
             let values = &table.arrays[k];
             ArrayOut {
                 key,
+                descr: if f32s { "<f4" } else { "<f8" }.into(),
                 shape: vec![n, steps, dim],
                 data: Box::new(move |w: &mut dyn std::io::Write| {
                     for chunk in values.chunks(1 << 16) {
-                        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+                        let bytes: Vec<u8> = if f32s {
+                            chunk.iter().flat_map(|&v| (v as f32).to_le_bytes()).collect()
+                        } else {
+                            chunk.iter().flat_map(|v| v.to_le_bytes()).collect()
+                        };
                         w.write_all(&bytes)?;
                     }
                     Ok(())
@@ -161,8 +192,16 @@ fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
             }
         })
         .collect();
+    for (p, bytes) in &table.extras {
+        let mut shape = vec![n];
+        if p.per != Per::Episode {
+            shape.push(p.per.rows(t));
+        }
+        shape.extend(&p.shape);
+        arrays.push(ArrayOut { key: &p.column, descr: p.dtype.clone(), shape, data: Box::new(move |w| w.write_all(bytes)) });
+    }
     let fail = || format!("{}: write failed", out.display());
-    write_f64_dict(&mut w, &mut arrays).with_context(fail)?;
+    write_dict(&mut w, &mut arrays).with_context(fail)?;
     drop(arrays);
     w.into_inner().map_err(|e| e.into_error()).with_context(fail)?;
     file.commit()

@@ -268,7 +268,7 @@ impl Source {
             steps: steps[k],
             dim: dims[k],
         });
-        EpisodeArrays { origin: self.meta.data.display().to_string(), keys: ARRAY_KEYS, arrays, episodes: w.episodes }
+        EpisodeArrays { origin: self.meta.data.display().to_string(), keys: ARRAY_KEYS, arrays, episodes: w.episodes , extras: Vec::new() }
     }
 
     /// float64 when any array is (float32 widens exactly), float32 when all are or `--float32`.
@@ -393,6 +393,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         rows: source.episodes * footer.t,
         bytes,
         skipped_keys,
+        kept: Vec::new(),
         notes,
     })
 }

@@ -1,14 +1,16 @@
 //! `pgser-etl export TABLE --format ogbench -o NAME.npz`: a trajectory table as an OGBench
 //! dataset file, which `ogbench.make_env_and_datasets(NAME, dataset_path="NAME.npz")` loads.
 //!
-//! The file is what OGBench's data generator writes (`np.savez_compressed`): `observations`
-//! (float32), `actions` (float32) and `terminals` (bool, true on each episode's last row), one
-//! row per observation. A pgser episode has one action fewer than observations; OGBench's last
-//! row of an episode has an action that its loader drops, which is written as zeros. `qpos`,
-//! `qvel` are not in a pgser table and are not written, so `add_info=True` and the singletask
-//! relabelling, which read them, do not apply. The table is read twice, a batch at a time (once
-//! for the observations, once for the actions), so memory does not grow with it, and the file
-//! appears whole or not at all.
+//! The file is what OGBench's data generator writes (`np.savez_compressed`): `observations` and
+//! `actions`, one row per observation, `terminals` (bool, true on each episode's last row), and
+//! whatever else the table's source had (`qpos`, `qvel`, `oracle_reps`, …), kept as passthrough
+//! columns and written back in their dtype. An episode's last action is the one the source had
+//! where the table kept it (a table converted from an OGBench file), else zeros, which OGBench's
+//! loader drops. A table converted from a file of OGBench's regular layout (`load_dataset()`'s
+//! arrays saved: a row per transition, `next_observations`) is written back in that layout.
+//! Observations and actions are float32, OGBench's type, unless the table came from an OGBench
+//! file of float64. The table is read once per array, a batch at a time, so memory does not grow
+//! with it, and the file appears whole or not at all.
 
 use std::path::Path;
 
@@ -20,51 +22,88 @@ use arrow_schema::DataType;
 
 use super::npz::{Dtype, NpzWriter};
 use crate::output::AtomicFile;
-use crate::trajectory::Footer;
+use crate::trajectory::extra::{append_source_bytes, kept_for};
 use crate::trajectory::read::{check_all_read, check_keys, open_checked};
+use crate::trajectory::{FloatType, Footer, Per};
 
-/// Writes `table` as the OGBench dataset file `out`; returns the table's footer.
-pub fn export_npz(table: &Path, out: &Path) -> Result<Footer> {
+/// Writes `table` as the OGBench dataset file `out`, less the passthrough columns `drop` names
+/// (and each episode's last action, with `last_action`); returns the table's footer.
+pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     if out.extension().and_then(|e| e.to_str()) != Some("npz") {
         bail!(
             "{}: an OGBench dataset is a .npz file named after the dataset (pointmaze-medium-navigate-v0.npz)",
             out.display()
         );
     }
+    crate::output::check_not_an_input(out, std::slice::from_ref(&table.to_path_buf()))?;
     let (footer, _) = open_checked(table, &["obs"], 64)?;
-    let (n, t) = (footer.rows, footer.t);
+    let source = footer.sources.first().map(|s| s.format.as_str()).filter(|f| f.starts_with("ogbench-npz"));
+    let regular = source == Some("ogbench-npz-regular");
+    // A row per observation holds what is per step; a row per transition what is per transition.
+    let per = if regular { Per::Transition } else { Per::Step };
+    let layout = if regular { "regular-layout OGBench file" } else { "OGBench file" };
+    let (extras, last_action) = kept_for(&footer, table, layout, drop, |p| p.per == per, !regular)?;
+    let (n, t) = (footer.episodes, footer.t);
+    let rows = if regular { n * (t - 1) } else { n * t };
+    let (dtype, size) = match (source, footer.float_type) {
+        (Some(_), FloatType::Float64) => (Dtype::F64, 8),
+        _ => (Dtype::F32, 4),
+    };
     let file = AtomicFile::create(out)?;
     let mut w = NpzWriter::new(std::io::BufWriter::new(file.handle()?), true);
-    for (key, column, dim) in [("observations", "obs", footer.obs_dim), ("actions", "action", footer.act_dim)] {
-        w.start(key, Dtype::F32, &[n, dim])?;
-        let zeros = vec![0u8; dim * 4];
-        stream_f32(table, column, |row, values| {
-            w.write(values)?;
-            // A pgser episode's actions stop one row short: OGBench's last row's action is zeros.
-            if column == "action" && row % t == t - 2 {
-                w.write(&zeros)?;
-            }
-            Ok(())
-        })
-        .with_context(|| format!("{}: {key}", out.display()))?;
+    let fail = |key: &str| format!("{}: {key}", out.display());
+    // Which steps of an episode each array has a row for.
+    let all = |_: usize| true;
+    let but_last = |s: usize| s < t - 1;
+    let but_first = |s: usize| s > 0;
+    w.start("observations", dtype, &[rows, footer.obs_dim])?;
+    let obs_steps: &dyn Fn(usize) -> bool = if regular { &but_last } else { &all };
+    stream_floats(table, "obs", size, obs_steps, |_, v| w.write(v)).with_context(|| fail("observations"))?;
+    w.start("actions", dtype, &[rows, footer.act_dim])?;
+    let zeros = vec![0u8; footer.act_dim * size];
+    let act_steps: &dyn Fn(usize) -> bool = if last_action { &all } else { &but_last };
+    stream_floats(table, "action", size, act_steps, |step, v| {
+        w.write(v)?;
+        // Without the source's last actions, OGBench's last row of an episode gets zeros.
+        if !regular && !last_action && step == t - 2 {
+            w.write(&zeros)?;
+        }
+        Ok(())
+    })
+    .with_context(|| fail("actions"))?;
+    if !regular && !extras.iter().any(|p| p.column == "terminals") {
+        w.start("terminals", Dtype::Bool, &[rows])?;
+        let terminals: Vec<u8> = (0..rows).map(|r| u8::from(r % t == t - 1)).collect();
+        w.write(&terminals)?;
     }
-    w.start("terminals", Dtype::Bool, &[n])?;
-    let terminals: Vec<u8> = (0..n).map(|r| u8::from(r % t == t - 1)).collect();
-    w.write(&terminals)?;
+    for p in &extras {
+        let mut shape = vec![rows];
+        shape.extend(&p.shape);
+        w.start_descr(&p.column, &p.dtype, p.elem().size, &shape)?;
+        stream_passthrough(table, p, |bytes| w.write(bytes)).with_context(|| fail(&p.column))?;
+    }
+    if regular {
+        w.start("next_observations", dtype, &[rows, footer.obs_dim])?;
+        stream_floats(table, "obs", size, &but_first, |_, v| w.write(v)).with_context(|| fail("next_observations"))?;
+    }
     use std::io::Write;
     w.finish()?.flush().with_context(|| format!("{}: write failed", out.display()))?;
     file.commit()?;
     Ok(footer)
 }
 
-/// Calls `each(row, bytes)` with every row of `column` (a vector column; desired goals and
-/// actions have T − 1 rows per episode, so their episodes' last rows are skipped) as
-/// little-endian float32 bytes, in table order.
-fn stream_f32(table: &Path, column: &str, mut each: impl FnMut(usize, &[u8]) -> Result<()>) -> Result<()> {
+/// Calls `each(step, bytes)` with the rows of vector `column` on the steps `steps` keeps, as
+/// little-endian floats of `size` bytes, in table order.
+fn stream_floats(
+    table: &Path,
+    column: &str,
+    size: usize,
+    steps: &dyn Fn(usize) -> bool,
+    mut each: impl FnMut(usize, &[u8]) -> Result<()>,
+) -> Result<()> {
     let at = table.display().to_string();
     let (footer, reader) = open_checked(table, &[column], 64)?;
     let t = footer.t;
-    let short = column == "action" || column == "desired_goal";
     let mut row = 0;
     let mut bytes = Vec::new();
     for batch in reader {
@@ -75,25 +114,49 @@ fn stream_f32(table: &Path, column: &str, mut each: impl FnMut(usize, &[u8]) -> 
         let (values, offset) = (list.values(), list.value_offset_at(0));
         for r in 0..batch.num_rows() {
             let step = (row + r) % t;
-            if short && step == t - 1 {
+            if !steps(step) {
                 continue;
+            }
+            if list.is_null(r) {
+                bail!("{at}: row {} (episode {}, step {step}): `{column}` is null", row + r, (row + r) / t);
             }
             bytes.clear();
             let range = offset + r * dim..offset + (r + 1) * dim;
-            match values.data_type() {
-                DataType::Float32 => {
-                    for v in &values.as_primitive::<Float32Type>().values()[range] {
-                        bytes.extend_from_slice(&v.to_le_bytes());
-                    }
+            match (values.data_type(), size) {
+                (DataType::Float32, 4) => {
+                    values.as_primitive::<Float32Type>().values()[range].iter().for_each(|v| bytes.extend(v.to_le_bytes()))
                 }
-                _ => {
-                    for v in &values.as_primitive::<Float64Type>().values()[range] {
-                        bytes.extend_from_slice(&(*v as f32).to_le_bytes());
-                    }
-                }
+                (DataType::Float32, _) => values.as_primitive::<Float32Type>().values()[range]
+                    .iter()
+                    .for_each(|&v| bytes.extend((v as f64).to_le_bytes())),
+                (_, 4) => values.as_primitive::<Float64Type>().values()[range]
+                    .iter()
+                    .for_each(|&v| bytes.extend((v as f32).to_le_bytes())),
+                _ => values.as_primitive::<Float64Type>().values()[range].iter().for_each(|v| bytes.extend(v.to_le_bytes())),
             }
-            each(row + r, &bytes)?;
+            each(step, &bytes)?;
         }
+        row += batch.num_rows();
+    }
+    check_all_read(&at, row, &footer)
+}
+
+/// Calls `each` with the source's bytes of passthrough column `p`, a batch at a time.
+fn stream_passthrough(
+    table: &Path,
+    p: &crate::trajectory::Passthrough,
+    mut each: impl FnMut(&[u8]) -> Result<()>,
+) -> Result<()> {
+    let at = table.display().to_string();
+    let (footer, reader) = open_checked(table, &[p.column.as_str()], 64)?;
+    let mut row = 0;
+    let mut bytes = Vec::new();
+    for batch in reader {
+        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+        check_keys(&at, &batch, row, &footer)?;
+        bytes.clear();
+        append_source_bytes(&mut bytes, p, batch.column_by_name(&p.column).expect("projected"), row, footer.t, &at)?;
+        each(&bytes)?;
         row += batch.num_rows();
     }
     check_all_read(&at, row, &footer)

@@ -37,8 +37,8 @@ use npz::{Dtype, Member};
 
 use crate::task::Task;
 use crate::trajectory::{
-    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, FloatArray, FloatType, Footer, SourceFile,
-    TrajectoryWriter,
+    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough,
+    Per, SourceFile, TrajectoryWriter,
 };
 
 /// OGBench's names of the arrays pgser reads as o, ag, u and g, as error messages give them: the
@@ -79,8 +79,10 @@ pub struct Dataset {
     /// Rows per episode in the file (M: M − 1 for the regular layout) and the episode count.
     pub rows_per_episode: usize,
     pub episodes: usize,
-    /// The members pgser leaves out (qpos, qvel, …).
-    pub skipped: Vec<String>,
+    /// The other members (terminals, qpos, qvel, …), kept as passthrough columns, in file order.
+    pub extras: Vec<(Member, Passthrough)>,
+    /// The members `--drop` leaves out.
+    pub dropped: Vec<String>,
     /// Which observation values are the goal, and when it is reached ([`goal`]).
     pub goal: GoalMap,
 }
@@ -101,7 +103,7 @@ impl Dataset {
     /// Opens the file; its environment comes from its name, or from `task` (`--task
     /// pointmaze-medium-v0`) for a file named otherwise; with `full_goal` the goal is the whole
     /// observation ([`GoalMap::full`]).
-    pub fn open(path: &Path, task: Option<&str>, full_goal: bool) -> Result<Dataset> {
+    pub fn open(path: &Path, task: Option<&str>, full_goal: bool, drop: &[String]) -> Result<Dataset> {
         let at = path.display();
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
         let name = stem.strip_suffix("-val").unwrap_or(stem).to_string();
@@ -156,8 +158,31 @@ impl Dataset {
                 );
             }
         }
-        let used = ["observations", "actions", "terminals", "valids", "next_observations"];
-        let skipped = members.iter().filter(|m| !used.contains(&m.key.as_str())).map(|m| m.key.clone()).collect();
+        // Every member but the three the table's columns are made of is kept as it is, the
+        // episode ends (terminals, valids) included: one value per row of the file, so per
+        // observation, or per transition in the regular layout (whose rows are transitions).
+        let per = if layout == Layout::Regular { Per::Transition } else { Per::Step };
+        let (mut extras, mut dropped) = (Vec::new(), Vec::new());
+        for m in members.iter().filter(|m| !["observations", "actions", "next_observations"].contains(&m.key.as_str())) {
+            if drop.contains(&m.key) {
+                dropped.push(m.key.clone());
+                continue;
+            }
+            if m.shape.is_empty() || m.rows() != n {
+                bail!(
+                    "{at}: {} has shape {:?}, not one row per row of observations ({n}), so no column can keep it; pass \
+                     --drop {} to convert without it",
+                    m.key,
+                    m.shape,
+                    m.key
+                );
+            }
+            let spec = Passthrough::new(&at.to_string(), &m.key, &m.stored_descr(), per, m.shape[1..].to_vec())?;
+            extras.push((m.clone(), spec));
+        }
+        if let Some(k) = drop.iter().find(|k| !dropped.contains(k)) {
+            bail!("--drop {k}: {at} has no array {k:?} to leave out (observations, actions and next_observations are the table itself)");
+        }
         let min = if layout == Layout::Regular { 1 } else { 2 };
         if rows_per_episode < min {
             bail!("{at}: episodes of {rows_per_episode} rows: a pgser episode needs at least one transition");
@@ -171,7 +196,8 @@ impl Dataset {
             actions,
             rows_per_episode,
             episodes: ends.len(),
-            skipped,
+            extras,
+            dropped,
             goal,
         })
     }
@@ -232,7 +258,7 @@ fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
                     Dtype::Bool => v[0] != 0,
                     Dtype::F32 => f32::from_le_bytes(v.try_into().expect("4 bytes")) != 0.0,
                     Dtype::F64 => f64::from_le_bytes(v.try_into().expect("8 bytes")) != 0.0,
-                    Dtype::I32 | Dtype::I64 => v.iter().any(|&b| b != 0),
+                    _ => v.iter().any(|&b| b != 0),
                 };
                 if flag == end_when {
                     ends.push(row + i);
@@ -255,7 +281,7 @@ fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
 
 /// `convert`'s plan for an OGBench file, from its headers and episode ends.
 pub fn check(opts: &ConvertOptions, path: &Path) -> Result<ConvertPlan> {
-    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal)?;
+    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal, &opts.drop)?;
     let take = take(opts, &d)?;
     Ok(ConvertPlan {
         task: d.task(opts.threshold)?,
@@ -290,31 +316,51 @@ fn float_type(d: &Dataset, float32: bool) -> FloatType {
 /// window, not the dataset.
 pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
-    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal)?;
+    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal, &opts.drop)?;
     let episodes = take(opts, &d)?;
     let task = d.task(opts.threshold)?;
     let float = float_type(&d, opts.float32);
     let sha256 = crate::output::sha256_file(path)?;
-    let mut writer = TrajectoryWriter::create(&opts.output, &task, float, opts.row_group_rows, opts.allow_nonfinite)?;
+    let specs: Vec<Passthrough> = d.extras.iter().map(|(_, p)| p.clone()).collect();
+    let kept = specs.iter().map(crate::trajectory::describe).collect();
+    // The distributed files' rows are observations, each with an action: an episode's last one
+    // is kept on its last step (the regular layout's rows are transitions, and have none).
+    let last_action = d.layout != Layout::Regular;
+    let mut writer = TrajectoryWriter::create_with(
+        &opts.output,
+        &task,
+        float,
+        opts.row_group_rows,
+        opts.allow_nonfinite,
+        specs,
+        last_action,
+    )?;
     let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
     bar.set_length(episodes as u64);
     let at = path.display().to_string();
-    let mut run = |obs: &mut dyn Read, act: &mut dyn Read, mut next: Option<&mut dyn Read>| -> Result<()> {
+    // Observations, actions, the regular layout's next observations and every passthrough
+    // member, streamed side by side (one open of the archive each).
+    let mut keys = vec!["observations".to_string(), "actions".to_string()];
+    if d.layout == Layout::Regular {
+        keys.push("next_observations".into());
+    }
+    let core = keys.len();
+    keys.extend(d.extras.iter().map(|(m, _)| m.key.clone()));
+    let mut run = |readers: &mut [&mut dyn Read]| -> Result<()> {
+        let (core_readers, extra_readers) = readers.split_at_mut(core);
+        let [obs, act, rest @ ..] = core_readers else { unreachable!("two core readers at least") };
+        let mut next: Option<&mut dyn Read> = rest.first_mut().map(|n| &mut **n as &mut dyn Read);
         let mut w = Window::new(&d);
         for start in (0..episodes).step_by(window) {
             let k = window.min(episodes - start);
-            w.read(obs, act, &mut next, k).with_context(|| format!("{at}: episodes {start}..{}", start + k))?;
+            w.read(*obs, *act, &mut next, extra_readers, k)
+                .with_context(|| format!("{at}: episodes {start}..{}", start + k))?;
             writer.append(&w.view(&at, k), 0, k)?;
             crate::progress::advance(bar, k as u64)?;
         }
         Ok(())
     };
-    npz::with_member(path, "observations", |obs, _| {
-        npz::with_member(path, "actions", |act, _| match d.layout {
-            Layout::Regular => npz::with_member(path, "next_observations", |n, _| run(obs, act, Some(n))),
-            _ => run(obs, act, None),
-        })
-    })?;
+    npz::with_members(path, &keys, &mut Vec::new(), &mut run)?;
     let mut footer = Footer::new(&task, float, episodes, opts.command.clone());
     footer.sources = vec![SourceFile {
         path: at.clone(),
@@ -334,9 +380,10 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         task.threshold,
         if d.goal.metric == crate::task::GoalMetric::EachObject { " for every cube" } else { "" }
     )];
-    if d.layout != Layout::Regular {
+    if last_action {
         notes.push(format!(
-            "{at}: each episode's last action has no next state and is left out, as OGBench's loader does"
+            "{at}: each episode's last action has no next state: kept on its last step for export, never trained on, \
+             as OGBench's loader drops it"
         ));
     }
     Ok(ConvertSummary {
@@ -345,12 +392,14 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         episodes,
         rows: episodes * footer.t,
         bytes,
-        skipped_keys: d.skipped.iter().map(|k| format!("{at}: {k}")).collect(),
+        skipped_keys: d.dropped.iter().map(|k| format!("{at}: {k}")).collect(),
+        kept,
         notes,
     })
 }
 
-/// One window of episodes as the four WGCSL arrays, in the file's float types.
+/// One window of episodes as the four WGCSL arrays, in the file's float types (u with each
+/// episode's last action where the file has one), and the passthrough members' rows.
 struct Window {
     t: usize,
     goal: GoalMap,
@@ -361,6 +410,8 @@ struct Window {
     raw_obs: Vec<u8>,
     raw_act: Vec<u8>,
     raw_next: Vec<u8>,
+    /// Each passthrough member's spec and bytes per file row, and the window's rows of it.
+    extras: Vec<(Passthrough, usize, Vec<u8>)>,
 }
 
 impl Window {
@@ -375,6 +426,7 @@ impl Window {
             raw_obs: Vec::new(),
             raw_act: Vec::new(),
             raw_next: Vec::new(),
+            extras: d.extras.iter().map(|(m, p)| (p.clone(), m.row_len() * m.dtype.size(), Vec::new())).collect(),
         }
     }
 
@@ -384,6 +436,7 @@ impl Window {
         obs: &mut dyn Read,
         act: &mut dyn Read,
         next: &mut Option<&mut dyn Read>,
+        extras: &mut [&mut dyn Read],
         k: usize,
     ) -> Result<()> {
         let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
@@ -395,6 +448,10 @@ impl Window {
         if let Some(n) = next.as_mut() {
             self.raw_next.resize(self.raw_obs.len(), 0);
             n.read_exact(&mut self.raw_next).context("next_observations are cut short")?;
+        }
+        for ((p, row_bytes, buf), r) in self.extras.iter_mut().zip(extras.iter_mut()) {
+            buf.resize(k * file_rows * *row_bytes, 0);
+            r.read_exact(buf).with_context(|| format!("{} is cut short", p.column))?;
         }
         let (orow, arow, grow) = (od * os, ad * asz, self.goal.goal_dim() * os);
         self.arrays.iter_mut().for_each(Vec::clear);
@@ -412,7 +469,9 @@ impl Window {
             self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag);
             let last = ag[(t - 1) * grow..].to_vec();
             self.arrays[1].extend_from_slice(&ag);
-            self.arrays[2].extend_from_slice(&a[..(t - 1) * arow]);
+            // Every row's action: T of them where rows are observations (the last one kept on the
+            // last step), T − 1 where rows are transitions.
+            self.arrays[2].extend_from_slice(a);
             for _ in 0..t - 1 {
                 self.arrays[3].extend_from_slice(&last);
             }
@@ -423,14 +482,20 @@ impl Window {
     fn view<'a>(&'a self, at: &str, k: usize) -> EpisodeArrays<'a> {
         let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
         let g = self.goal.goal_dim();
-        let spec = [(t, od, os), (t, g, os), (t - 1, ad, asz), (t - 1, g, os)];
+        let act_steps = if self.layout == Layout::Regular { t - 1 } else { t };
+        let spec = [(t, od, os), (t, g, os), (act_steps, ad, asz), (t - 1, g, os)];
         let arrays = std::array::from_fn(|i| FloatArray {
             data: &self.arrays[i],
             size: spec[i].2,
             steps: spec[i].0,
             dim: spec[i].1,
         });
-        EpisodeArrays { origin: at.to_string(), keys: ARRAY_KEYS, arrays, episodes: k }
+        let extras = self
+            .extras
+            .iter()
+            .map(|(p, _, buf)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&buf[..]) })
+            .collect();
+        EpisodeArrays { origin: at.to_string(), keys: ARRAY_KEYS, arrays, episodes: k, extras }
     }
 }
 

@@ -24,27 +24,40 @@ pub enum Dtype {
     Bool,
     F32,
     F64,
+    I8,
+    I16,
     I32,
     I64,
+    U8,
+    U16,
+    U32,
+    U64,
 }
 
 impl Dtype {
     pub fn size(self) -> usize {
         match self {
-            Dtype::Bool => 1,
-            Dtype::F32 | Dtype::I32 => 4,
-            Dtype::F64 | Dtype::I64 => 8,
+            Dtype::Bool | Dtype::I8 | Dtype::U8 => 1,
+            Dtype::I16 | Dtype::U16 => 2,
+            Dtype::F32 | Dtype::I32 | Dtype::U32 => 4,
+            Dtype::F64 | Dtype::I64 | Dtype::U64 => 8,
         }
     }
 
-    fn descr(self) -> &'static str {
+    /// numpy's kind letter.
+    fn kind(self) -> char {
         match self {
-            Dtype::Bool => "|b1",
-            Dtype::F32 => "<f4",
-            Dtype::F64 => "<f8",
-            Dtype::I32 => "<i4",
-            Dtype::I64 => "<i8",
+            Dtype::Bool => 'b',
+            Dtype::F32 | Dtype::F64 => 'f',
+            Dtype::I8 | Dtype::I16 | Dtype::I32 | Dtype::I64 => 'i',
+            _ => 'u',
         }
+    }
+
+    /// numpy's `descr`, little-endian: `<f4`, `|b1`.
+    fn descr(self) -> String {
+        let order = if self.size() == 1 { '|' } else { '<' };
+        format!("{order}{}{}", self.kind(), self.size())
     }
 
     /// The dtype of a `descr` and whether its numbers are big-endian (`>f4`; `=` and `|` are
@@ -59,8 +72,14 @@ impl Dtype {
             "b1" | "?" => Dtype::Bool,
             "f4" => Dtype::F32,
             "f8" => Dtype::F64,
+            "i1" => Dtype::I8,
+            "i2" => Dtype::I16,
             "i4" => Dtype::I32,
             "i8" => Dtype::I64,
+            "u1" => Dtype::U8,
+            "u2" => Dtype::U16,
+            "u4" => Dtype::U32,
+            "u8" => Dtype::U64,
             _ => return None,
         };
         Some((dtype, order && dtype.size() > 1))
@@ -81,9 +100,17 @@ pub struct Member {
     pub key: String,
     pub dtype: Dtype,
     pub shape: Vec<usize>,
+    /// Whether the file stores it big-endian (readers get it little-endian all the same).
+    pub stored_big_endian: bool,
 }
 
 impl Member {
+    /// numpy's `descr` as the file stores it (`<f4`, `>f8`, `|b1`): what an export writes back.
+    pub fn stored_descr(&self) -> String {
+        let d = self.dtype.descr();
+        if self.stored_big_endian { d.replacen('<', ">", 1) } else { d }
+    }
+
     /// Rows (the first dimension; 1 for a 0-d array) and values per row.
     pub fn rows(&self) -> usize {
         self.shape.first().copied().unwrap_or(1)
@@ -156,6 +183,23 @@ pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Mem
         return f(&mut SwapBytes::new(&mut file, size), &m);
     }
     f(&mut file, &m)
+}
+
+/// Calls `f` with a reader of each of `keys`' data, side by side (one open of the archive each,
+/// so that several members stream at once): [`with_member`] for many. `open` holds the readers
+/// opened so far (pass an empty vector).
+pub fn with_members(
+    path: &Path,
+    keys: &[String],
+    open: &mut Vec<&mut dyn Read>,
+    f: &mut dyn FnMut(&mut [&mut dyn Read]) -> Result<()>,
+) -> Result<()> {
+    let Some((key, rest)) = keys.split_first() else { return f(open) };
+    with_member(path, key, |r, _| {
+        let mut next: Vec<&mut dyn Read> = open.iter_mut().map(|x| &mut **x as &mut dyn Read).collect();
+        next.push(r);
+        with_members(path, rest, &mut next, f)
+    })
 }
 
 /// A reader of big-endian numbers of `size` bytes that hands them out little-endian, a buffer
@@ -232,7 +276,7 @@ fn header(r: &mut dyn Read, key: &str) -> Result<(Member, Storage)> {
     let descr = field("descr")?;
     let descr = descr.strip_prefix('\'').and_then(|d| d.split('\'').next()).context("'descr' is not a string")?;
     let (dtype, big_endian) =
-        Dtype::parse(descr).with_context(|| format!("dtype {descr:?}: pgser reads float32/64, int32/64 and bool arrays"))?;
+        Dtype::parse(descr).with_context(|| format!("dtype {descr:?}: pgser reads bool, int, uint and float32/64 arrays"))?;
     let fortran = field("fortran_order")?.starts_with("True");
     let shape = field("shape")?;
     let inner = shape.strip_prefix('(').and_then(|s| s.split(')').next()).context("'shape' is not a tuple")?;
@@ -242,7 +286,7 @@ fn header(r: &mut dyn Read, key: &str) -> Result<(Member, Storage)> {
         .filter(|s| !s.is_empty())
         .map(|s| s.trim_end_matches('L').parse::<usize>().with_context(|| format!("shape entry {s:?}")))
         .collect::<Result<Vec<_>>>()?;
-    Ok((Member { key: key.to_string(), dtype, shape }, Storage { big_endian, fortran }))
+    Ok((Member { key: key.to_string(), dtype, shape, stored_big_endian: big_endian }, Storage { big_endian, fortran }))
 }
 
 /// Writes an `.npz` archive one array at a time, each streamed in: `np.load` reads it, and with
@@ -261,9 +305,15 @@ impl<W: Write + std::io::Seek> NpzWriter<W> {
 
     /// Starts array `key` of `dtype` and `shape`; its bytes follow through [`NpzWriter::write`].
     pub fn start(&mut self, key: &str, dtype: Dtype, shape: &[usize]) -> Result<()> {
+        self.start_descr(key, &dtype.descr(), dtype.size(), shape)
+    }
+
+    /// [`start`](Self::start) with numpy's `descr` as given (`>f8`: the bytes that follow are
+    /// big-endian), for an array given back as its source stored it.
+    pub fn start_descr(&mut self, key: &str, descr: &str, size: usize, shape: &[usize]) -> Result<()> {
         self.check_closed()?;
         let method = if self.compressed { zip::CompressionMethod::Deflated } else { zip::CompressionMethod::Stored };
-        let bytes = shape.iter().map(|&d| d as u64).product::<u64>() * dtype.size() as u64;
+        let bytes = shape.iter().map(|&d| d as u64).product::<u64>() * size as u64;
         let opts = zip::write::FileOptions::default()
             .compression_method(method)
             .large_file(bytes > u32::MAX as u64 / 2)
@@ -272,7 +322,7 @@ impl<W: Write + std::io::Seek> NpzWriter<W> {
         // np.lib.format's version 1.0 header: the dict padded with spaces to a multiple of 64.
         let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
         let tuple = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
-        let mut dict = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {tuple}, }}", dtype.descr());
+        let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {tuple}, }}");
         let total = MAGIC.len() + 2 + 2 + dict.len() + 1;
         dict.push_str(&" ".repeat(total.next_multiple_of(64) - total));
         dict.push('\n');
@@ -328,7 +378,8 @@ mod tests {
             w.write(&[0, 1, 0, 1]).unwrap();
             w.finish().unwrap();
             let m = members(&path).unwrap();
-            assert_eq!(m[0], Member { key: "observations".into(), dtype: Dtype::F32, shape: vec![4, 3] });
+            let want = Member { key: "observations".into(), dtype: Dtype::F32, shape: vec![4, 3], stored_big_endian: false };
+            assert_eq!(m[0], want);
             assert_eq!((m[1].key.as_str(), m[1].dtype, m[1].rows(), m[1].row_len()), ("terminals", Dtype::Bool, 4, 1));
             let got = with_member(&path, "observations", |r, _| {
                 let mut b = Vec::new();
@@ -383,7 +434,7 @@ mod tests {
         let ints_f: Vec<u8> = (0..4).flat_map(|j| (0..3).map(move |i| i * 4 + j)).flat_map(|k| ints[k].to_be_bytes()).collect();
         let big: Vec<f64> = (0..20_000).map(|k| k as f64 * 0.25 - 7.0).collect();
         let big_be: Vec<u8> = big.iter().flat_map(|x| x.to_be_bytes()).collect();
-        let members: Vec<(&str, Vec<u8>)> = vec![
+        let arrays: Vec<(&str, Vec<u8>)> = vec![
             ("le", raw_npy("<f4", false, "(3, 4)", &le)),
             ("be", raw_npy(">f4", false, "(3, 4)", &be)),
             ("f_le", raw_npy("<f4", true, "(3, 4)", &fortran(&a, f32::to_le_bytes))),
@@ -394,7 +445,7 @@ mod tests {
             ("flags", raw_npy("|b1", true, "(2, 2)", &[1, 0, 0, 1])),
         ];
         let mut z = zip::ZipWriter::new(File::create(&path).unwrap());
-        for (k, bytes) in &members {
+        for (k, bytes) in &arrays {
             z.start_file(format!("{k}.npy"), zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Deflated)).unwrap();
             z.write_all(bytes).unwrap();
         }
@@ -412,7 +463,7 @@ mod tests {
         // Booleans have no byte order; a Fortran (2, 2) is transposed: [[1, 0], [0, 1]] either way,
         // so check [[T, F], [F, T]] stored column-major as 1, 0, 0, 1.
         assert_eq!(read_all(&path, "flags").0, vec![1, 0, 0, 1]);
-        assert_eq!(members(&path).unwrap().len(), members.len());
+        assert_eq!(members(&path).unwrap().len(), arrays.len());
     }
 
     #[test]

@@ -137,6 +137,9 @@ pub struct NdArray<'a> {
     /// Native-endian, C-order element bytes; borrowed from the file when no conversion was
     /// needed (and therefore not necessarily aligned: read with `from_le_bytes`).
     pub data: Cow<'a, [u8]>,
+    /// Whether the pickle stored the values big-endian (`data` is native all the same): what a
+    /// passthrough column records, so that an export gives the array back with its dtype.
+    pub stored_big_endian: bool,
 }
 
 impl<'a> NdArray<'a> {
@@ -171,7 +174,8 @@ impl<'a> NdArray<'a> {
         } else {
             data
         };
-        Ok(NdArray { dtype: DType { big_endian: false, ..dtype }, shape, data })
+        let stored_big_endian = dtype.big_endian && dtype.size > 1;
+        Ok(NdArray { dtype: DType { big_endian: false, ..dtype }, shape, data, stored_big_endian })
     }
 
     pub fn len(&self) -> usize {

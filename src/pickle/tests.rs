@@ -114,7 +114,7 @@ fn writer_reproduces_numpy_1_protocol_3_byte_for_byte() {
     let mut out: Vec<write::ArrayOut> =
         arrays.iter().map(|(k, a)| write::ArrayOut::from_bytes(k, a.shape.clone(), &a.data)).collect();
     let mut written = Vec::new();
-    write::write_f64_dict(&mut written, &mut out).unwrap();
+    write::write_dict(&mut written, &mut out).unwrap();
     assert_eq!(written.len(), original.len());
     assert!(written == original, "bytes differ from numpy's");
 }
@@ -126,7 +126,7 @@ fn writer_output_reads_back_and_small_arrays_use_short_bytes() {
     let mut out =
         vec![write::ArrayOut::from_bytes("a", vec![1, 3], &values), write::ArrayOut::from_bytes("b", vec![300], &big)];
     let mut bytes = Vec::new();
-    write::write_f64_dict(&mut bytes, &mut out).unwrap();
+    write::write_dict(&mut bytes, &mut out).unwrap();
     let mut p = parse(&bytes);
     let Obj::Dict(entries) = p.get(p.root()).clone() else { panic!() };
     let shapes: Vec<Vec<usize>> = entries
@@ -143,7 +143,7 @@ fn writer_output_reads_back_and_small_arrays_use_short_bytes() {
     // A single entry is SETITEM, not MARK … SETITEMS.
     let mut one = vec![write::ArrayOut::from_bytes("a", vec![3], &values)];
     let mut bytes = Vec::new();
-    write::write_f64_dict(&mut bytes, &mut one).unwrap();
+    write::write_dict(&mut bytes, &mut one).unwrap();
     assert_eq!(&bytes[bytes.len() - 2..], b"s.");
     parse(&bytes);
 }
@@ -152,6 +152,6 @@ fn writer_output_reads_back_and_small_arrays_use_short_bytes() {
 fn writer_refuses_a_source_of_the_wrong_length() {
     let short = [0u8; 16];
     let mut out = vec![write::ArrayOut::from_bytes("o", vec![3], &short)];
-    let e = write::write_f64_dict(&mut Vec::new(), &mut out).unwrap_err().to_string();
+    let e = write::write_dict(&mut Vec::new(), &mut out).unwrap_err().to_string();
     assert!(e.contains("needs 24 bytes") && e.contains("gave 16"), "{e}");
 }

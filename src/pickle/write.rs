@@ -1,5 +1,6 @@
-//! Writing WGCSL buffers as pickles: a dict of float64 C-order numpy arrays, protocol 3,
-//! opcode for opcode what numpy 1.x's `pickle.dump(d, f, protocol=3)` writes.
+//! Writing WGCSL buffers as pickles: a dict of C-order numpy arrays (float64, or any dtype a
+//! passthrough column gives back), protocol 3, opcode for opcode what numpy 1.x's
+//! `pickle.dump(d, f, protocol=3)` writes.
 //!
 //! Spelled as numpy 1.x spells it (`numpy.core.multiarray._reconstruct`, `numpy.ndarray`,
 //! `numpy.dtype`) because that is the one spelling both numpy 1.x and 2.x load (numpy 2 keeps
@@ -17,18 +18,28 @@ use super::op;
 /// Writes an array's little-endian C-order values into the pickle when called.
 pub type ArraySource<'a> = Box<dyn FnMut(&mut dyn Write) -> io::Result<()> + 'a>;
 
-/// One float64 array of the dict: its key, shape, and the source of its values (exactly
-/// `shape.product() × 8` bytes, which is checked).
+/// One array of the dict: its key, numpy dtype (`<f8`, `>f4`, `|b1`: the bytes the source gives
+/// are in that order), shape, and the source of its values (exactly `shape.product() × size`
+/// bytes, which is checked).
 pub struct ArrayOut<'a> {
     pub key: &'a str,
+    pub descr: String,
     pub shape: Vec<usize>,
     pub data: ArraySource<'a>,
 }
 
 impl<'a> ArrayOut<'a> {
-    /// An array whose bytes are in memory.
+    /// A float64 array whose bytes are in memory.
     pub fn from_bytes(key: &'a str, shape: Vec<usize>, bytes: &'a [u8]) -> Self {
-        ArrayOut { key, shape, data: Box::new(move |w| w.write_all(bytes)) }
+        ArrayOut { key, descr: "<f8".into(), shape, data: Box::new(move |w| w.write_all(bytes)) }
+    }
+
+    /// Bytes per element, from the dtype.
+    fn size(&self) -> io::Result<u64> {
+        self.descr
+            .get(2..)
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("dtype {:?}", self.descr)))
     }
 }
 
@@ -117,16 +128,20 @@ impl Pickler<'_> {
     }
 }
 
-/// The memo indices numpy's first array leaves behind and later arrays refer back to.
+/// The memo indices numpy's first array leaves behind and later arrays refer back to: the
+/// globals, `b'b'`, each dtype written (by its descr), the `numpy.dtype` class and the byte-order
+/// strings (single characters, which Python shares, so pickle memoizes them).
 struct Shared {
     reconstruct: u32,
     ndarray: u32,
     b: u32,
-    dtype: u32,
+    dtypes: Vec<(String, u32)>,
+    dtype_class: Option<u32>,
+    orders: Vec<(char, u32)>,
 }
 
-/// Write `{key: float64 array, …}` (keys in the given order) as a protocol-3 pickle.
-pub fn write_f64_dict(out: &mut dyn Write, arrays: &mut [ArrayOut]) -> io::Result<()> {
+/// Write `{key: array, …}` (keys in the given order) as a protocol-3 pickle.
+pub fn write_dict(out: &mut dyn Write, arrays: &mut [ArrayOut]) -> io::Result<()> {
     let mut p = Pickler { out, memo: 0 };
     p.raw(&[op::PROTO, 3, op::EMPTY_DICT])?;
     p.put()?;
@@ -150,12 +165,12 @@ pub fn write_f64_dict(out: &mut dyn Write, arrays: &mut [ArrayOut]) -> io::Resul
 }
 
 /// `ndarray.__reduce__`: `_reconstruct(ndarray, (0,), b'b')`, then BUILD with
-/// `(1, shape, dtype('f8'), False, raw bytes)`.
+/// `(1, shape, dtype, False, raw bytes)`.
 fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -> io::Result<()> {
     let len = a
         .shape
         .iter()
-        .try_fold(8u64, |n, &d| n.checked_mul(d as u64))
+        .try_fold(a.size()?, |n, &d| n.checked_mul(d as u64))
         .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "array size overflows"))?;
     let Ok(len32) = u32::try_from(len) else {
         return Err(io::Error::new(
@@ -187,13 +202,16 @@ fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -
     p.raw(&[op::MARK])?;
     p.int(1)?;
     p.int_tuple(&a.shape)?;
-    match (ids, shared.as_ref()) {
-        (Some((reconstruct, ndarray, b)), _) => {
-            let dtype = write_dtype(p)?;
-            *shared = Some(Shared { reconstruct, ndarray, b, dtype });
+    if let Some((reconstruct, ndarray, b)) = ids {
+        *shared = Some(Shared { reconstruct, ndarray, b, dtypes: Vec::new(), dtype_class: None, orders: Vec::new() });
+    }
+    let s = shared.as_mut().expect("set by the first array");
+    match s.dtypes.iter().find(|(d, _)| *d == a.descr) {
+        Some(&(_, id)) => p.get(id)?,
+        None => {
+            let id = write_dtype(p, &a.descr, s)?;
+            s.dtypes.push((a.descr.clone(), id));
         }
-        (None, Some(s)) => p.get(s.dtype)?,
-        (None, None) => unreachable!("later arrays always have the shared ids"),
     }
     p.raw(&[op::NEWFALSE])?;
     if len32 < 256 {
@@ -216,17 +234,33 @@ fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -
     p.raw(&[op::BUILD])
 }
 
-/// `dtype('f8', False, True)` then BUILD with `(3, '<', None, None, None, -1, -1, 0)`.
-fn write_dtype(p: &mut Pickler) -> io::Result<u32> {
-    p.global("numpy", "dtype")?;
-    p.str("f8")?;
+/// `dtype('f8', False, True)` then BUILD with `(3, '<', None, None, None, -1, -1, 0)`: numpy's
+/// reduction of a dtype, its type string without the byte order, which the state carries
+/// (`|` for one-byte types).
+fn write_dtype(p: &mut Pickler, descr: &str, s: &mut Shared) -> io::Result<u32> {
+    let mut chars = descr.chars();
+    let order = chars.next().filter(|c| matches!(c, '<' | '>' | '|'));
+    let (Some(order), typestr) = (order, chars.as_str()) else {
+        return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("dtype {descr:?}: no byte order")));
+    };
+    match s.dtype_class {
+        Some(id) => p.get(id)?,
+        None => s.dtype_class = Some(p.global("numpy", "dtype")?),
+    }
+    p.str(typestr)?;
     p.raw(&[op::NEWFALSE, op::NEWTRUE, op::TUPLE3])?;
     p.put()?;
     p.raw(&[op::REDUCE])?;
     let dtype = p.put()?;
     p.raw(&[op::MARK])?;
     p.int(3)?;
-    p.str("<")?;
+    match s.orders.iter().find(|(c, _)| *c == order) {
+        Some(&(_, id)) => p.get(id)?,
+        None => {
+            let id = p.str(&order.to_string())?;
+            s.orders.push((order, id));
+        }
+    }
     p.raw(&[op::NONE, op::NONE, op::NONE])?;
     p.int(-1)?;
     p.int(-1)?;

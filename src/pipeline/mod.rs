@@ -262,6 +262,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             exact_length: false,
             row_group_rows: 65_536,
             full_goal: false,
+            drop: Vec::new(),
             command: cmd("convert"),
         }),
     });

@@ -18,6 +18,7 @@ use arrow_buffer::{BooleanBuffer, NullBuffer, ScalarBuffer};
 use arrow_schema::{DataType, Field, SchemaRef};
 use rayon::prelude::*;
 
+use super::extra::{self, ExtraArray, Passthrough};
 use super::{FloatType, Footer, schema};
 use crate::table::TableWriter;
 use crate::task::Task;
@@ -39,6 +40,8 @@ pub struct FloatArray<'a> {
 /// The four arrays of N episodes: o `[N,T,obs]`, ag `[N,T,goal]`, u `[N,T−1,act]`, g `[N,T−1,goal]`.
 #[derive(Debug, Clone)]
 pub struct EpisodeArrays<'a> {
+    /// The source's other arrays, kept as passthrough columns (in the writer's order).
+    pub extras: Vec<ExtraArray<'a>>,
     /// Names the data in error messages: a file path, or what was simulated.
     pub origin: String,
     /// What the source calls o, ag, u and g, for error messages: [`KEYS`] for WGCSL's pickles and
@@ -72,6 +75,10 @@ pub struct TrajectoryWriter {
     allow_nonfinite: bool,
     per_group: usize,
     episodes: usize,
+    /// The passthrough columns, after the six of every table.
+    extras: Vec<Passthrough>,
+    /// Whether `action` holds each episode's last action on step T − 1 (OGBench's files have it).
+    last_action: bool,
 }
 
 impl TrajectoryWriter {
@@ -83,10 +90,37 @@ impl TrajectoryWriter {
         row_group_rows: usize,
         allow_nonfinite: bool,
     ) -> Result<Self> {
-        let schema = schema(float, task);
+        Self::create_with(dest, task, float, row_group_rows, allow_nonfinite, Vec::new(), false)
+    }
+
+    /// [`create`](Self::create) for a source with passthrough arrays (`extras`, in the order
+    /// each [`EpisodeArrays::extras`] gives them) and, with `last_action`, an action on every
+    /// episode's last step (`u` of T steps, not T − 1).
+    pub fn create_with(
+        dest: &Path,
+        task: &Task,
+        float: FloatType,
+        row_group_rows: usize,
+        allow_nonfinite: bool,
+        extras: Vec<Passthrough>,
+        last_action: bool,
+    ) -> Result<Self> {
+        let mut fields: Vec<arrow_schema::FieldRef> = schema(float, task).fields().iter().cloned().collect();
+        fields.extend(extras.iter().map(|p| Arc::new(p.field())));
+        let schema = Arc::new(arrow_schema::Schema::new(fields));
         let table = TableWriter::create(dest, schema.clone())?;
         let per_group = episodes_per_group(row_group_rows, task.t);
-        Ok(Self { table, schema, task: task.clone(), float, allow_nonfinite, per_group, episodes: 0 })
+        Ok(Self {
+            table,
+            schema,
+            task: task.clone(),
+            float,
+            allow_nonfinite,
+            per_group,
+            episodes: 0,
+            extras,
+            last_action,
+        })
     }
 
     /// Episodes per row group.
@@ -122,7 +156,8 @@ impl TrajectoryWriter {
 
     fn check_shape(&self, src: &EpisodeArrays) -> Result<()> {
         let t = &self.task;
-        let want = [(t.t, t.obs_dim), (t.t, t.goal_dim), (t.t - 1, t.act_dim), (t.t - 1, t.goal_dim)];
+        let act_steps = if self.last_action { t.t } else { t.t - 1 };
+        let want = [(t.t, t.obs_dim), (t.t, t.goal_dim), (act_steps, t.act_dim), (t.t - 1, t.goal_dim)];
         for ((key, a), (steps, dim)) in KEYS.iter().zip(&src.arrays).zip(want) {
             let bytes = src.episodes * steps * dim * a.size;
             if (a.steps, a.dim) != (steps, dim) || !matches!(a.size, 4 | 8) || a.data.len() != bytes {
@@ -138,18 +173,36 @@ impl TrajectoryWriter {
                 );
             }
         }
+        let names = |v: &mut dyn Iterator<Item = &Passthrough>| v.map(|p| p.column.clone()).collect::<Vec<_>>();
+        if names(&mut src.extras.iter().map(|e| &e.spec)) != names(&mut self.extras.iter()) {
+            bail!(
+                "{}: passthrough arrays {:?} where the table has {:?}",
+                src.origin,
+                names(&mut src.extras.iter().map(|e| &e.spec)),
+                names(&mut self.extras.iter())
+            );
+        }
+        for e in &src.extras {
+            let want = src.episodes * e.spec.episode_bytes(t.t);
+            if e.data.len() != want {
+                bail!("{}: key '{}' has {} bytes; {} episodes of it need {want}", src.origin, e.spec.column, e.data.len(), src.episodes);
+            }
+        }
         Ok(())
     }
 
-    /// Write the footer and move the file into place. Returns its size in bytes.
+    /// Write the footer and move the file into place. Returns its size in bytes. The footer
+    /// gets the passthrough columns' records and the last-action flag from the writer.
     pub fn finish(self, footer: &Footer) -> Result<u64> {
         debug_assert_eq!(footer.episodes, self.episodes);
+        let footer = Footer { passthrough: self.extras.clone(), last_action: self.last_action, ..footer.clone() };
         self.table.finish(&serde_json::to_value(footer)?)
     }
 
     /// Write the footer, leaving the file for the caller to commit (`TableWriter::finish_staged`).
     pub fn finish_staged(self, footer: &Footer) -> Result<crate::output::AtomicFile> {
         debug_assert_eq!(footer.episodes, self.episodes);
+        let footer = Footer { passthrough: self.extras.clone(), last_action: self.last_action, ..footer.clone() };
         self.table.finish_staged(&serde_json::to_value(footer)?)
     }
 }
@@ -172,6 +225,9 @@ fn build_batch(
     // Table column order: obs (o), achieved_goal (ag), desired_goal (g), action (u).
     for key_index in [0, 1, 3, 2] {
         columns.push(vector_column(src, key_index, e0, e1, out, allow_nonfinite)?);
+    }
+    for e in &src.extras {
+        columns.push(extra::column(e, t, e0, e1)?);
     }
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
 }
@@ -306,7 +362,7 @@ mod tests {
     fn view<'a>(data: &'a [Vec<u8>; 4], task: &Task) -> EpisodeArrays<'a> {
         let dims = [(task.t, 2), (task.t, 1), (task.t - 1, 1), (task.t - 1, 1)];
         let arrays = std::array::from_fn(|k| FloatArray { data: &data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
-        EpisodeArrays { origin: "tiny.pkl".into(), keys: KEYS, arrays, episodes: 5 }
+        EpisodeArrays { origin: "tiny.pkl".into(), keys: KEYS, arrays, episodes: 5 , extras: Vec::new() }
     }
 
     #[test]

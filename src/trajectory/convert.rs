@@ -14,6 +14,7 @@ use indicatif::ProgressBar;
 use sha2::{Digest, Sha256};
 
 use super::batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
+use super::extra::{self, ExtraArray, Passthrough, Per};
 use super::{FloatType, Footer, SourceFile};
 use crate::output::hex;
 use crate::pickle::{DTypeKind, MappedFile, NdArray, Obj, Pickle};
@@ -58,6 +59,11 @@ pub struct ConvertOptions {
     /// observation's Euclidean distance, is then required.
     #[arg(long)]
     pub full_goal: bool,
+    /// Leave the source's array KEY out of the table (repeat for several). Every array that is not
+    /// one of pgser's four is otherwise kept as a column of its own, so that export gives the
+    /// source back whole; one that a table cannot hold is refused by name.
+    #[arg(long = "drop", value_name = "KEY")]
+    pub drop: Vec<String>,
     /// The command line, recorded in the footer (set by the caller, not a flag).
     #[arg(skip)]
     pub command: String,
@@ -70,17 +76,21 @@ pub struct ConvertSummary {
     pub episodes: usize,
     pub rows: usize,
     pub bytes: u64,
-    /// "file: key" for keys that are not part of the WGCSL format and were left out.
+    /// "file: key" for the keys `--drop` left out.
     pub skipped_keys: Vec<String>,
+    /// The passthrough columns the table keeps: "column (per step, <f8 [1])".
+    pub kept: Vec<String>,
     /// Other things the user should know about the conversion, one line each.
     pub notes: Vec<String>,
 }
 
-/// One input's four arrays, validated.
+/// One input's four arrays, validated, and its other arrays.
 struct Source<'a> {
     path: &'a Path,
     /// o, ag, u, g in native C order.
     arrays: [NdArray<'a>; 4],
+    /// The other arrays, kept as passthrough columns (little-endian, C order).
+    extras: Vec<ExtraArray<'a>>,
     episodes: usize,
     take: usize,
 }
@@ -99,7 +109,12 @@ impl Source<'_> {
             let a = &self.arrays[k];
             FloatArray { data: &a.data, size: a.dtype.size, steps: a.shape[1], dim: a.shape[2] }
         });
-        EpisodeArrays { origin: self.path.display().to_string(), keys: super::batch::KEYS, arrays, episodes: self.episodes }
+        let extras = self
+            .extras
+            .iter()
+            .map(|e| ExtraArray { spec: e.spec.clone(), data: std::borrow::Cow::Borrowed(&e.data[..]) })
+            .collect();
+        EpisodeArrays { origin: self.path.display().to_string(), keys: KEYS, arrays, episodes: self.episodes, extras }
     }
 }
 
@@ -118,7 +133,7 @@ pub struct ConvertPlan {
 
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     let maps = open_inputs(opts)?;
-    let (sources, _, float_type, task) = read_sources(opts, &maps)?;
+    let (sources, _, float_type, task, _) = read_sources(opts, &maps)?;
     Ok(ConvertPlan {
         task,
         float_type,
@@ -140,14 +155,15 @@ fn open_inputs(opts: &ConvertOptions) -> Result<Vec<MappedFile>> {
     opts.inputs.iter().map(|p| MappedFile::open(p).with_context(|| format!("{}: cannot open", p.display()))).collect()
 }
 
-/// The validated sources, the keys skipped, the output's float type and the task.
-type Sources<'a> = (Vec<Source<'a>>, Vec<String>, FloatType, Task);
+/// The validated sources, the keys skipped, the output's float type, the task, and the
+/// passthrough columns (each source's extras in their order).
+type Sources<'a> = (Vec<Source<'a>>, Vec<String>, FloatType, Task, Vec<Passthrough>);
 
 fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<Sources<'a>> {
     let mut skipped_keys = Vec::new();
     let mut sources = Vec::with_capacity(maps.len());
     for (i, (path, map)) in opts.inputs.iter().zip(maps).enumerate() {
-        let (mut src, skipped) = read_wgcsl(path, map.bytes())?;
+        let (mut src, skipped) = read_wgcsl(path, map.bytes(), &opts.drop)?;
         skipped_keys.extend(skipped.into_iter().map(|k| format!("{}: {k}", path.display())));
         if let Some(ks) = &opts.episodes {
             if ks[i] > src.episodes {
@@ -163,7 +179,19 @@ fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<
     if total == 0 {
         bail!("{}: no episodes to write (every input was empty or took 0)", opts.inputs[0].display());
     }
-    Ok((sources, skipped_keys, float_type, task))
+    if let Some(k) = opts.drop.iter().find(|k| !skipped_keys.iter().any(|s| s.ends_with(&format!("key '{k}'")))) {
+        bail!("--drop {k}: no input has a key '{k}' to leave out");
+    }
+    // Every source's passthrough arrays, in the first source's order.
+    let specs: Vec<(String, Vec<Passthrough>)> = sources
+        .iter()
+        .map(|s| (s.path.display().to_string(), s.extras.iter().map(|e| e.spec.clone()).collect()))
+        .collect();
+    let extras = extra::merge(&specs)?;
+    for s in &mut sources {
+        s.extras.sort_by_key(|e| extras.iter().position(|p| p.column == e.spec.column));
+    }
+    Ok((sources, skipped_keys, float_type, task, extras))
 }
 
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
@@ -172,12 +200,20 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     std::thread::scope(|scope| {
         let hashing = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
         let written = (|| {
-            let (sources, skipped_keys, float_type, task) = read_sources(opts, &maps)?;
+            let (sources, skipped_keys, float_type, task, extras) = read_sources(opts, &maps)?;
             let total: usize = sources.iter().map(|s| s.take).sum();
+            let kept = extras.iter().map(describe).collect();
 
             bar.set_length((total * task.t) as u64);
-            let mut writer =
-                TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
+            let mut writer = TrajectoryWriter::create_with(
+                &opts.output,
+                &task,
+                float_type,
+                opts.row_group_rows,
+                opts.allow_nonfinite,
+                extras,
+                false,
+            )?;
             // A window of row groups per call keeps every thread busy; whole groups per window
             // keep the row groups where they would be in one call.
             let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
@@ -193,13 +229,13 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
                     }
                 }
             }
-            anyhow::Ok((sources, skipped_keys, float_type, task, total, writer))
+            anyhow::Ok((sources, skipped_keys, kept, float_type, task, total, writer))
         })();
         // Joined on every path, errors included: a scoped thread whose handle is dropped unjoined
         // is waited for only until its closure returns, and its OS thread is still exiting after
         // `convert` has returned (LeakSanitizer saw its thread record: fuzz/wgcsl).
         let hashes = hashing.join().expect("hashing thread panicked");
-        let (sources, skipped_keys, float_type, task, total, writer) = written?;
+        let (sources, skipped_keys, kept, float_type, task, total, writer) = written?;
         let mut footer = Footer::new(&task, float_type, total, opts.command.clone());
         footer.sources = sources
             .iter()
@@ -221,9 +257,21 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
             rows: total * footer.t,
             bytes,
             skipped_keys,
+            kept,
             notes: vec![],
         })
     })
+}
+
+/// "info_is_success (<f8 [1] per transition)": a passthrough column as the convert summary
+/// names it.
+pub(crate) fn describe(p: &Passthrough) -> String {
+    let per = match p.per {
+        Per::Step => "step",
+        Per::Transition => "transition",
+        Per::Episode => "episode",
+    };
+    format!("{} ({} {:?} per {per})", p.column, p.dtype, p.shape)
 }
 
 /// SHA-256 of a mapped file, releasing each part from memory once hashed.
@@ -236,9 +284,10 @@ fn sha256_releasing(map: &MappedFile) -> String {
     hex(&h.finalize())
 }
 
-/// Parse one pickle and check it is a WGCSL buffer: a dict with `o`, `ag`, `u`, `g`.
-/// Returns the source and the names of keys that were skipped.
-fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<String>)> {
+/// Parse one pickle and check it is a WGCSL buffer: a dict with `o`, `ag`, `u`, `g`. Its other
+/// arrays become passthrough columns, except those `drop` names; anything a table cannot hold
+/// is refused by name. Returns the source and the keys dropped.
+fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(Source<'a>, Vec<String>)> {
     let at = path.display();
     let mut pickle = Pickle::parse(bytes).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
     let Obj::Dict(entries) = pickle.get(pickle.root()).clone() else {
@@ -249,18 +298,27 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
     };
     let mut found: [Option<NdArray<'a>>; 4] = [None, None, None, None];
     let mut skipped = Vec::new();
+    let mut others: Vec<(String, NdArray<'a>)> = Vec::new();
     for (k, v) in entries {
         let Some(name) = pickle.as_text(k).map(|s| s.into_owned()) else {
-            skipped.push(format!("non-string key of type {}", pickle.get(k).type_name()));
-            continue;
+            bail!(
+                "{at}: a key of type {} (not a string): a table column needs a name; write the buffer without it",
+                pickle.get(k).type_name()
+            );
         };
-        let Some(slot) = KEYS.iter().position(|&key| key == name) else {
+        if drop.contains(&name) && !KEYS.contains(&name.as_str()) {
             skipped.push(format!("key '{name}'"));
             continue;
-        };
-        match pickle.take(v) {
-            Obj::Array(a) => found[slot] = Some(a),
-            other => bail!("{at}: key '{name}' is a {}, not a numpy array", other.type_name()),
+        }
+        let slot = KEYS.iter().position(|&key| key == name);
+        match (pickle.take(v), slot) {
+            (Obj::Array(a), Some(slot)) => found[slot] = Some(a),
+            (Obj::Array(a), None) => others.push((name, a)),
+            (other, Some(_)) => bail!("{at}: key '{name}' is a {}, not a numpy array", other.type_name()),
+            (other, None) => bail!(
+                "{at}: key '{name}' is a {}, not a numpy array: a table keeps arrays; pass --drop {name} to convert without it",
+                other.type_name()
+            ),
         }
     }
     let missing: Vec<&str> = KEYS.iter().zip(&found).filter(|(_, a)| a.is_none()).map(|(k, _)| *k).collect();
@@ -306,7 +364,27 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8]) -> Result<(Source<'a>, Vec<St
         bail!("{at}: goal dimension differs: ag has {ag_dim} values per step, g has {g_dim}");
     }
     let episodes = n[0];
-    Ok((Source { path, arrays, episodes, take: episodes }, skipped))
+    let mut extras = Vec::with_capacity(others.len());
+    for (name, a) in others {
+        if a.shape.first() != Some(&episodes) {
+            bail!(
+                "{at}: key '{name}' has shape {}; an array kept beside o, ag, u, g has the {episodes} episodes first;                  pass --drop {name} to convert without it",
+                a.shape_text()
+            );
+        }
+        let per = Per::of(a.shape.get(1).copied(), t);
+        let shape = a.shape[if per == Per::Episode { 1 } else { 2 }..].to_vec();
+        let kind = match a.dtype.kind {
+            DTypeKind::Float => 'f',
+            DTypeKind::Int => 'i',
+            DTypeKind::UInt => 'u',
+            DTypeKind::Bool => 'b',
+        };
+        let order = if a.stored_big_endian { '>' } else { '<' };
+        let spec = Passthrough::new(&at.to_string(), &name, &format!("{order}{kind}{}", a.dtype.size), per, shape)?;
+        extras.push(ExtraArray { spec, data: a.data });
+    }
+    Ok((Source { path, arrays, extras, episodes, take: episodes }, skipped))
 }
 
 fn output_float(sources: &[Source], float32: bool) -> Result<FloatType> {

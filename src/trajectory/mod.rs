@@ -4,6 +4,7 @@
 
 mod batch;
 mod convert;
+pub mod extra;
 pub mod read;
 
 use std::sync::Arc;
@@ -15,7 +16,8 @@ use crate::table::SCHEMA_VERSION;
 use crate::task::{GoalMetric, Task};
 
 pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
-pub(crate) use convert::task_for;
+pub use extra::{ExtraArray, Passthrough, Per};
+pub(crate) use convert::{describe, task_for};
 pub use convert::{ConvertOptions, ConvertPlan, ConvertSummary, check as check_convert, convert};
 pub use read::Episodes;
 
@@ -78,6 +80,10 @@ fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
 /// The `pgser` footer of a trajectory table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Footer {
@@ -101,6 +107,14 @@ pub struct Footer {
     pub policy: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// The source's arrays that are not pgser's four, each a column of its own
+    /// ([`extra`]); absent when none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub passthrough: Vec<Passthrough>,
+    /// `action` holds each episode's last action on step T − 1, where the source had one
+    /// (OGBench's files); absent (false) when that row is null.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub last_action: bool,
     pub command: String,
     pub pgser_version: String,
 }
@@ -125,6 +139,8 @@ impl Footer {
             sources: Vec::new(),
             policy: None,
             seed: None,
+            passthrough: Vec::new(),
+            last_action: false,
             command,
             pgser_version: env!("CARGO_PKG_VERSION").to_string(),
         }

@@ -151,12 +151,30 @@ pub(crate) fn open_checked(
     let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
     let indices = check_schema(&at, builder.schema(), &footer, dims)?;
     let names = ["episode", "step"].into_iter().chain(VECTORS);
+    // Passthrough columns asked for by name: listed in the footer, and of the type it says.
+    let mut extra = Vec::new();
+    for &c in columns.iter().filter(|c| !VECTORS.contains(c) && !matches!(**c, "episode" | "step")) {
+        let p = footer
+            .passthrough
+            .iter()
+            .find(|p| p.column == c)
+            .with_context(|| format!("{at}: no column `{c}` among the table's passthrough columns"))?;
+        let i = builder.schema().index_of(c).map_err(|_| {
+            anyhow::anyhow!("{at}: the footer lists the passthrough column `{c}` but the file has no such column")
+        })?;
+        let (got, want) = (builder.schema().field(i).data_type(), p.field().data_type().clone());
+        if *got != want {
+            bail!("{at}: `{c}` is {got}, but the footer says {} values of shape {:?} ({want})", p.dtype, p.shape);
+        }
+        extra.push((i, c));
+    }
     // The bytes of every column chunk read, against the footer's checksums, before decoding.
-    let read: Vec<&str> = names.clone().filter(|n| matches!(*n, "episode" | "step") || columns.contains(n)).collect();
+    let mut read: Vec<&str> = names.clone().filter(|n| matches!(*n, "episode" | "step") || columns.contains(n)).collect();
+    read.extend(extra.iter().map(|&(_, c)| c));
     let verifier = crate::table::Verifier::new(path, builder.metadata())?;
     verifier.check(&verifier.columns_of(&read))?;
     let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
-    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i));
+    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i).chain(extra.iter().map(|&(i, _)| i)));
     let reader = builder
         .with_projection(mask)
         .with_batch_size(batch_episodes.max(1).saturating_mul(footer.t))

@@ -273,6 +273,11 @@ pub enum Command {
         /// .npz file (ogbench: named after the dataset, NAME.npz) to create.
         #[arg(short, long)]
         output: PathBuf,
+        /// Leave out a passthrough column (an array of the source that is not pgser's), or
+        /// `last_action` (each episode's last action, which OGBench files have): the explicit choice
+        /// where the format cannot hold it, which export otherwise refuses, naming it. Repeat for several.
+        #[arg(long = "drop", value_name = "NAME")]
+        drop: Vec<String>,
     },
     /// Check pgser files for corruption: a table's column chunks and a checkpoint's (or resume
     /// state's) tensors against the checksums written with them. One line per file; exit 1 if

@@ -33,7 +33,10 @@ pub(crate) fn main() -> ExitCode {
             let s = convert::convert(&opts, &bar)?;
             bar.finish_and_clear();
             for k in &s.skipped_keys {
-                eprintln!("pgser-etl: note: skipped {k} (not part of the WGCSL format)");
+                eprintln!("pgser-etl: note: left out {k} (--drop)");
+            }
+            if !s.kept.is_empty() {
+                eprintln!("pgser-etl: note: kept as columns of their own: {}", s.kept.join(", "));
             }
             for note in &s.notes {
                 eprintln!("pgser-etl: note: {note}");
@@ -267,8 +270,8 @@ pub(crate) fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Export { table, format, output } => {
-            let s = convert::export(&minari::ExportOptions { table, format, output: output.clone() })?;
+        Command::Export { table, format, output, drop } => {
+            let s = convert::export(&minari::ExportOptions { table, format, output: output.clone(), drop })?;
             eprintln!("wrote {}: {} episodes of {} (T = {})", output.display(), s.episodes, s.task, s.t);
             Ok(())
         }
