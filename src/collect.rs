@@ -197,7 +197,7 @@ impl Chunk {
         let dims = layout(task);
         let arrays =
             std::array::from_fn(|k| FloatArray { data: &self.data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
-        EpisodeArrays { origin, keys: KEYS, arrays, episodes: self.episodes , extras: Vec::new() }
+        EpisodeArrays { origin, keys: KEYS, arrays, episodes: self.episodes, extras: Vec::new() }
     }
 }
 

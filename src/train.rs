@@ -328,7 +328,10 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
                 run.save(&agent, i)?;
             }
             saved_at = Some(u);
-            progress::milestone(bar, &saved_line(&runs, u, cfg.updates, (u - start_updates, started.elapsed()), by_success));
+            progress::milestone(
+                bar,
+                &saved_line(&runs, u, cfg.updates, (u - start_updates, started.elapsed()), by_success),
+            );
         }
         bar.set_position(u);
     }

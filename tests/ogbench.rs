@@ -21,7 +21,9 @@ fn convert_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
 
 /// The three layouts of one dataset make one table: T = 101 observations per episode, the goal
 /// the point's x, y, each transition's desired goal its episode's last position, and the rows
-/// those of the file (observations all, actions but each episode's last).
+/// those of the file (observations all; actions all, each episode's last kept on its last step
+/// where the file has it: not in the regular layout, whose rows are transitions). Each keeps its
+/// file's other arrays beside them (tests/passthrough.rs).
 #[test]
 fn every_layout_of_a_dataset_makes_the_same_table() {
     let dir = tempfile::tempdir().unwrap();
@@ -41,9 +43,18 @@ fn every_layout_of_a_dataset_makes_the_same_table() {
     .collect();
     let (t, _) = &tables[0];
     assert_eq!(t.num_rows(), 404);
-    for (other, _) in &tables[1..] {
-        assert_eq!(other.columns(), t.columns(), "a layout converts to other values");
+    let (compact, regular) = (&tables[1].0, &tables[2].0);
+    // episode, step, obs, achieved_goal, desired_goal: the same; action: the same where both
+    // layouts have it.
+    for other in [compact, regular] {
+        assert_eq!(other.columns()[..5], t.columns()[..5], "a layout converts to other values");
     }
+    assert_eq!(compact.column(5), t.column(5), "the compact layout's actions");
+    let transitions: Vec<u32> = (0..404u32).filter(|r| r % 101 != 100).collect();
+    let rows = arrow_array::UInt32Array::from(transitions);
+    let pick = |b: &arrow_array::RecordBatch| arrow_select::take::take(b.column(5), &rows, None).unwrap();
+    use arrow_array::Array;
+    assert_eq!(pick(regular).to_data(), pick(t).to_data(), "the regular layout's actions");
     let footer = pgser::table::read_footer(&dir.path().join("t0.parquet")).unwrap();
     assert_eq!(
         (footer["task"].as_str(), footer["T"].as_u64(), footer["success_threshold"].as_f64()),
@@ -77,11 +88,9 @@ fn every_layout_of_a_dataset_makes_the_same_table() {
             let last = e * 101 + 100;
             assert_eq!(col("desired_goal", row).unwrap(), obs[last * 2..last * 2 + 2], "row {row}");
         } else {
-            assert_eq!(
-                (col("action", row), col("desired_goal", row)),
-                (None, None),
-                "row {row}: the last observation's"
-            );
+            // The file's last action of the episode, kept for export; no goal after the last step.
+            assert_eq!(col("action", row).unwrap(), act[row * 2..row * 2 + 2], "row {row}");
+            assert_eq!(col("desired_goal", row), None, "row {row}: the last observation's");
         }
     }
 }

@@ -46,7 +46,8 @@ fn write(path: &Path, data: &[Vec<u8>; 4], size: usize, float: FloatType, nonfin
     let shape = [(T, 3), (T, 2), (T - 1, 1), (T - 1, 2)];
     let n = data[0].len() / (T * 3 * size);
     let arrays = std::array::from_fn(|k| FloatArray { data: &data[k], size, steps: shape[k].0, dim: shape[k].1 });
-    let src = EpisodeArrays { origin: "test".into(), keys: pgser::trajectory::KEYS, arrays, episodes: n, extras: Vec::new() };
+    let src =
+        EpisodeArrays { origin: "test".into(), keys: pgser::trajectory::KEYS, arrays, episodes: n, extras: Vec::new() };
     // 7 episodes per row group: groups and the reader's 64-episode batches fall out of step.
     let mut w = TrajectoryWriter::create(path, &task(), float, 7 * T, nonfinite).unwrap();
     w.append(&src, 0, n).unwrap();

@@ -40,7 +40,7 @@ use crate::env::GoalEnv;
 use crate::env::pointmaze::{self, DatasetKind, PointMazeEnv, Recipe};
 use crate::ogbench::npz::{Dtype, NpzWriter};
 use crate::task::Task;
-use crate::trajectory::{EpisodeArrays, FloatArray, FloatType, Footer, TrajectoryWriter};
+use crate::trajectory::{EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough, Per, TrajectoryWriter};
 
 /// The arrays of OGBench's dataset files, in the order the generator writes them.
 const MEMBERS: [(&str, Dtype); 5] = [
@@ -207,13 +207,30 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
         let t = train.finish(opts.episodes * r.rows)?;
         t + v
     } else {
-        let mut w = TrajectoryWriter::create(&opts.output, &task, FloatType::Float32, opts.row_group_rows, false)?;
+        // The table `convert` makes of the .npz: terminals, qpos and qvel as passthrough columns,
+        // each episode's last action on its last step.
+        let origin = format!("{} (simulated {})", opts.output.display(), opts.task);
+        let specs = MEMBERS[2..]
+            .iter()
+            .map(|&(key, dtype)| {
+                let (descr, shape) = if dtype == Dtype::Bool { ("|b1", vec![]) } else { ("<f4", vec![2]) };
+                Passthrough::new(&origin, key, descr, Per::Step, shape)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut w = TrajectoryWriter::create_with(
+            &opts.output,
+            &task,
+            FloatType::Float32,
+            opts.row_group_rows,
+            false,
+            specs.clone(),
+            true,
+        )?;
         for start in (0..opts.episodes).step_by(CHUNK) {
             let chunk = simulate(opts, &r, noise, start..(start + CHUNK).min(opts.episodes), bar)?;
             tally(&chunk);
-            let arrays = table_arrays(&chunk, r.rows);
-            let origin = format!("{} (simulated {})", opts.output.display(), opts.task);
-            w.append(&view(&arrays, origin, chunk.len(), r.rows), 0, chunk.len())?;
+            let arrays = table_arrays(&chunk);
+            w.append(&view(&arrays, &specs, origin.clone(), chunk.len(), r.rows), 0, chunk.len())?;
         }
         let mut footer = Footer::new(&task, FloatType::Float32, opts.episodes, opts.command.clone());
         footer.policy = Some(format!("oracle:{} noise {noise}", opts.task));
@@ -237,27 +254,43 @@ pub fn val_file(path: &Path) -> PathBuf {
     path.with_file_name(format!("{stem}-val.npz"))
 }
 
-/// The four table arrays of a chunk, as `convert` makes them from the `.npz` rows: o = the
-/// observations, ag = their x, y, u = the actions but the last, g = the last position.
-fn table_arrays(chunk: &[Rows], t: usize) -> [Vec<u8>; 4] {
-    let mut a: [Vec<u8>; 4] = Default::default();
+/// The table arrays of a chunk, as `convert` makes them from the `.npz` rows: o = the
+/// observations, ag = their x, y, u = every action (the last on the last step), g = the last
+/// position; then terminals, qpos and qvel.
+fn table_arrays(chunk: &[Rows]) -> [Vec<u8>; 7] {
+    let mut a: [Vec<u8>; 7] = Default::default();
     for e in chunk {
         let (o, u) = (&e.members[0], &e.members[1]);
         a[0].extend_from_slice(o);
         a[1].extend_from_slice(o);
-        a[2].extend_from_slice(&u[..(t - 1) * 8]);
+        a[2].extend_from_slice(u);
+        let t = o.len() / 8;
         let last = &o[(t - 1) * 8..];
         for _ in 0..t - 1 {
             a[3].extend_from_slice(last);
+        }
+        for k in 2..5 {
+            a[k + 2].extend_from_slice(&e.members[k]);
         }
     }
     a
 }
 
-fn view(a: &[Vec<u8>; 4], origin: String, episodes: usize, t: usize) -> EpisodeArrays<'_> {
-    let steps = [t, t, t - 1, t - 1];
+fn view<'a>(
+    a: &'a [Vec<u8>; 7],
+    specs: &[Passthrough],
+    origin: String,
+    episodes: usize,
+    t: usize,
+) -> EpisodeArrays<'a> {
+    let steps = [t, t, t, t - 1];
     let arrays = std::array::from_fn(|k| FloatArray { data: &a[k], size: 4, steps: steps[k], dim: 2 });
-    EpisodeArrays { origin, keys: crate::ogbench::ARRAY_KEYS, arrays, episodes , extras: Vec::new() }
+    let extras = specs
+        .iter()
+        .zip(&a[4..])
+        .map(|(p, data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
+        .collect();
+    EpisodeArrays { origin, keys: crate::ogbench::ARRAY_KEYS, arrays, episodes, extras }
 }
 
 /// An OGBench `.npz` written at the end from its members' spools (the archive stores all

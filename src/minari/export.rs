@@ -50,7 +50,6 @@ pub struct ExportOptions {
     pub drop: Vec<String>,
 }
 
-
 #[derive(Debug, Clone)]
 pub struct ExportSummary {
     pub task: String,
@@ -81,11 +80,19 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
         }
     };
     let footer = crate::table::read_footer(&opts.table)?;
-    let footer: Footer = serde_json::from_value(footer).with_context(|| format!("{}: not a trajectory table", opts.table.display()))?;
+    let footer: Footer =
+        serde_json::from_value(footer).with_context(|| format!("{}: not a trajectory table", opts.table.display()))?;
     // WGCSL keeps any array whose first dimension is the episodes; pgser's Minari writer keeps
     // none yet (Minari's `infos` could hold them).
     let (extras, _) = match dataset_id {
-        Some(_) => kept_for(&footer, &opts.table, "Minari dataset (pgser's writer: no infos yet)", &opts.drop, |_| false, false)?,
+        Some(_) => kept_for(
+            &footer,
+            &opts.table,
+            "Minari dataset (pgser's writer: no infos yet)",
+            &opts.drop,
+            |_| false,
+            false,
+        )?,
         None => kept_for(&footer, &opts.table, "WGCSL pickle", &opts.drop, |_| true, false)?,
     };
     let table = read_table(&opts.table, &extras)?;
@@ -198,7 +205,12 @@ fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
             shape.push(p.per.rows(t));
         }
         shape.extend(&p.shape);
-        arrays.push(ArrayOut { key: &p.column, descr: p.dtype.clone(), shape, data: Box::new(move |w| w.write_all(bytes)) });
+        arrays.push(ArrayOut {
+            key: &p.column,
+            descr: p.dtype.clone(),
+            shape,
+            data: Box::new(move |w| w.write_all(bytes)),
+        });
     }
     let fail = || format!("{}: write failed", out.display());
     write_dict(&mut w, &mut arrays).with_context(fail)?;

@@ -268,7 +268,13 @@ impl Source {
             steps: steps[k],
             dim: dims[k],
         });
-        EpisodeArrays { origin: self.meta.data.display().to_string(), keys: ARRAY_KEYS, arrays, episodes: w.episodes , extras: Vec::new() }
+        EpisodeArrays {
+            origin: self.meta.data.display().to_string(),
+            keys: ARRAY_KEYS,
+            arrays,
+            episodes: w.episodes,
+            extras: Vec::new(),
+        }
     }
 
     /// float64 when any array is (float32 widens exactly), float32 when all are or `--float32`.

@@ -123,16 +123,18 @@ fn stream_floats(
             bytes.clear();
             let range = offset + r * dim..offset + (r + 1) * dim;
             match (values.data_type(), size) {
-                (DataType::Float32, 4) => {
-                    values.as_primitive::<Float32Type>().values()[range].iter().for_each(|v| bytes.extend(v.to_le_bytes()))
-                }
+                (DataType::Float32, 4) => values.as_primitive::<Float32Type>().values()[range]
+                    .iter()
+                    .for_each(|v| bytes.extend(v.to_le_bytes())),
                 (DataType::Float32, _) => values.as_primitive::<Float32Type>().values()[range]
                     .iter()
                     .for_each(|&v| bytes.extend((v as f64).to_le_bytes())),
                 (_, 4) => values.as_primitive::<Float64Type>().values()[range]
                     .iter()
                     .for_each(|&v| bytes.extend((v as f32).to_le_bytes())),
-                _ => values.as_primitive::<Float64Type>().values()[range].iter().for_each(|v| bytes.extend(v.to_le_bytes())),
+                _ => values.as_primitive::<Float64Type>().values()[range]
+                    .iter()
+                    .for_each(|v| bytes.extend(v.to_le_bytes())),
             }
             each(step, &bytes)?;
         }

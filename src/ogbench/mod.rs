@@ -163,7 +163,8 @@ impl Dataset {
         // observation, or per transition in the regular layout (whose rows are transitions).
         let per = if layout == Layout::Regular { Per::Transition } else { Per::Step };
         let (mut extras, mut dropped) = (Vec::new(), Vec::new());
-        for m in members.iter().filter(|m| !["observations", "actions", "next_observations"].contains(&m.key.as_str())) {
+        for m in members.iter().filter(|m| !["observations", "actions", "next_observations"].contains(&m.key.as_str()))
+        {
             if drop.contains(&m.key) {
                 dropped.push(m.key.clone());
                 continue;
@@ -181,7 +182,9 @@ impl Dataset {
             extras.push((m.clone(), spec));
         }
         if let Some(k) = drop.iter().find(|k| !dropped.contains(k)) {
-            bail!("--drop {k}: {at} has no array {k:?} to leave out (observations, actions and next_observations are the table itself)");
+            bail!(
+                "--drop {k}: {at} has no array {k:?} to leave out (observations, actions and next_observations are the table itself)"
+            );
         }
         let min = if layout == Layout::Regular { 1 } else { 2 };
         if rows_per_episode < min {

@@ -171,7 +171,13 @@ pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Mem
         let mut raw = Vec::new();
         (&mut file).take(m.bytes()).read_to_end(&mut raw).with_context(|| format!("{}: {key}", path.display()))?;
         if raw.len() as u64 != m.bytes() {
-            bail!("{}: {key}: {} bytes, less than the {} bytes of its {:?} array", path.display(), raw.len(), m.bytes(), m.shape);
+            bail!(
+                "{}: {key}: {} bytes, less than the {} bytes of its {:?} array",
+                path.display(),
+                raw.len(),
+                m.bytes(),
+                m.shape
+            );
         }
         let mut c = crate::pickle::fortran_to_c(&raw, &m.shape, size);
         if storage.big_endian {
@@ -275,8 +281,8 @@ fn header(r: &mut dyn Read, key: &str) -> Result<(Member, Storage)> {
     };
     let descr = field("descr")?;
     let descr = descr.strip_prefix('\'').and_then(|d| d.split('\'').next()).context("'descr' is not a string")?;
-    let (dtype, big_endian) =
-        Dtype::parse(descr).with_context(|| format!("dtype {descr:?}: pgser reads bool, int, uint and float32/64 arrays"))?;
+    let (dtype, big_endian) = Dtype::parse(descr)
+        .with_context(|| format!("dtype {descr:?}: pgser reads bool, int, uint and float32/64 arrays"))?;
     let fortran = field("fortran_order")?.starts_with("True");
     let shape = field("shape")?;
     let inner = shape.strip_prefix('(').and_then(|s| s.split(')').next()).context("'shape' is not a tuple")?;
@@ -378,7 +384,8 @@ mod tests {
             w.write(&[0, 1, 0, 1]).unwrap();
             w.finish().unwrap();
             let m = members(&path).unwrap();
-            let want = Member { key: "observations".into(), dtype: Dtype::F32, shape: vec![4, 3], stored_big_endian: false };
+            let want =
+                Member { key: "observations".into(), dtype: Dtype::F32, shape: vec![4, 3], stored_big_endian: false };
             assert_eq!(m[0], want);
             assert_eq!((m[1].key.as_str(), m[1].dtype, m[1].rows(), m[1].row_len()), ("terminals", Dtype::Bool, 4, 1));
             let got = with_member(&path, "observations", |r, _| {
@@ -431,7 +438,8 @@ mod tests {
             (0..4).flat_map(|j| (0..3).map(move |i| v[i * 4 + j])).flat_map(bytes).collect()
         };
         let ints: Vec<i64> = (0..12).map(|k| k * 1_000_000_007).collect();
-        let ints_f: Vec<u8> = (0..4).flat_map(|j| (0..3).map(move |i| i * 4 + j)).flat_map(|k| ints[k].to_be_bytes()).collect();
+        let ints_f: Vec<u8> =
+            (0..4).flat_map(|j| (0..3).map(move |i| i * 4 + j)).flat_map(|k| ints[k].to_be_bytes()).collect();
         let big: Vec<f64> = (0..20_000).map(|k| k as f64 * 0.25 - 7.0).collect();
         let big_be: Vec<u8> = big.iter().flat_map(|x| x.to_be_bytes()).collect();
         let arrays: Vec<(&str, Vec<u8>)> = vec![
@@ -446,7 +454,11 @@ mod tests {
         ];
         let mut z = zip::ZipWriter::new(File::create(&path).unwrap());
         for (k, bytes) in &arrays {
-            z.start_file(format!("{k}.npy"), zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Deflated)).unwrap();
+            z.start_file(
+                format!("{k}.npy"),
+                zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Deflated),
+            )
+            .unwrap();
             z.write_all(bytes).unwrap();
         }
         z.finish().unwrap();

@@ -24,9 +24,9 @@ use std::borrow::Cow;
 use std::fmt;
 use std::path::Path;
 
-pub use numpy::{DType, DTypeKind, NdArray, shape_text};
 /// numpy's Fortran → C reorder, which the `.npz` reader shares.
 pub(crate) use numpy::fortran_to_c;
+pub use numpy::{DType, DTypeKind, NdArray, shape_text};
 
 /// Index of an object in a [`Pickle`]'s arena.
 pub type Id = usize;

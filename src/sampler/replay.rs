@@ -120,7 +120,13 @@ impl Replay {
                 .collect();
             let arrays =
                 std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
-            let src = EpisodeArrays { origin: path.display().to_string(), keys: KEYS, arrays, episodes: end - start , extras: Vec::new() };
+            let src = EpisodeArrays {
+                origin: path.display().to_string(),
+                keys: KEYS,
+                arrays,
+                episodes: end - start,
+                extras: Vec::new(),
+            };
             w.append(&src, 0, end - start)?;
         }
         let mut footer = Footer::new(&d.task, FloatType::Float32, d.n, command.to_string());

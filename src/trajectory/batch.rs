@@ -185,7 +185,13 @@ impl TrajectoryWriter {
         for e in &src.extras {
             let want = src.episodes * e.spec.episode_bytes(t.t);
             if e.data.len() != want {
-                bail!("{}: key '{}' has {} bytes; {} episodes of it need {want}", src.origin, e.spec.column, e.data.len(), src.episodes);
+                bail!(
+                    "{}: key '{}' has {} bytes; {} episodes of it need {want}",
+                    src.origin,
+                    e.spec.column,
+                    e.data.len(),
+                    src.episodes
+                );
             }
         }
         Ok(())
@@ -362,7 +368,7 @@ mod tests {
     fn view<'a>(data: &'a [Vec<u8>; 4], task: &Task) -> EpisodeArrays<'a> {
         let dims = [(task.t, 2), (task.t, 1), (task.t - 1, 1), (task.t - 1, 1)];
         let arrays = std::array::from_fn(|k| FloatArray { data: &data[k], size: 8, steps: dims[k].0, dim: dims[k].1 });
-        EpisodeArrays { origin: "tiny.pkl".into(), keys: KEYS, arrays, episodes: 5 , extras: Vec::new() }
+        EpisodeArrays { origin: "tiny.pkl".into(), keys: KEYS, arrays, episodes: 5, extras: Vec::new() }
     }
 
     #[test]

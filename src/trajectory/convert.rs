@@ -368,7 +368,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(S
     for (name, a) in others {
         if a.shape.first() != Some(&episodes) {
             bail!(
-                "{at}: key '{name}' has shape {}; an array kept beside o, ag, u, g has the {episodes} episodes first;                  pass --drop {name} to convert without it",
+                "{at}: key '{name}' has shape {}; an array kept beside o, ag, u, g has the {episodes} episodes first; pass --drop {name} to convert without it",
                 a.shape_text()
             );
         }

@@ -185,7 +185,10 @@ impl Passthrough {
         }
         let p = Passthrough { column: key.to_string(), files: vec![at.to_string()], per, dtype: elem.descr(), shape };
         if p.is_empty() || p.len() > i32::MAX as usize {
-            bail!("{at}: key '{key}' has values of shape {:?}, which a table column cannot keep; pass --drop {key}", p.shape);
+            bail!(
+                "{at}: key '{key}' has values of shape {:?}, which a table column cannot keep; pass --drop {key}",
+                p.shape
+            );
         }
         Ok(p)
     }
@@ -229,7 +232,8 @@ pub fn column(a: &ExtraArray, t: usize, e0: usize, e1: usize) -> Result<ArrayRef
         }
         dt => make_array(ArrayData::builder(dt).len(rows * value).add_buffer(Buffer::from(buf)).build()?),
     };
-    let nulls = (p.per != Per::Step).then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| p.per.has(r % t, t))));
+    let nulls =
+        (p.per != Per::Step).then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| p.per.has(r % t, t))));
     if p.shape.is_empty() {
         return Ok(make_array(values.into_data().into_builder().nulls(nulls).build()?));
     }
@@ -261,7 +265,8 @@ pub fn append_source_bytes(
         let row = first_row + r;
         let has = p.per.has(row % t, t);
         if col.is_null(r) == has {
-            let what = if has { "is null where the source had a value" } else { "has a value where the source had none" };
+            let what =
+                if has { "is null where the source had a value" } else { "has a value where the source had none" };
             bail!("{at}: row {row} (episode {}, step {}): `{}` {what}", row / t, row % t, p.column);
         }
         if !has {
@@ -275,7 +280,8 @@ pub fn append_source_bytes(
             }
             _ => {
                 let size = elem.size;
-                let bytes = &data.buffers()[0].as_slice()[(data.offset() + start) * size..(data.offset() + start + value) * size];
+                let bytes = &data.buffers()[0].as_slice()
+                    [(data.offset() + start) * size..(data.offset() + start + value) * size];
                 let at = out.len();
                 out.extend_from_slice(bytes);
                 if elem.big_endian {
@@ -359,7 +365,10 @@ pub fn kept_for(
     for d in drop {
         if d != LAST_ACTION && !footer.passthrough.iter().any(|p| p.column == *d) {
             let have: Vec<&str> = footer.passthrough.iter().map(|p| p.column.as_str()).collect();
-            bail!("--drop {d}: {at} has no passthrough column {d:?} (it has: {})", if have.is_empty() { "none".into() } else { have.join(", ") });
+            bail!(
+                "--drop {d}: {at} has no passthrough column {d:?} (it has: {})",
+                if have.is_empty() { "none".into() } else { have.join(", ") }
+            );
         }
     }
     let mut kept = Vec::new();

@@ -16,9 +16,9 @@ use crate::table::SCHEMA_VERSION;
 use crate::task::{GoalMetric, Task};
 
 pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
-pub use extra::{ExtraArray, Passthrough, Per};
-pub(crate) use convert::{describe, task_for};
 pub use convert::{ConvertOptions, ConvertPlan, ConvertSummary, check as check_convert, convert};
+pub(crate) use convert::{describe, task_for};
+pub use extra::{ExtraArray, Passthrough, Per};
 pub use read::Episodes;
 
 /// The float type of a table's vector columns.

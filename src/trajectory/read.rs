@@ -169,12 +169,14 @@ pub(crate) fn open_checked(
         extra.push((i, c));
     }
     // The bytes of every column chunk read, against the footer's checksums, before decoding.
-    let mut read: Vec<&str> = names.clone().filter(|n| matches!(*n, "episode" | "step") || columns.contains(n)).collect();
+    let mut read: Vec<&str> =
+        names.clone().filter(|n| matches!(*n, "episode" | "step") || columns.contains(n)).collect();
     read.extend(extra.iter().map(|&(_, c)| c));
     let verifier = crate::table::Verifier::new(path, builder.metadata())?;
     verifier.check(&verifier.columns_of(&read))?;
     let keep = indices.into_iter().zip(names).filter(|(_, n)| matches!(*n, "episode" | "step") || columns.contains(n));
-    let mask = ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i).chain(extra.iter().map(|&(i, _)| i)));
+    let mask =
+        ProjectionMask::roots(builder.parquet_schema(), keep.map(|(i, _)| i).chain(extra.iter().map(|&(i, _)| i)));
     let reader = builder
         .with_projection(mask)
         .with_batch_size(batch_episodes.max(1).saturating_mul(footer.t))

@@ -12,7 +12,11 @@ that the Parquet file has
   * columns exactly: episode int64, step int32, obs, achieved_goal,
     desired_goal, action -- the last four FixedSizeList<float64> (or
     float32 with --float32, or when the sources are float32) of the right
-    width;
+    width -- then one passthrough column per other array of the first input
+    (its key, in the pickle's order), listed in the footer's `passthrough`
+    with its dtype, shape and layout, and holding the source's values on
+    exactly the rows that layout gives (per step: every row; per
+    transition: all but step T-1; per episode: step 0), equal bit for bit;
   * one row per (episode, step), episode-major: episodes 0..E-1 dense and
     contiguous, steps 0..T-1 in order;
   * obs <- o, achieved_goal <- ag, desired_goal <- g, action <- u, equal
@@ -65,7 +69,10 @@ def load_inputs(paths, counts):
             d = pickle.load(f)  # trusted test inputs only
         if not isinstance(d, dict):
             die(f"{path}: top level is {type(d).__name__}, not a dict")
-        arrs = {}
+        arrs, extras = {}, {}
+        for k, v in d.items():
+            if k not in ("o", "ag", "u", "g"):
+                extras[k] = np.asarray(v)
         for k in ("o", "ag", "u", "g"):
             if k not in d:
                 die(f"{path}: missing key {k!r}")
@@ -81,8 +88,22 @@ def load_inputs(paths, counts):
         k_i = n if counts is None else counts[i]
         if k_i > n:
             die(f"{path}: asked for {k_i} episodes, file has {n}")
-        parts.append((path, k_i, {k: native(v[:k_i]) for k, v in arrs.items()}))
+        parts.append((path, k_i, {k: native(v[:k_i]) for k, v in arrs.items()},
+                      {k: v[:k_i] for k, v in extras.items()}))
     return parts
+
+
+def layout(a, t):
+    """pgser's layout of a passthrough array [N, ...]: per step, transition or episode."""
+    if a.ndim >= 2 and a.shape[1] == t:
+        return "step", list(a.shape[2:])
+    if a.ndim >= 2 and a.shape[1] == t - 1:
+        return "transition", list(a.shape[2:])
+    return "episode", list(a.shape[1:])
+
+
+def descr(dt):
+    return ("|" if dt.itemsize == 1 else (">" if dt.byteorder == ">" else "<")) + dt.kind + str(dt.itemsize)
 
 
 def bits(a):
@@ -114,7 +135,10 @@ def main():
             die(f"--episodes has {len(counts)} counts for {len(args.inputs)} inputs")
 
     parts = load_inputs(args.inputs, counts)
+    parts, extras_of = [p[:3] for p in parts], [p[3] for p in parts]
     T = parts[0][2]["o"].shape[1]
+    extra_keys = list(extras_of[0])
+    columns = COLUMNS + extra_keys
     dims = {"obs_dim": parts[0][2]["o"].shape[2], "goal_dim": parts[0][2]["ag"].shape[2],
             "act_dim": parts[0][2]["u"].shape[2]}
     widths = set()
@@ -150,6 +174,7 @@ def main():
 
     # ---- footer metadata -------------------------------------------------
     kv = pf.metadata.metadata or {}
+    meta = None
     if b"pgser" not in kv:
         problems.append(f"footer: no 'pgser' key-value metadata (keys: {sorted(k.decode() for k in kv)})")
     else:
@@ -176,8 +201,8 @@ def main():
                         problems.append(f"footer: {k} = {meta[k]!r}, want {v!r}")
 
     # ---- schema ----------------------------------------------------------
-    if schema.names != COLUMNS:
-        problems.append(f"columns are {schema.names}, want exactly {COLUMNS}")
+    if schema.names != columns:
+        problems.append(f"columns are {schema.names}, want exactly {columns}")
     want_types = {"episode": pa.int64(), "step": pa.int32()}
     for name in COLUMNS:
         if name not in schema.names:
@@ -202,7 +227,7 @@ def main():
         print(f"FAILED: {len(problems)} problem(s) in {args.parquet}")
         sys.exit(1)
 
-    if problems and (table.num_rows != rows_expected or schema.names != COLUMNS
+    if problems and (table.num_rows != rows_expected or schema.names != columns
                      or any(p.startswith("column ") for p in problems)):
         report_and_exit()
 
@@ -263,6 +288,38 @@ def main():
                 f"(input {src} episode {local}, key {SOURCE_KEY[name]!r}): "
                 f"got {fmt(got[e, s, c])}, want {fmt(want[e, s, c])}; "
                 f"{int(neq.sum())} values differ")
+
+    # ---- passthrough columns ----------------------------------------------
+    listed = {p["column"]: p for p in (meta or {}).get("passthrough", [])} if isinstance(meta, dict) else {}
+    if sorted(listed) != sorted(extra_keys):
+        problems.append(f"footer: passthrough lists {sorted(listed)}, want {sorted(extra_keys)}")
+    for key in extra_keys:
+        src = np.concatenate([e[key] for e in extras_of], axis=0)
+        per, shape = layout(src, T)
+        p = listed.get(key, {})
+        # numpy loads a pickled big-endian array as a native one, so the byte order the file
+        # stored (which pgser records, `>f4`) is not seen here: kind and size are compared.
+        want_meta = {"per": per, "shape": shape, "dtype": descr(extras_of[0][key].dtype)[1:]}
+        got_meta = {k: p.get(k) for k in want_meta}
+        got_meta["dtype"] = (got_meta["dtype"] or "")[1:]
+        if got_meta != want_meta:
+            problems.append(f"footer: passthrough {key} is {got_meta}, want {want_meta}")
+        has = {"step": np.ones(T, bool), "transition": np.arange(T) < T - 1, "episode": np.arange(T) == 0}[per]
+        want_null = ~np.tile(has, E)
+        arr = table.column(key).combine_chunks()
+        is_null = arr.is_null().to_numpy(zero_copy_only=False)
+        if (is_null != want_null).any():
+            r = int(np.flatnonzero(is_null != want_null)[0])
+            problems.append(f"column {key}: row {r} (episode {r // T}, step {r % T}) is "
+                            f"{'null' if is_null[r] else 'set'}, want the other ({per})")
+            continue
+        size = int(np.prod(shape)) if shape else 1
+        kept = arr.filter(pa.array(~want_null))
+        flat = (kept.flatten() if shape else kept).to_numpy(zero_copy_only=False)
+        got = flat.reshape(-1, size)
+        want = native(src).reshape(-1, size)
+        if got.dtype != want.dtype or got.shape != want.shape or got.tobytes() != want.tobytes():
+            problems.append(f"column {key}: {got.dtype}{got.shape} differs from the source's {want.dtype}{want.shape}")
 
     if problems:
         report_and_exit()

@@ -233,12 +233,12 @@ def main(outdir):
               "float64", "mixed", "mixed",
               "o: C little, ag: F little, u: C big, g: F big")
 
-    # --- extra key convert must skip ------------------------------------
+    # --- an extra key convert keeps as a column of its own ---------------
     d = episodes(700, 3, *R)
     rng = np.random.default_rng(701)
     d["info_is_success"] = (rng.random((3, R[0] - 1, 1)) < 0.3).astype(np.float64)
     write("fetchreach_p3_f64_info.pkl", d, 3, "FetchReach", "float64", "C",
-          "little", "extra key info_is_success [N,T-1,1] float64 (must be skipped)")
+          "little", "extra key info_is_success [N,T-1,1] float64 (kept as a passthrough column)")
 
     # --- FetchPush -------------------------------------------------------
     d = episodes(800, 2, *P)

@@ -12,7 +12,7 @@ use pgser::{convert, minari, pipeline, score};
     name = "pgser-etl",
     version,
     long_version = pgser::cli::LONG_VERSION.as_str(),
-    about = "pgser data jobs: convert, collect, export, inspect, query, score, report"
+    about = "pgser data jobs: convert, collect, score, pipeline, report, fig5, study, table2, query, export, verify, inspect"
 )]
 pub struct Args {
     #[command(subcommand)]
@@ -21,11 +21,16 @@ pub struct Args {
 
 #[derive(Subcommand)]
 pub enum Command {
-    /// Convert WGCSL-style pickles (without executing them) or a Minari dataset into a Parquet trajectory table.
+    /// Convert WGCSL-style pickles (without executing them), a Minari dataset or an OGBench file into a Parquet trajectory table, every array kept.
     #[command(after_help = "Examples:\n  pgser-etl convert expert.pkl -o traj.parquet --task FetchPush\n  \
         pgser-etl convert expert.pkl random.pkl --episodes 500,2000 -o mix.parquet --task FetchPush\n  \
         pgser-etl convert point.pkl -o point.parquet --task PointReach --threshold 0.05\n  \
-        pgser-etl convert ~/.minari/datasets/fetchreach-expert-v0 -o traj.parquet\n\n\
+        pgser-etl convert ~/.minari/datasets/fetchreach-expert-v0 -o traj.parquet\n  \
+        pgser-etl convert pointmaze-medium-navigate-v0.npz -o traj.parquet\n  \
+        pgser-etl convert buffer.pkl -o traj.parquet --task FetchPush --drop debug_info\n\n\
+        Every array of a pickle or OGBench file that is not o, ag, u, g (observations, actions) becomes a column of \
+        its own (info_is_success, qpos, qvel, …), with its dtype and shape in the footer, so that export gives the \
+        source back whole; one a column cannot hold is refused by name (--drop KEY leaves it out). See docs/tables.md.\n\n\
         A Minari dataset (HDF5 or Arrow storage) must be goal-conditioned (a Dict observation with observation, \
         achieved_goal, desired_goal) with episodes of one length: n steps become T = n+1 rows (where n+1 is the task's T+1, as \
         gymnasium's time limit records Fetch episodes, the last step is dropped; --exact-length refuses). The task is \
@@ -253,15 +258,22 @@ pub enum Command {
         #[arg(long, group = "format")]
         parquet: bool,
     },
-    /// Write a trajectory table out as a Minari dataset (Arrow storage) or a WGCSL pickle.
+    /// Write a trajectory table out as a Minari dataset (Arrow storage), a WGCSL pickle or an OGBench file, with its source's other arrays.
     #[command(
         after_help = "Examples:\n  pgser-etl export traj.parquet --format minari -o ~/.minari/datasets/fetchreach-expert-v0\n  \
-        pgser-etl export traj.parquet --format wgcsl -o expert.pkl\n\n\
+        pgser-etl export traj.parquet --format wgcsl -o expert.pkl\n  \
+        pgser-etl export traj.parquet --format ogbench -o pointmaze-medium-navigate-v0.npz\n  \
+        pgser-etl export og.parquet --format wgcsl -o og.pkl --drop last_action\n\n\
         A Minari dataset is a folder named by its dataset id (NAME-vN); `minari.load_dataset(\"NAME-vN\")` opens \
         it when MINARI_DATASETS_PATH is its parent folder. Its Arrow storage holds each episode's observations \
         (Dict: observation, achieved_goal, desired_goal), actions, rewards recomputed from the goals (the task's \
         sparse reward), no terminations, and a truncation on the last step. A WGCSL pickle holds float64 arrays \
-        (a float32 table widens exactly). The output must not exist; it appears whole or not at all."
+        (a float32 table widens exactly; a table converted from float32 pickles gives float32 back), and every \
+        passthrough column as the array it was. An OGBench file holds observations, actions and terminals, and \
+        the source's other per-row arrays (qpos, qvel, …) in their dtypes; a table from an OGBench file comes back \
+        bit for bit, in its layout. What a format cannot hold (a per-transition array in an OGBench file, each \
+        episode's last action in a WGCSL pickle) is refused by name: --drop NAME leaves it out. The output must \
+        not exist; it appears whole or not at all."
     )]
     Export {
         /// A trajectory table (`pgser-etl convert` / `collect`).

@@ -1,0 +1,324 @@
+//! Nothing lost between formats: every array of a WGCSL pickle or an OGBench file survives
+//! `convert` → `export`, with its values, dtype and shape, bit for bit; what a format cannot hold
+//! is refused by name (and `--drop` leaves it out), never dropped silently.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::*;
+use pgser::nprandom::NpRandom;
+use pgser::ogbench::npz;
+use pgser::pickle::write::{ArrayOut, write_dict};
+use pgser::pickle::{DTypeKind, Obj, Pickle};
+
+/// One array of a pickled dict as pgser's reader sees it: dtype (kind, bytes, stored
+/// big-endian), shape and native little-endian C-order bytes.
+#[derive(Debug, PartialEq)]
+struct Array {
+    key: String,
+    kind: DTypeKind,
+    size: usize,
+    big_endian: bool,
+    shape: Vec<usize>,
+    data: Vec<u8>,
+}
+
+fn arrays_of(path: &Path) -> Vec<Array> {
+    let bytes = std::fs::read(path).unwrap();
+    let mut p = Pickle::parse(&bytes).unwrap();
+    let Obj::Dict(entries) = p.get(p.root()).clone() else { panic!("{}: not a dict", path.display()) };
+    entries
+        .into_iter()
+        .map(|(k, v)| {
+            let key = p.as_text(k).unwrap().into_owned();
+            let Obj::Array(a) = p.take(v) else { panic!("{key}: not an array") };
+            Array {
+                key,
+                kind: a.dtype.kind,
+                size: a.dtype.size,
+                big_endian: a.stored_big_endian,
+                shape: a.shape.clone(),
+                data: a.data.into_owned(),
+            }
+        })
+        .collect()
+}
+
+fn export(table: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {
+    etl().arg("export").arg(table).args(["--format", format, "-o"]).arg(out).args(extra).output().unwrap()
+}
+
+fn export_ok(table: &Path, format: &str, out: &Path, extra: &[&str]) {
+    let o = export(table, format, out, extra);
+    assert!(o.status.success(), "export {format} failed: {}", text(&o.stderr));
+}
+
+/// `export` fails in one line naming `want`, and leaves nothing at `out`.
+fn export_refused(table: &Path, format: &str, out: &Path, extra: &[&str], want: &str) {
+    let o = export(table, format, out, extra);
+    let e = text(&o.stderr);
+    assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
+    assert!(!out.exists(), "{want}: {} was left", out.display());
+}
+
+#[test]
+fn wgcsl_buffers_written_by_numpy_come_back_whole() {
+    // WGCSL's own info_is_success, an int per step, and (in the second) bools, a big-endian
+    // Fortran-order float32 array, per-episode ints, uint8 and a 2×2 int16 per transition.
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["wgcsl_info", "wgcsl_mixed"] {
+        let src = repo().join(format!("tests/fixtures/passthrough/{name}.pkl"));
+        let table = dir.path().join(format!("{name}.parquet"));
+        convert_ok(&[&src], &table, &["--task".into(), "FetchReach".into()]);
+        check_roundtrip(&table, &[&src], &[]);
+        let back = dir.path().join(format!("{name}.pkl"));
+        export_ok(&table, "wgcsl", &back, &[]);
+        // pgser's reader: the same keys in the same order, dtypes with their byte order, shapes
+        // and values; numpy: the same arrays as it loads them.
+        assert_eq!(arrays_of(&back), arrays_of(&src), "{name}");
+        py_ok("check_same_arrays.py", &[src.to_str().unwrap(), back.to_str().unwrap()]);
+    }
+}
+
+/// A random dtype of those a column keeps, in a random byte order.
+fn random_dtype(rng: &mut NpRandom) -> String {
+    let types = ["f8", "f4", "b1", "i1", "i2", "i4", "i8", "u1", "u2", "u4", "u8"];
+    let t = types[(rng.random() * types.len() as f64) as usize];
+    let order = if t.ends_with('1') {
+        '|'
+    } else if rng.random() < 0.3 {
+        '>'
+    } else {
+        '<'
+    };
+    format!("{order}{t}")
+}
+
+#[test]
+fn random_extra_arrays_of_random_dtypes_and_shapes_round_trip() {
+    // 16 buffers, each with 1–4 extra arrays: per step, per transition or per episode, of 0–2
+    // more dimensions of 1–3, in any dtype a column keeps and either byte order, written by
+    // pgser's own pickle writer; convert then export gives every array back to the bit.
+    let dir = tempfile::tempdir().unwrap();
+    for seed in 0..16u64 {
+        let mut rng = NpRandom::new(seed);
+        let (n, t) = (1 + (rng.random() * 4.0) as usize, 3 + (rng.random() * 5.0) as usize);
+        let float = if rng.random() < 0.5 { "<f8" } else { "<f4" };
+        let mut arrays: Vec<(String, String, Vec<usize>)> = vec![
+            ("o".into(), float.into(), vec![n, t, 3]),
+            ("ag".into(), float.into(), vec![n, t, 2]),
+            ("u".into(), float.into(), vec![n, t - 1, 2]),
+            ("g".into(), float.into(), vec![n, t - 1, 2]),
+        ];
+        for k in 0..1 + (rng.random() * 4.0) as usize {
+            let mut shape = vec![n];
+            match (rng.random() * 3.0) as usize {
+                0 => shape.push(t),
+                1 => shape.push(t - 1),
+                _ => {}
+            }
+            for _ in 0..(rng.random() * 3.0) as usize {
+                shape.push(1 + (rng.random() * 3.0) as usize);
+            }
+            arrays.push((format!("extra_{k}"), random_dtype(&mut rng), shape));
+        }
+        let data: Vec<Vec<u8>> = arrays
+            .iter()
+            .map(|(key, descr, shape)| {
+                let size: usize = descr[2..].parse().unwrap();
+                let count: usize = shape.iter().product();
+                (0..count * size)
+                    .map(|i| {
+                        if descr.ends_with("b1") {
+                            (rng.random() < 0.5) as u8
+                        } else if key.len() <= 2 {
+                            // o, ag, u, g: finite floats (convert refuses NaN): small ones, stored in order.
+                            let v = rng.random() - 0.5;
+                            let b =
+                                if size == 8 { v.to_le_bytes().to_vec() } else { (v as f32).to_le_bytes().to_vec() };
+                            b[i % size]
+                        } else {
+                            (rng.random() * 256.0) as u8
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let src = dir.path().join(format!("r{seed}.pkl"));
+        let mut out: Vec<ArrayOut> = arrays
+            .iter()
+            .zip(&data)
+            .map(|((key, descr, shape), bytes)| {
+                let mut a = ArrayOut::from_bytes(key, shape.clone(), bytes);
+                a.descr = descr.clone();
+                a
+            })
+            .collect();
+        let mut file = std::fs::File::create(&src).unwrap();
+        write_dict(&mut file, &mut out).unwrap();
+        drop(file);
+        let table = dir.path().join(format!("r{seed}.parquet"));
+        let args: Vec<String> =
+            ["--task", "Rand", "--threshold", "0.05", "--allow-nonfinite"].map(String::from).to_vec();
+        convert_ok(&[&src], &table, &args);
+        let back = dir.path().join(format!("r{seed}_back.pkl"));
+        export_ok(&table, "wgcsl", &back, &[]);
+        assert_eq!(arrays_of(&back), arrays_of(&src), "seed {seed}: {arrays:?}");
+    }
+}
+
+/// Every member of an `.npz` as (key, descr as stored, shape, little-endian C-order bytes).
+fn members_of(path: &Path) -> Vec<(String, String, Vec<usize>, Vec<u8>)> {
+    let mut out: Vec<_> = npz::members(path)
+        .unwrap()
+        .into_iter()
+        .map(|m| {
+            let bytes = npz::with_member(path, &m.key, |r, _| {
+                let mut b = Vec::new();
+                r.read_to_end(&mut b)?;
+                Ok(b)
+            })
+            .unwrap();
+            (m.key.clone(), m.stored_descr(), m.shape.clone(), bytes)
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+fn ogbench_fixture(rel: &str) -> PathBuf {
+    repo().join("tests/fixtures/ogbench").join(rel)
+}
+
+#[test]
+fn ogbench_files_of_every_layout_come_back_whole() {
+    // Written by OGBench's generator (terminals, qpos, qvel, oracle_reps) and by its loader
+    // (compact: valids; regular: next_observations): every member, its dtype, shape and values,
+    // each episode's last action included.
+    let dir = tempfile::tempdir().unwrap();
+    for rel in [
+        "pointmaze-medium-navigate-v0.npz",
+        "antmaze/antmaze-medium-navigate-v0.npz",
+        "cube/cube-double-play-v0.npz",
+        "compact/pointmaze-medium-navigate-v0.npz",
+        "regular/pointmaze-medium-navigate-v0.npz",
+    ] {
+        let src = ogbench_fixture(rel);
+        let sub = dir.path().join(rel.replace('/', "_"));
+        std::fs::create_dir_all(&sub).unwrap();
+        let table = sub.join("t.parquet");
+        convert_ok(&[&src], &table, &[]);
+        let back = sub.join(src.file_name().unwrap());
+        export_ok(&table, "ogbench", &back, &[]);
+        assert_eq!(members_of(&back), members_of(&src), "{rel}");
+    }
+}
+
+#[test]
+fn what_a_format_cannot_hold_is_refused_by_name_and_dropped_only_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // OGBench → WGCSL: the last actions have no place in a WGCSL buffer; its other arrays do.
+    let og = d.join("og.parquet");
+    convert_ok(&[&ogbench_fixture("pointmaze-medium-navigate-v0.npz")], &og, &[]);
+    let pkl = d.join("og.pkl");
+    export_refused(&og, "wgcsl", &pkl, &[], "cannot hold each episode's last action");
+    export_refused(&og, "wgcsl", &pkl, &["--drop", "qpos2"], "--drop qpos2: ");
+    export_ok(&og, "wgcsl", &pkl, &["--drop", "last_action"]);
+    let keys: Vec<(String, Vec<usize>)> = arrays_of(&pkl).into_iter().map(|a| (a.key, a.shape)).collect();
+    assert_eq!(
+        keys,
+        [
+            ("o", vec![4, 101, 2]),
+            ("ag", vec![4, 101, 2]),
+            ("u", vec![4, 100, 2]),
+            ("g", vec![4, 100, 2]),
+            ("terminals", vec![4, 101]),
+            ("qpos", vec![4, 101, 2]),
+            ("qvel", vec![4, 101, 2])
+        ]
+        .map(|(k, s)| (k.to_string(), s))
+    );
+    // Minari: pgser's writer keeps no passthrough columns yet, and says which.
+    let mdir = d.join("og-v0");
+    export_refused(&og, "minari", &mdir, &[], "passthrough column terminals");
+    export_ok(
+        &og,
+        "minari",
+        &mdir,
+        &["--drop", "terminals", "--drop", "qpos", "--drop", "qvel", "--drop", "last_action"],
+    );
+    // WGCSL → OGBench: a per-transition array has no row on an episode's last step.
+    let w = d.join("w.parquet");
+    convert_ok(
+        &[&repo().join("tests/fixtures/passthrough/wgcsl_info.pkl")],
+        &w,
+        &["--task".into(), "FetchReach".into()],
+    );
+    let npz_out = d.join("fetchreach-expert-v0.npz");
+    export_refused(&w, "ogbench", &npz_out, &[], "passthrough column info_is_success");
+    export_ok(&w, "ogbench", &npz_out, &["--drop", "info_is_success"]);
+    let keys: Vec<String> = members_of(&npz_out).into_iter().map(|m| m.0).collect();
+    assert_eq!(keys, ["actions", "observations", "phase", "terminals"]);
+}
+
+#[test]
+fn convert_refuses_what_a_table_cannot_keep_and_drops_it_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let n = 2;
+    let (t, f8) = (50, |count: usize| vec![0u8; count * 8]);
+    let (o, ag, u, g) = (f8(n * t * 10), f8(n * t * 3), f8(n * (t - 1) * 4), f8(n * (t - 1) * 3));
+    let wrong = f8(3 * 2);
+    let write = |path: &Path, extra: Option<(&str, Vec<usize>, &[u8])>| {
+        let mut arrays = vec![
+            ArrayOut::from_bytes("o", vec![n, t, 10], &o),
+            ArrayOut::from_bytes("ag", vec![n, t, 3], &ag),
+            ArrayOut::from_bytes("u", vec![n, t - 1, 4], &u),
+            ArrayOut::from_bytes("g", vec![n, t - 1, 3], &g),
+        ];
+        if let Some((k, shape, bytes)) = extra {
+            arrays.push(ArrayOut::from_bytes(k, shape, bytes));
+        }
+        write_dict(&mut std::fs::File::create(path).unwrap(), &mut arrays).unwrap();
+    };
+    let src = d.join("buf.pkl");
+    let out = d.join("t.parquet");
+    let fails = |extra: &[&str], want: &str| {
+        let o = etl()
+            .arg("convert")
+            .arg(&src)
+            .arg("-o")
+            .arg(&out)
+            .args(["--task", "FetchReach"])
+            .args(extra)
+            .output()
+            .unwrap();
+        let e = text(&o.stderr);
+        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
+        assert!(!out.exists(), "{want}: an output was left");
+    };
+    // An array whose first dimension is not the episodes': no row of the table is its.
+    write(&src, Some(("stats", vec![3, 2], &wrong)));
+    fails(
+        &[],
+        "key 'stats' has shape (3, 2); an array kept beside o, ag, u, g has the 2 episodes first; pass --drop stats",
+    );
+    let o2 = etl()
+        .arg("convert")
+        .arg(&src)
+        .arg("-o")
+        .arg(&out)
+        .args(["--task", "FetchReach", "--drop", "stats"])
+        .output()
+        .unwrap();
+    assert!(o2.status.success() && text(&o2.stderr).contains("left out"), "{}", text(&o2.stderr));
+    std::fs::remove_file(&out).unwrap();
+    // A name of the table's own columns.
+    write(&src, Some(("action", vec![n], &f8(n))));
+    fails(&[], "key 'action' has the name of one of the table's own columns; pass --drop action");
+    // --drop of a key no input has.
+    write(&src, None);
+    fails(&["--drop", "qpos"], "--drop qpos: no input has a key 'qpos'");
+}
