@@ -30,8 +30,20 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
     let schema = builder.schema();
     let cols = spec["columns"].as_array().unwrap();
     let names: Vec<&str> = schema.fields().iter().map(|f| f.name().as_str()).collect();
-    let want: Vec<&str> = cols.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    let mut want: Vec<&str> = cols.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    // Passthrough columns follow, as the footer lists them (nullable, the schema's types).
+    let passthrough = footer["passthrough"].as_array().cloned().unwrap_or_default();
+    want.extend(passthrough.iter().map(|p| p["column"].as_str().unwrap()));
     assert_eq!(names, want, "column names/order");
+    if !passthrough.is_empty() {
+        let fields = spec["footer"]["passthrough_fields"].as_object().expect("the schema describes passthrough entries");
+        for (p, field) in passthrough.iter().zip(schema.fields().iter().skip(cols.len())) {
+            assert!(field.is_nullable(), "{} must be nullable", field.name());
+            for (key, ty) in fields {
+                assert!(json_type_ok(&p[key], ty.as_str().unwrap()), "passthrough {key} missing or not {ty}");
+            }
+        }
+    }
     let float = footer["float_type"].as_str().unwrap_or("float32");
     for (field, col) in schema.fields().iter().zip(cols) {
         let name = field.name();
@@ -85,6 +97,22 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
                 assert!(json_type_ok(&source[key], ty.as_str().unwrap()), "source {key} is not {ty}");
             }
         }
+    }
+}
+
+#[test]
+fn passthrough_columns_follow_the_trajectory_schema() {
+    // A WGCSL buffer's extra arrays and an OGBench file's qpos, qvel, terminals and last actions.
+    let tmp = tempfile::tempdir().unwrap();
+    for (input, args) in [
+        ("tests/fixtures/passthrough/wgcsl_mixed.pkl", vec!["--task", "FetchReach"]),
+        ("tests/fixtures/ogbench/antmaze/antmaze-medium-navigate-v0.npz", vec![]),
+    ] {
+        let out = tmp.path().join("t.parquet");
+        let _ = std::fs::remove_file(&out);
+        let o = etl().arg("convert").arg(repo().join(input)).arg("-o").arg(&out).args(args).output().unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        check_table_against_schema(&out, &repo().join("schemas/trajectory.json"));
     }
 }
 

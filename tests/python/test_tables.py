@@ -146,3 +146,37 @@ def test_ctrl_c_interrupts_a_long_score_and_leaves_no_file(tables, tmp_path):
     word, seconds = p.stdout.split()
     assert word == "interrupted" and float(seconds) < 3.0, p.stdout
     assert list(out.parent.iterdir()) == []
+
+
+def test_passthrough_columns_are_columns_like_any_other(tmp_path):
+    """A WGCSL buffer's extra arrays (here WGCSL's info_is_success and an int per step) are
+    columns of the table: `pgser.read_table`, `pgser-etl query` and pyarrow see them with the
+    buffer's values, and `pgser.convert(drop=...)` leaves one out by name."""
+    import subprocess
+
+    src = REPO / "tests" / "fixtures" / "passthrough" / "wgcsl_info.pkl"
+    with open(src, "rb") as f:
+        d = pickle.load(f)
+    out = tmp_path / "t.parquet"
+    s = pgser.convert([src], out, task="FetchReach")
+    assert s["kept"][0].startswith("info_is_success (<f8 [1] per transition)"), s
+    t = pgser.read_table(out)
+    assert t.column_names[6:] == ["info_is_success", "phase"]
+    n, T = d["o"].shape[:2]
+    steps = np.array(t.column("step"))
+    info = t.column("info_is_success").combine_chunks()
+    assert np.array_equal(np.asarray(info.is_null()), steps == T - 1)
+    kept = info.filter(steps < T - 1).flatten().to_numpy()
+    assert np.array_equal(kept, d["info_is_success"].reshape(-1))
+    assert np.array_equal(t.column("phase").to_numpy(), d["phase"].reshape(-1))
+    assert t.equals(pq.read_table(out))
+    q = subprocess.run([BIN / "pgser-etl", "query", "SELECT sum(phase) AS s FROM t", f"t={out}", "--json"],
+                       capture_output=True, text=True)
+    assert q.returncode == 0, q.stderr
+    assert f'"s":{int(d["phase"].sum())}' in q.stdout.replace(" ", ""), q.stdout
+    footer = pgser.read_footer(out)
+    assert [p["column"] for p in footer["passthrough"]] == ["info_is_success", "phase"]
+    dropped = tmp_path / "d.parquet"
+    s = pgser.convert([src], dropped, task="FetchReach", drop=["phase"])
+    assert pgser.read_table(dropped).column_names[6:] == ["info_is_success"]
+    assert any("phase" in note for note in s["notes"]), s
