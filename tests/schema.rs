@@ -36,7 +36,8 @@ pub fn check_table_against_schema(table: &Path, schema_file: &Path) {
     want.extend(passthrough.iter().map(|p| p["column"].as_str().unwrap()));
     assert_eq!(names, want, "column names/order");
     if !passthrough.is_empty() {
-        let fields = spec["footer"]["passthrough_fields"].as_object().expect("the schema describes passthrough entries");
+        let fields =
+            spec["footer"]["passthrough_fields"].as_object().expect("the schema describes passthrough entries");
         for (p, field) in passthrough.iter().zip(schema.fields().iter().skip(cols.len())) {
             assert!(field.is_nullable(), "{} must be nullable", field.name());
             for (key, ty) in fields {

@@ -258,7 +258,7 @@ pub fn append_source_bytes(
         (col.clone(), 0)
     } else {
         let list = col.as_any().downcast_ref::<FixedSizeListArray>().expect("checked by type");
-        (list.values().clone(), list.value_offset_at(0) as usize)
+        (list.values().clone(), list.value_offset_at(0))
     };
     let data = values.to_data();
     for r in 0..col.len() {
