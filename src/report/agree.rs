@@ -8,12 +8,9 @@
 
 use serde::Serialize;
 
+use super::cells::{AGENTS, Measured};
 use super::paper::PaperCell;
-use super::table2::{AGENTS, Measured};
 use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
-
-/// One side of Welch's test: (mean, sample std, n).
-pub(super) type Side = (f64, f64, usize);
 
 /// A measured cell by task and row index.
 type Lookup<'a> = &'a dyn Fn(&str, usize) -> Option<&'a Measured>;

@@ -18,11 +18,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
+use super::cells::TASKS;
 use super::classify::ClassifierScore;
 use super::paper::{self, PaperAccuracy};
 use super::plot::{self, DensityPanel, PALETTE};
 use super::qreport::Fig5Hist;
-use super::table2::TASKS;
 use super::{ensure_dir, write_text};
 
 #[derive(Debug, Clone)]

@@ -19,6 +19,7 @@
 //! Every file is written atomically (see [`crate::output`]); errors are one line naming the file.
 
 mod agree;
+mod cells;
 mod classify;
 mod fig5;
 mod negatives;

@@ -10,7 +10,7 @@
 
 use anyhow::{Result, anyhow, bail};
 
-use super::table2::{AGENTS, TASKS};
+use super::cells::{AGENTS, TASKS};
 
 /// The compiled-in references.
 pub const TABLE2: &str = include_str!("../../assets/paper_table2.csv");

@@ -28,32 +28,13 @@ use anyhow::{Result, anyhow, bail};
 use polars::prelude::{DataFrame, DataType};
 use serde::Serialize;
 
-use super::agree::{self, Agreement, Side};
+use super::agree::{self, Agreement};
+use super::cells::{AGENTS, Measured, TASKS};
 use super::paper::{self, PaperCell, paper_task};
 use super::spread::read_scores;
 use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
 use super::{ensure_dir, write_text};
 use crate::query::first_line;
-
-/// The paper's columns: pgser's task name, and the paper's short header.
-pub const TASKS: [(&str, &str); 6] = [
-    ("FetchReach", "FetchReach"),
-    ("FetchPush", "FetchPush"),
-    ("FetchPickAndPlace", "FetchPick"),
-    ("FetchSlide", "FetchSlide"),
-    ("HandManipulateBlockRotateZ", "HandBlock-Z"),
-    ("HandManipulateEggRotate", "HandEgg-Rotate"),
-];
-
-/// The paper's rows in its order: (algo, variant, the paper's name).
-pub const AGENTS: [(&str, &str, &str); 6] = [
-    ("td3bc", "mem", "TD3BC-mem"),
-    ("td3bc", "swap", "TD3BC-swap"),
-    ("td3bc", "baseline", "TD3BC"),
-    ("td3", "mem", "TD3-mem"),
-    ("td3", "swap", "TD3-swap"),
-    ("td3", "baseline", "TD3"),
-];
 
 #[derive(Debug, Clone)]
 pub struct Table2Options {
@@ -112,27 +93,6 @@ pub struct Table2 {
     pub agreement: Agreement,
     pub markdown: PathBuf,
     pub csv: PathBuf,
-}
-
-/// A measured cell as read, before the table is assembled.
-pub(super) struct Measured {
-    pub task: &'static str,
-    pub agent: usize,
-    pub seeds: usize,
-    pub mean: f64,
-    pub std: f64,
-    /// (episodes, mean, sample std) of all episodes pooled.
-    pub pooled: Option<(usize, f64, f64)>,
-    pub source: String,
-}
-
-impl Measured {
-    pub(super) fn seeds_side(&self) -> Side {
-        (self.mean, self.std, self.seeds)
-    }
-    pub(super) fn episodes_side(&self) -> Option<Side> {
-        self.pooled.map(|(n, m, s)| (m, s, n))
-    }
 }
 
 /// Writes `out_dir/table2.md` and `out_dir/table2.csv`.

@@ -1,0 +1,48 @@
+//! The data of Table 2, below everything that compares or renders it: the paper's six tasks and
+//! six rows, and a cell pgser measured. [`super::paper`] holds the paper's own cells in the same
+//! terms, [`super::agree`] compares the two, and [`super::table2`] reads and renders them, so
+//! imports run one way: cells, then the paper's values, then the comparison, then the table.
+
+/// One side of Welch's test: (mean, sample std, n).
+pub(super) type Side = (f64, f64, usize);
+
+/// The paper's columns: pgser's task name, and the paper's short header.
+pub const TASKS: [(&str, &str); 6] = [
+    ("FetchReach", "FetchReach"),
+    ("FetchPush", "FetchPush"),
+    ("FetchPickAndPlace", "FetchPick"),
+    ("FetchSlide", "FetchSlide"),
+    ("HandManipulateBlockRotateZ", "HandBlock-Z"),
+    ("HandManipulateEggRotate", "HandEgg-Rotate"),
+];
+
+/// The paper's rows in its order: (algo, variant, the paper's name).
+pub const AGENTS: [(&str, &str, &str); 6] = [
+    ("td3bc", "mem", "TD3BC-mem"),
+    ("td3bc", "swap", "TD3BC-swap"),
+    ("td3bc", "baseline", "TD3BC"),
+    ("td3", "mem", "TD3-mem"),
+    ("td3", "swap", "TD3-swap"),
+    ("td3", "baseline", "TD3"),
+];
+
+/// A measured cell as read, before the table is assembled.
+pub(super) struct Measured {
+    pub task: &'static str,
+    pub agent: usize,
+    pub seeds: usize,
+    pub mean: f64,
+    pub std: f64,
+    /// (episodes, mean, sample std) of all episodes pooled.
+    pub pooled: Option<(usize, f64, f64)>,
+    pub source: String,
+}
+
+impl Measured {
+    pub(super) fn seeds_side(&self) -> Side {
+        (self.mean, self.std, self.seeds)
+    }
+    pub(super) fn episodes_side(&self) -> Option<Side> {
+        self.pooled.map(|(n, m, s)| (m, s, n))
+    }
+}
