@@ -168,6 +168,39 @@ fn random_extra_arrays_of_random_dtypes_and_shapes_round_trip() {
     }
 }
 
+#[test]
+fn minari_infos_come_back_whole() {
+    // Recorded by Minari's own DataCollector with record_infos=True, in both storages: each
+    // infos key becomes a column `infos/KEY`, and export writes it back into every episode's
+    // infos (checked by minari.load_dataset: the same keys, dtypes, shapes and bits, and every
+    // other array).
+    let dir = tempfile::tempdir().unwrap();
+    for storage in ["hdf5", "arrow"] {
+        let src = repo().join(format!("tests/fixtures/minari/fetchreach-infos-{storage}-v0"));
+        let table = dir.path().join(format!("{storage}.parquet"));
+        convert_ok(&[&src], &table, &[]);
+        let footer = pgser::table::read_footer(&table).unwrap();
+        let p = &footer["passthrough"];
+        assert_eq!(
+            (p[0]["column"].as_str(), p[0]["dtype"].as_str(), &p[0]["shape"]),
+            (Some("infos/distance"), Some("<f4"), &serde_json::json!([1]))
+        );
+        assert_eq!(
+            (p[1]["column"].as_str(), p[1]["dtype"].as_str(), p[1]["per"].as_str()),
+            (Some("infos/is_success"), Some("<f8"), Some("step"))
+        );
+        let out = dir.path().join(format!("fetchreach-infos-{storage}-v0"));
+        export_ok(&table, "minari", &out, &[]);
+        py_ok("check_minari.py", &["same", src.to_str().unwrap(), out.to_str().unwrap()]);
+        // --drop leaves a key out, and says so.
+        let t2 = dir.path().join(format!("{storage}_d.parquet"));
+        let o = etl().arg("convert").arg(&src).arg("-o").arg(&t2).args(["--drop", "infos/distance"]).output().unwrap();
+        assert!(o.status.success() && text(&o.stderr).contains("left out"), "{}", text(&o.stderr));
+        let f2 = pgser::table::read_footer(&t2).unwrap();
+        assert_eq!(f2["passthrough"].as_array().unwrap().len(), 1);
+    }
+}
+
 /// Every member of an `.npz` as (key, descr as stored, shape, little-endian C-order bytes).
 fn members_of(path: &Path) -> Vec<(String, String, Vec<usize>, Vec<u8>)> {
     let mut out: Vec<_> = npz::members(path)
@@ -240,15 +273,16 @@ fn what_a_format_cannot_hold_is_refused_by_name_and_dropped_only_when_asked() {
         ]
         .map(|(k, s)| (k.to_string(), s))
     );
-    // Minari: pgser's writer keeps no passthrough columns yet, and says which.
+    // Minari: per-step arrays go into each episode's infos; the last actions have no place.
     let mdir = d.join("og-v0");
-    export_refused(&og, "minari", &mdir, &[], "passthrough column terminals");
-    export_ok(
-        &og,
-        "minari",
-        &mdir,
-        &["--drop", "terminals", "--drop", "qpos", "--drop", "qvel", "--drop", "last_action"],
-    );
+    export_refused(&og, "minari", &mdir, &[], "cannot hold each episode's last action");
+    export_ok(&og, "minari", &mdir, &["--drop", "last_action"]);
+    let back = d.join("og_back.parquet");
+    convert_ok(&[&mdir], &back, &["--task".into(), "pointmaze-medium-v0".into(), "--threshold".into(), "1".into()]);
+    let footer = pgser::table::read_footer(&back).unwrap();
+    let cols: Vec<&str> =
+        footer["passthrough"].as_array().unwrap().iter().map(|p| p["column"].as_str().unwrap()).collect();
+    assert_eq!(cols, ["infos/terminals", "infos/qpos", "infos/qvel"], "in the table's order");
     // WGCSL → OGBench: a per-transition array has no row on an episode's last step.
     let w = d.join("w.parquet");
     convert_ok(
@@ -258,6 +292,7 @@ fn what_a_format_cannot_hold_is_refused_by_name_and_dropped_only_when_asked() {
     );
     let npz_out = d.join("fetchreach-expert-v0.npz");
     export_refused(&w, "ogbench", &npz_out, &[], "passthrough column info_is_success");
+    export_refused(&w, "minari", &d.join("w-v0"), &[], "passthrough column info_is_success");
     export_ok(&w, "ogbench", &npz_out, &["--drop", "info_is_success"]);
     let keys: Vec<String> = members_of(&npz_out).into_iter().map(|m| m.0).collect();
     assert_eq!(keys, ["actions", "observations", "phase", "terminals"]);

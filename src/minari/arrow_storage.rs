@@ -19,6 +19,7 @@ use arrow_array::{
 };
 use arrow_schema::{DataType, Field, Fields, Schema};
 
+use super::infos::{self, Info};
 use super::{BoxSpace, Episode, Metadata, OBS_KEYS, Spaces};
 
 pub struct Reader {
@@ -47,6 +48,7 @@ impl Reader {
             bail!("{}: episode {i} has no Arrow file", dir.display());
         }
         let mut arrays: [Vec<u8>; 4] = Default::default();
+        let mut infos: Vec<Info> = Vec::new();
         let mut rows = 0;
         for path in &files {
             let at = format!("{} (episode {i})", path.display());
@@ -66,6 +68,9 @@ impl Reader {
                 }
                 let actions = batch.column_by_name("actions").with_context(|| format!("{at}: no `actions` column"))?;
                 append(&at, "actions", actions, &self.spaces.action, rows, &mut arrays[3])?;
+                if let Some(col) = batch.column_by_name("infos").and_then(|c| c.as_struct_opt()) {
+                    infos::extend(&at, &mut infos, infos::from_arrow(&at, col)?)?;
+                }
                 rows += batch.num_rows();
             }
         }
@@ -75,7 +80,7 @@ impl Reader {
         // The actions' last row is the storage's padding.
         let act_row = self.spaces.action.dim * self.spaces.action.size;
         arrays[3].truncate((rows - 1) * act_row);
-        Ok(Episode { steps: rows - 1, arrays })
+        Ok(Episode { steps: rows - 1, arrays, infos })
     }
 }
 
@@ -218,6 +223,8 @@ pub struct EpisodeOut {
     pub actions: Vec<f64>,
     /// T − 1 rewards.
     pub rewards: Vec<f32>,
+    /// The episode's infos, T rows each: (key, numpy dtype, shape of a row's value, bytes).
+    pub infos: Vec<(String, String, Vec<usize>, Vec<u8>)>,
 }
 
 /// The schema of an exported episode file, as Minari's Arrow storage writes it.
@@ -246,8 +253,15 @@ fn list_type(space: &BoxSpace) -> DataType {
 /// Write one episode as `dir/part-0.arrow`: one record batch of T rows, the step columns padded
 /// with a last row of zeros (false), as Minari pads them; the episode ends truncated (time limit).
 pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> {
-    let schema = schema(spaces);
+    let mut schema = schema(spaces);
     let t = ep.obs[0].len() / spaces.obs[0].dim;
+    // Infos last, as Minari's writer puts them, when the episode has any.
+    let infos = (!ep.infos.is_empty()).then(|| infos::to_arrow(&ep.infos, t)).transpose()?;
+    if let Some((field, _)) = &infos {
+        let mut fields: Vec<Field> = schema.fields().iter().map(|f| f.as_ref().clone()).collect();
+        fields.push(field.clone());
+        schema = Arc::new(Schema::new(fields));
+    }
     let DataType::Struct(fields) = schema.field(0).data_type().clone() else { unreachable!("a struct") };
     let by_name = |name: &str| OBS_KEYS.iter().position(|k| *k == name).expect("an observation key");
     let columns: Vec<ArrayRef> = fields
@@ -265,13 +279,16 @@ pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> 
     let truncations = BooleanArray::from_iter((0..t).map(|r| Some(r + 2 == t)));
     let batch = RecordBatch::try_new(
         schema.clone(),
-        vec![
-            Arc::new(observations),
+        <Vec<ArrayRef>>::from([
+            Arc::new(observations) as ArrayRef,
             list(&spaces.action, &actions),
             Arc::new(Float32Array::from(rewards)),
             Arc::new(BooleanArray::from(vec![false; t])),
             Arc::new(truncations),
-        ],
+        ])
+        .into_iter()
+        .chain(infos.map(|(_, array)| array))
+        .collect(),
     )?;
     let path = dir.join("part-0.arrow");
     let fail = || format!("{}: write failed", path.display());

@@ -82,19 +82,23 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
     let footer = crate::table::read_footer(&opts.table)?;
     let footer: Footer =
         serde_json::from_value(footer).with_context(|| format!("{}: not a trajectory table", opts.table.display()))?;
-    // WGCSL keeps any array whose first dimension is the episodes; pgser's Minari writer keeps
-    // none yet (Minari's `infos` could hold them).
+    // WGCSL keeps any array whose first dimension is the episodes; a Minari dataset keeps what
+    // has a row per observation, in each episode's `infos`.
     let (extras, _) = match dataset_id {
-        Some(_) => kept_for(
-            &footer,
-            &opts.table,
-            "Minari dataset (pgser's writer: no infos yet)",
-            &opts.drop,
-            |_| false,
-            false,
-        )?,
+        Some(_) => kept_for(&footer, &opts.table, "Minari dataset", &opts.drop, |p| p.per == Per::Step, false)?,
         None => kept_for(&footer, &opts.table, "WGCSL pickle", &opts.drop, |_| true, false)?,
     };
+    if dataset_id.is_some() {
+        let names: Vec<&str> = extras.iter().map(|p| info_key(&p.column)).collect();
+        if let Some((i, n)) = names.iter().enumerate().find(|(i, n)| names[..*i].contains(n)) {
+            bail!(
+                "{}: passthrough columns {} and {} would both be the Minari info {n:?}; pass --drop with one of them",
+                opts.table.display(),
+                extras[names.iter().position(|m| m == n).expect("found")].column,
+                extras[i].column
+            );
+        }
+    }
     let table = read_table(&opts.table, &extras)?;
     match dataset_id {
         Some(id) => write_minari(&table, &opts.table, out, &id)?,
@@ -257,6 +261,12 @@ fn env_spec(task: &Task) -> Option<serde_json::Value> {
     }))
 }
 
+/// The Minari info a passthrough column is written as: `infos/KEY` (what `convert` made of a
+/// Minari dataset's infos) is KEY again; another column keeps its name.
+fn info_key(column: &str) -> &str {
+    column.strip_prefix("infos/").unwrap_or(column)
+}
+
 fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()> {
     let f = &table.footer;
     let task = f.task();
@@ -279,7 +289,20 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
         let rewards = rewards(&task, &ag[f.goal_dim..], g);
         let dir = data.join(e.to_string());
         mkdir(&dir)?;
-        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards };
+        let infos = table
+            .extras
+            .iter()
+            .map(|(p, bytes)| {
+                let per = p.episode_bytes(t);
+                (
+                    info_key(&p.column).to_string(),
+                    p.dtype.clone(),
+                    p.shape.clone(),
+                    bytes[e * per..(e + 1) * per].to_vec(),
+                )
+            })
+            .collect();
+        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards, infos };
         arrow_storage::write_episode(&dir, &spaces, ep)?;
         write_json(&dir.join("metadata.json"), &json!({"id": e, "total_steps": t - 1}))?;
     }

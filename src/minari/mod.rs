@@ -23,6 +23,7 @@ mod arrow_storage;
 mod export;
 #[cfg(feature = "hdf5")]
 mod hdf5_storage;
+mod infos;
 mod space;
 
 use std::path::{Path, PathBuf};
@@ -35,8 +36,8 @@ pub use space::{BoxSpace, Spaces};
 
 use crate::task::{GoalMetric, Task};
 use crate::trajectory::{
-    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, FloatArray, FloatType, Footer, SourceFile,
-    TrajectoryWriter,
+    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough,
+    Per, SourceFile, TrajectoryWriter,
 };
 
 /// The Dict observation's keys pgser needs, in the order [`Episode::arrays`] holds them (after
@@ -85,6 +86,8 @@ pub struct Metadata {
 pub(crate) struct Episode {
     pub steps: usize,
     pub arrays: [Vec<u8>; 4],
+    /// The episode's infos, a row per observation (or per step), each key's bytes.
+    pub infos: Vec<infos::Info>,
 }
 
 /// The `data/` folder of a dataset given as `ID/` (as under MINARI_DATASETS_PATH) or as `ID/data/`.
@@ -185,6 +188,9 @@ struct Source {
     dropped: usize,
     /// Episodes whose last observation's desired goal differs from the step before's.
     goal_changed_last: usize,
+    /// The infos keys kept as passthrough columns (`infos/KEY`): each one's index among an
+    /// episode's infos and its record ([`Source::keep_infos`]).
+    infos: Vec<(usize, Passthrough)>,
 }
 
 /// One window of episodes as the four WGCSL arrays: o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`,
@@ -192,6 +198,8 @@ struct Source {
 #[derive(Default)]
 struct Window {
     arrays: [Vec<u8>; 4],
+    /// The kept infos keys' rows, in [`Source::infos`]' order.
+    extras: Vec<Vec<u8>>,
     episodes: usize,
 }
 
@@ -219,7 +227,51 @@ impl Source {
             bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
         }
         let t = first.steps + 1;
-        Ok(Source { meta, reader, first: Some(first), sizes, episodes, t, dropped: 0, goal_changed_last: 0 })
+        Ok(Source {
+            meta,
+            reader,
+            first: Some(first),
+            sizes,
+            episodes,
+            t,
+            dropped: 0,
+            goal_changed_last: 0,
+            infos: Vec::new(),
+        })
+    }
+
+    /// Which of episode 0's infos keys become passthrough columns, once T is known: all but those
+    /// `drop` names (`infos/KEY`), each a row per observation (per step) or per action (per
+    /// transition); what a column cannot keep is refused by name. Returns the keys dropped.
+    fn keep_infos(&mut self, drop: &[String]) -> Result<Vec<String>> {
+        let at = self.meta.data.display().to_string();
+        let first = self.first.as_ref().expect("before the first window");
+        let (mut kept, mut dropped) = (Vec::new(), Vec::new());
+        for (i, info) in first.infos.iter().enumerate() {
+            let column = format!("infos/{}", info.key);
+            if drop.contains(&column) {
+                dropped.push(column);
+                continue;
+            }
+            let per = if info.rows == first.steps + 1 {
+                Per::Step
+            } else if info.rows == first.steps {
+                Per::Transition
+            } else {
+                bail!(
+                    "{at}: episode 0's `{column}` has {} rows for {} steps (a row per observation or per step expected); \
+                     pass --drop {column} to convert without it",
+                    info.rows,
+                    first.steps
+                );
+            };
+            kept.push((i, Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?));
+        }
+        if let Some(d) = drop.iter().find(|d| !dropped.contains(d)) {
+            bail!("--drop {d}: {at} has no infos key {:?} to leave out", d.strip_prefix("infos/").unwrap_or(d));
+        }
+        self.infos = kept;
+        Ok(dropped)
     }
 
     /// Reads episodes `range` into `w` (replacing what it held), checking each has T − 1 steps
@@ -233,6 +285,7 @@ impl Source {
         // The rows kept: the first T observations and T − 1 actions of each episode.
         let t = self.t;
         w.arrays.iter_mut().for_each(Vec::clear);
+        w.extras = vec![Vec::new(); self.infos.len()];
         w.episodes = range.len();
         for i in range {
             let ep = match self.first.take().filter(|_| i == 0) {
@@ -246,6 +299,23 @@ impl Source {
                     ep.steps,
                     self.t
                 );
+            }
+            for ((k, p), out) in self.infos.iter().zip(&mut w.extras) {
+                let info = ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column);
+                let want_rows = if p.per == Per::Step { ep.steps + 1 } else { ep.steps };
+                let Some(info) = info.filter(|i| i.descr == p.dtype && i.shape == p.shape && i.rows == want_rows)
+                else {
+                    bail!(
+                        "{at}: episode {i}'s `{}` is not episode 0's ({} of shape {:?}, {want_rows} rows): a table's episodes \
+                         all have the same columns; pass --drop {} to convert without it",
+                        p.column,
+                        p.dtype,
+                        p.shape,
+                        p.column
+                    );
+                };
+                let row = info.bytes.len() / info.rows.max(1);
+                out.extend_from_slice(&info.bytes[..p.per.rows(t) * row]);
             }
             let [obs, ag, dg, act] = ep.arrays;
             let (goals, last) = dg[..t * goal_row].split_at((t - 1) * goal_row);
@@ -268,12 +338,18 @@ impl Source {
             steps: steps[k],
             dim: dims[k],
         });
+        let extras = self
+            .infos
+            .iter()
+            .zip(&w.extras)
+            .map(|((_, p), data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
+            .collect();
         EpisodeArrays {
             origin: self.meta.data.display().to_string(),
             keys: ARRAY_KEYS,
             arrays,
             episodes: w.episodes,
-            extras: Vec::new(),
+            extras,
         }
     }
 
@@ -324,6 +400,7 @@ pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
     let take = take_option(opts)?;
     let mut source = Source::open(dir, take)?;
     let task = source.task(opts.task.as_deref(), opts.threshold, opts.exact_length)?;
+    source.keep_infos(&opts.drop)?;
     Ok(ConvertPlan {
         task,
         float_type: source.float_type(opts.float32),
@@ -350,8 +427,18 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
     let float_type = source.float_type(opts.float32);
     // Hashed before the table's temporary file exists, which may be in the dataset's folder.
     let sha256 = sha256_folder(&source.meta.data)?;
-    let mut writer =
-        TrajectoryWriter::create(&opts.output, &task, float_type, opts.row_group_rows, opts.allow_nonfinite)?;
+    let dropped_infos = source.keep_infos(&opts.drop)?;
+    let specs: Vec<Passthrough> = source.infos.iter().map(|(_, p)| p.clone()).collect();
+    let kept = specs.iter().map(crate::trajectory::describe).collect();
+    let mut writer = TrajectoryWriter::create_with(
+        &opts.output,
+        &task,
+        float_type,
+        opts.row_group_rows,
+        opts.allow_nonfinite,
+        specs,
+        false,
+    )?;
     let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
     bar.set_length(source.episodes as u64);
     let mut w = Window::default();
@@ -371,7 +458,8 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         steps_dropped: source.dropped,
     }];
     let bytes = writer.finish(&footer)?;
-    let skipped_keys = source.meta.skipped_keys.iter().map(|k| format!("{}: {k}", dir.display())).collect();
+    let skipped_keys =
+        source.meta.skipped_keys.iter().chain(&dropped_infos).map(|k| format!("{}: {k}", dir.display())).collect();
     let mut notes = Vec::new();
     if source.dropped > 0 {
         notes.push(format!(
@@ -399,7 +487,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         rows: source.episodes * footer.t,
         bytes,
         skipped_keys,
-        kept: Vec::new(),
+        kept,
         notes,
     })
 }

@@ -5,7 +5,8 @@
         one's parent, the id being the folder's name). Their episodes must hold equal arrays:
         observations (every Dict key), actions, rewards, terminations and truncations, value for
         value, and bit for bit where the dtypes agree (a float32 array against a float64 one is
-        compared after widening, which is exact). Also the counts and the env spec's id.
+        compared after widening, which is exact); and the same infos keys, each with the same
+        dtype, shape and bits. Also the counts and the env spec's id.
 
     check_minari.py table TABLE.parquet DATASET_DIR THRESHOLD
         The dataset opened with minari.load_dataset must hold the trajectory table (read with
@@ -65,6 +66,14 @@ def cmd_same(expected_dir, got_dir):
         for key in ("actions", "rewards", "terminations", "truncations"):
             same(f"episode {i} {key}", getattr(a, key), getattr(b, key))
             dtypes[key] = [str(getattr(a, key).dtype), str(getattr(b, key).dtype)]
+        ia, ib = a.infos or {}, b.infos or {}
+        if sorted(ia) != sorted(ib):
+            sys.exit(f"episode {i}: infos keys {sorted(ia)} vs {sorted(ib)}")
+        for key in ia:
+            x, y = np.asarray(ia[key]), np.asarray(ib[key])
+            if x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+                sys.exit(f"episode {i} infos/{key}: {y.dtype}{y.shape} differs from {x.dtype}{x.shape}")
+            dtypes[f"infos/{key}"] = [str(x.dtype), str(y.dtype)]
     print(json.dumps({"episodes": want.total_episodes, "steps": want.total_steps, "env_id": ids[0], "dtypes": dtypes}))
 
 

@@ -27,6 +27,11 @@ MINARI_DATASETS_PATH):
   steps, 51 observations, one more than pgser's FetchReach T; `convert` drops the last step.
 - pendulum-hdf5-v0: Pendulum-v1 (a plain Box observation, no goals), 2 episodes of 10 steps:
   a dataset that is not goal-conditioned.
+- fetchreach-infos-hdf5-v0, fetchreach-infos-arrow-v0: as fetchreach-{hdf5,arrow}-v0 (3
+  episodes), recorded with `record_infos=True` around a wrapper that gives the reset the step's
+  info keys (gymnasium-robotics' `is_success` float, and a per-step `distance` float32 [1]), as
+  Minari needs the same keys on every step: a Minari dataset with infos, for the lossless round
+  trip.
 
 Existing folders are replaced. HDF5 files carry creation times, so regenerated files differ
 in bytes but not in content.
@@ -85,6 +90,42 @@ def fetch(minari, data_format, dataset_id, reset_at=None, steps=49, episodes=4):
     )
 
 
+class StepInfo(gym.Wrapper):
+    """Every info, the reset's included, with the keys a Fetch step's has: `is_success` and the
+    goal distance, so that Minari records infos (it needs the same keys on every step)."""
+
+    def _info(self, obs, info):
+        d = np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])
+        return {"is_success": np.float64(d < 0.05), "distance": np.array([d], dtype=np.float32)}
+
+    def reset(self, **kw):
+        obs, info = self.env.reset(**kw)
+        return obs, self._info(obs, info)
+
+    def step(self, action):
+        obs, r, term, trunc, info = self.env.step(action)
+        return obs, r, term, trunc, self._info(obs, info)
+
+
+def fetch_infos(minari, data_format, dataset_id):
+    env = minari.DataCollector(StepInfo(gym.make("FetchReach-v4", max_episode_steps=49)), record_infos=True,
+                               data_format=data_format)
+    rng = np.random.default_rng(11)
+    for ep in range(3):
+        obs, _ = env.reset(seed=ep)
+        for _ in range(49):
+            obs, _, terminated, truncated, _ = env.step(reacher(obs, rng))
+            if terminated or truncated:
+                break
+    return env.create_dataset(
+        dataset_id=dataset_id,
+        algorithm_name="noisy proportional reacher with infos (tests/py/make_minari_fixtures.py)",
+        author="pgser tests",
+        author_email="pgser@example.invalid",
+        code_permalink="tests/py/make_minari_fixtures.py",
+    )
+
+
 def pendulum(minari, dataset_id):
     """A dataset that is not goal-conditioned."""
     env = minari.DataCollector(gym.make("Pendulum-v1", max_episode_steps=10), data_format="hdf5")
@@ -104,6 +145,8 @@ DATASETS = {
     "fetchreach-short-arrow-v0": lambda m, i: fetch(m, "arrow", i, reset_at=(2, 20)),
     "fetchreach-default-arrow-v0": lambda m, i: fetch(m, "arrow", i, steps=50, episodes=3),
     "pendulum-hdf5-v0": lambda m, i: pendulum(m, i),
+    "fetchreach-infos-hdf5-v0": lambda m, i: fetch_infos(m, "hdf5", i),
+    "fetchreach-infos-arrow-v0": lambda m, i: fetch_infos(m, "arrow", i),
 }
 
 

@@ -28,7 +28,8 @@ pub enum Command {
         pgser-etl convert ~/.minari/datasets/fetchreach-expert-v0 -o traj.parquet\n  \
         pgser-etl convert pointmaze-medium-navigate-v0.npz -o traj.parquet\n  \
         pgser-etl convert buffer.pkl -o traj.parquet --task FetchPush --drop debug_info\n\n\
-        Every array of a pickle or OGBench file that is not o, ag, u, g (observations, actions) becomes a column of \
+        Every array of a pickle or OGBench file that is not o, ag, u, g (observations, actions), and every key of a \
+        Minari dataset's infos (as infos/KEY), becomes a column of \
         its own (info_is_success, qpos, qvel, …), with its dtype and shape in the footer, so that export gives the \
         source back whole; one a column cannot hold is refused by name (--drop KEY leaves it out). See docs/tables.md.\n\n\
         A Minari dataset (HDF5 or Arrow storage) must be goal-conditioned (a Dict observation with observation, \
@@ -267,7 +268,8 @@ pub enum Command {
         A Minari dataset is a folder named by its dataset id (NAME-vN); `minari.load_dataset(\"NAME-vN\")` opens \
         it when MINARI_DATASETS_PATH is its parent folder. Its Arrow storage holds each episode's observations \
         (Dict: observation, achieved_goal, desired_goal), actions, rewards recomputed from the goals (the task's \
-        sparse reward), no terminations, and a truncation on the last step. A WGCSL pickle holds float64 arrays \
+        sparse reward), no terminations, a truncation on the last step, and the table's per-step passthrough \
+        columns as its infos (infos/KEY as KEY). A WGCSL pickle holds float64 arrays \
         (a float32 table widens exactly; a table converted from float32 pickles gives float32 back), and every \
         passthrough column as the array it was. An OGBench file holds observations, actions and terminals, and \
         the source's other per-row arrays (qpos, qvel, …) in their dtypes; a table from an OGBench file comes back \
