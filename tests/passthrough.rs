@@ -191,7 +191,13 @@ fn minari_infos_come_back_whole() {
         );
         let out = dir.path().join(format!("fetchreach-infos-{storage}-v0"));
         export_ok(&table, "minari", &out, &[]);
-        py_ok("check_minari.py", &["same", src.to_str().unwrap(), out.to_str().unwrap()]);
+        let o = py_ok("check_minari.py", &["same", src.to_str().unwrap(), out.to_str().unwrap()]);
+        // Every array in its own dtype again: float32 actions beside float64 observations too.
+        let said = last_json(&text(&o.stdout));
+        for (key, pair) in said["dtypes"].as_object().unwrap() {
+            assert_eq!(pair[0], pair[1], "{storage}: {key}");
+        }
+        assert_eq!(said["dtypes"]["actions"][1], "float32");
         // --drop leaves a key out, and says so.
         let t2 = dir.path().join(format!("{storage}_d.parquet"));
         let o = etl().arg("convert").arg(&src).arg("-o").arg(&t2).args(["--drop", "infos/distance"]).output().unwrap();

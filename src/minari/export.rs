@@ -272,9 +272,16 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
     let task = f.task();
     let (n, t) = (f.episodes, f.t);
     let size = if f.float_type == FloatType::Float32 { 4 } else { 8 };
+    // A table converted from a Minari dataset whose arrays had two float types (float32 actions
+    // beside float64 observations) gives each its own back; the values were widened exactly.
+    let sizes = match f.sources.as_slice() {
+        [s] if s.format.starts_with("minari") && s.float_bytes.len() == 4 => s.float_bytes.clone(),
+        _ => vec![size; 4],
+    };
     let spaces = Spaces {
-        obs: [f.obs_dim, f.goal_dim, f.goal_dim].map(|dim| BoxSpace { dim, size }),
-        action: BoxSpace { dim: f.act_dim, size },
+        obs: [(f.obs_dim, sizes[0]), (f.goal_dim, sizes[1]), (f.goal_dim, sizes[2])]
+            .map(|(dim, size)| BoxSpace { dim, size }),
+        action: BoxSpace { dim: f.act_dim, size: sizes[3] },
     };
     let staging = crate::output::AtomicDir::create(out)?;
     let data = staging.path().join("data");

@@ -468,6 +468,12 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         episodes_in_file: source.meta.total_episodes,
         episodes_taken: source.episodes,
         steps_dropped: source.dropped,
+        float_bytes: {
+            // o, ag, g, u as the footer orders them; Source::sizes holds o, ag, u, g.
+            let s = [source.sizes[0], source.sizes[1], source.sizes[3], source.sizes[2]];
+            let table = if float_type == FloatType::Float32 { 4 } else { 8 };
+            if s.iter().all(|&b| b == table) { Vec::new() } else { s.to_vec() }
+        },
     }];
     let bytes = writer.finish(&footer)?;
     let skipped_keys = dropped_infos.iter().map(|k| format!("{}: {k}", dir.display())).collect();

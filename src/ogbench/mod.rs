@@ -372,6 +372,7 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         episodes_in_file: d.episodes,
         episodes_taken: episodes,
         steps_dropped: 0,
+        float_bytes: Vec::new(),
     }];
     let bytes = writer.finish(&footer)?;
     let mut notes = vec![format!(

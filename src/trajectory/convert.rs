@@ -247,6 +247,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
                 episodes_in_file: s.episodes,
                 episodes_taken: s.take,
                 steps_dropped: 0,
+                float_bytes: Vec::new(),
             })
             .collect();
         let bytes = writer.finish(&footer)?;

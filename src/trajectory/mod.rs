@@ -74,6 +74,11 @@ pub struct SourceFile {
     /// under gymnasium's time limit has one more than WGCSL's episodes); absent when none.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub steps_dropped: usize,
+    /// Bytes per value of observation, achieved goal, desired goal and action as the source
+    /// stored them, where one differs from the table's float type (a Minari dataset's float32
+    /// actions beside float64 observations): what `export` writes them back as. Absent otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub float_bytes: Vec<usize>,
 }
 
 fn is_zero(n: &usize) -> bool {
