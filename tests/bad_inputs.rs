@@ -312,7 +312,12 @@ fn a_file_size_limit_in_report_and_minari_export_fails_cleanly() {
     let back = tmp.path().join("back.parquet");
     let o = etl().args(["convert", ds.to_str().unwrap(), "-o", back.to_str().unwrap()]).output().unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
-    assert!(read_table(&back).0.columns() == read_table(&table).0.columns(), "the rerun's dataset differs");
+    // The dataset's episodes, and its rewards, terminations and truncations kept beside them.
+    let (back, table) = (read_table(&back).0, read_table(&table).0);
+    assert!(back.columns()[..6] == table.columns()[..6], "the rerun's dataset differs");
+    let schema = back.schema();
+    let extra: Vec<&str> = schema.fields()[6..].iter().map(|f| f.name().as_str()).collect();
+    assert_eq!(extra, ["rewards", "terminations", "truncations"]);
 
     // report: its previous complete output stays as it was.
     let rep = tmp.path().join("report");

@@ -49,6 +49,7 @@ impl Reader {
         }
         let mut arrays: [Vec<u8>; 4] = Default::default();
         let mut infos: Vec<Info> = Vec::new();
+        let mut outcomes: Vec<Info> = Vec::new();
         let mut rows = 0;
         for path in &files {
             let at = format!("{} (episode {i})", path.display());
@@ -71,6 +72,19 @@ impl Reader {
                 if let Some(col) = batch.column_by_name("infos").and_then(|c| c.as_struct_opt()) {
                     infos::extend(&at, &mut infos, infos::from_arrow(&at, col)?)?;
                 }
+                // Rewards, terminations, truncations: scalar columns, read as infos are.
+                let present: Vec<(Arc<Field>, ArrayRef)> = super::OUTCOMES
+                    .iter()
+                    .filter_map(|k| {
+                        let c = batch.column_by_name(k)?;
+                        Some((Arc::new(Field::new(*k, c.data_type().clone(), true)), c.clone()))
+                    })
+                    .collect();
+                if !present.is_empty() {
+                    let (fields, columns): (Vec<_>, Vec<_>) = present.into_iter().unzip();
+                    let s = StructArray::try_new(Fields::from(fields), columns, None)?;
+                    infos::extend(&at, &mut outcomes, infos::from_arrow(&at, &s)?)?;
+                }
                 rows += batch.num_rows();
             }
         }
@@ -80,7 +94,13 @@ impl Reader {
         // The actions' last row is the storage's padding.
         let act_row = self.spaces.action.dim * self.spaces.action.size;
         arrays[3].truncate((rows - 1) * act_row);
-        Ok(Episode { steps: rows - 1, arrays, infos })
+        // Their last row, like the actions', is the storage's padding.
+        for o in &mut outcomes {
+            let row = o.bytes.len() / o.rows.max(1);
+            o.rows -= 1;
+            o.bytes.truncate(o.rows * row);
+        }
+        Ok(Episode { steps: rows - 1, arrays, infos, outcomes })
     }
 }
 
@@ -225,6 +245,9 @@ pub struct EpisodeOut {
     pub rewards: Vec<f32>,
     /// The episode's infos, T rows each: (key, numpy dtype, shape of a row's value, bytes).
     pub infos: Vec<(String, String, Vec<usize>, Vec<u8>)>,
+    /// Rewards, terminations or truncations as the source recorded them, T − 1 rows each (name,
+    /// numpy dtype, bytes): written instead of the recomputed rewards and the time-limit ending.
+    pub outcomes: Vec<(String, String, Vec<u8>)>,
 }
 
 /// The schema of an exported episode file, as Minari's Arrow storage writes it.
@@ -277,14 +300,33 @@ pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> 
     let mut rewards = ep.rewards;
     rewards.push(0.0);
     let truncations = BooleanArray::from_iter((0..t).map(|r| Some(r + 2 == t)));
+    // A recorded outcome, padded with a last row of zeros as Minari pads it, in its own type.
+    let recorded = |name: &str| -> Result<Option<ArrayRef>> {
+        let Some((_, descr, bytes)) = ep.outcomes.iter().find(|o| o.0 == name) else { return Ok(None) };
+        let mut padded = bytes.clone();
+        padded.extend(std::iter::repeat_n(0u8, bytes.len() / (t - 1).max(1)));
+        let (_, array) = infos::to_arrow(&[(name.to_string(), descr.clone(), vec![], padded)], t)?;
+        Ok(Some(array.as_struct().column(0).clone()))
+    };
+    let rewards: ArrayRef = recorded("rewards")?.unwrap_or_else(|| Arc::new(Float32Array::from(rewards)));
+    let terminations: ArrayRef =
+        recorded("terminations")?.unwrap_or_else(|| Arc::new(BooleanArray::from(vec![false; t])));
+    let truncations: ArrayRef = recorded("truncations")?.unwrap_or_else(|| Arc::new(truncations));
+    let mut fields: Vec<Field> = schema.fields().iter().map(|f| f.as_ref().clone()).collect();
+    for (f, a) in fields.iter_mut().zip([None, None, Some(&rewards), Some(&terminations), Some(&truncations)]) {
+        if let Some(a) = a {
+            *f = Field::new(f.name(), a.data_type().clone(), true);
+        }
+    }
+    let schema = Arc::new(Schema::new(fields));
     let batch = RecordBatch::try_new(
         schema.clone(),
         <Vec<ArrayRef>>::from([
             Arc::new(observations) as ArrayRef,
             list(&spaces.action, &actions),
-            Arc::new(Float32Array::from(rewards)),
-            Arc::new(BooleanArray::from(vec![false; t])),
-            Arc::new(truncations),
+            rewards,
+            terminations,
+            truncations,
         ])
         .into_iter()
         .chain(infos.map(|(_, array)| array))

@@ -85,17 +85,18 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
     // WGCSL keeps any array whose first dimension is the episodes; a Minari dataset keeps what
     // has a row per observation, in each episode's `infos`.
     let (extras, _) = match dataset_id {
-        Some(_) => kept_for(&footer, &opts.table, "Minari dataset", &opts.drop, |p| p.per == Per::Step, false)?,
+        Some(_) => kept_for(&footer, &opts.table, "Minari dataset", &opts.drop, minari_holds, false)?,
         None => kept_for(&footer, &opts.table, "WGCSL pickle", &opts.drop, |_| true, false)?,
     };
     if dataset_id.is_some() {
-        let names: Vec<&str> = extras.iter().map(|p| info_key(&p.column)).collect();
+        let infos: Vec<&Passthrough> = extras.iter().filter(|p| !is_outcome(p)).collect();
+        let names: Vec<&str> = infos.iter().map(|p| info_key(&p.column)).collect();
         if let Some((i, n)) = names.iter().enumerate().find(|(i, n)| names[..*i].contains(n)) {
             bail!(
                 "{}: passthrough columns {} and {} would both be the Minari info {n:?}; pass --drop with one of them",
                 opts.table.display(),
-                extras[names.iter().position(|m| m == n).expect("found")].column,
-                extras[i].column
+                infos[names.iter().position(|m| m == n).expect("found")].column,
+                infos[i].column
             );
         }
     }
@@ -261,6 +262,17 @@ fn env_spec(task: &Task) -> Option<serde_json::Value> {
     }))
 }
 
+/// What a Minari dataset holds of a table's passthrough columns: those with a row per observation
+/// (as infos), and the rewards, terminations and truncations a Minari dataset's table keeps (a
+/// row per step, written back in their place).
+fn minari_holds(p: &Passthrough) -> bool {
+    p.per == Per::Step || is_outcome(p)
+}
+
+fn is_outcome(p: &Passthrough) -> bool {
+    p.per == Per::Transition && super::OUTCOMES.contains(&p.column.as_str())
+}
+
 /// The Minari info a passthrough column is written as: `infos/KEY` (what `convert` made of a
 /// Minari dataset's infos) is KEY again; another column keeps its name.
 fn info_key(column: &str) -> &str {
@@ -296,9 +308,20 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
         let rewards = rewards(&task, &ag[f.goal_dim..], g);
         let dir = data.join(e.to_string());
         mkdir(&dir)?;
+        let slice = |p: &Passthrough, bytes: &[u8]| {
+            let per = p.episode_bytes(t);
+            bytes[e * per..(e + 1) * per].to_vec()
+        };
+        let outcomes = table
+            .extras
+            .iter()
+            .filter(|(p, _)| is_outcome(p))
+            .map(|(p, bytes)| (p.column.clone(), p.dtype.clone(), slice(p, bytes)))
+            .collect();
         let infos = table
             .extras
             .iter()
+            .filter(|(p, _)| !is_outcome(p))
             .map(|(p, bytes)| {
                 let per = p.episode_bytes(t);
                 (
@@ -309,7 +332,7 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
                 )
             })
             .collect();
-        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards, infos };
+        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards, infos, outcomes };
         arrow_storage::write_episode(&dir, &spaces, ep)?;
         write_json(&dir.join("metadata.json"), &json!({"id": e, "total_steps": t - 1}))?;
     }

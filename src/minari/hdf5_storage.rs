@@ -68,7 +68,13 @@ impl Reader {
             Ok(g) => read_infos(&at, &name, &g)?,
             Err(_) => Vec::new(),
         };
-        Ok(Episode { steps: rows[3], arrays, infos })
+        // Rewards, terminations and truncations: a row per step, kept as they were recorded.
+        let outcomes = super::OUTCOMES
+            .iter()
+            .filter(|k| group.link_exists(k))
+            .map(|k| read_any(&at, &name, &group, k, k))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Episode { steps: rows[3], arrays, infos, outcomes })
     }
 }
 
@@ -76,45 +82,45 @@ impl Reader {
 fn read_infos(at: &str, episode: &str, group: &hdf5::Group) -> Result<Vec<Info>> {
     let mut names = group.member_names().map_err(|e| anyhow!("{at}: {episode}/infos: {}", one_line(e)))?;
     names.sort();
-    let mut out = Vec::new();
-    for key in names {
-        let where_ = format!("{at}: {episode}/infos/{key}");
-        let cannot = |what: String| {
-            anyhow!(
-                "{where_} is {what}, which a table column cannot keep; pass --drop infos/{key} to convert without it"
-            )
-        };
-        let ds = group.dataset(&key).map_err(|_| cannot("a group (a nested dict)".into()))?;
-        let shape = ds.shape();
-        if shape.is_empty() {
-            return Err(cannot("a scalar".into()));
-        }
-        let d = ds.dtype().and_then(|t| t.to_descriptor()).map_err(|e| anyhow!("{where_}: {}", one_line(e)))?;
-        let failed = |e: hdf5::Error| anyhow!("{where_}: cannot read ({})", one_line(e));
-        macro_rules! raw {
-            ($t:ty) => {
-                ds.read_raw::<$t>().map_err(failed)?.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>()
-            };
-        }
-        let (descr, bytes) = match d {
-            TypeDescriptor::Boolean => {
-                ("|b1", ds.read_raw::<bool>().map_err(failed)?.iter().map(|&b| u8::from(b)).collect())
-            }
-            TypeDescriptor::Integer(IntSize::U1) => ("|i1", raw!(i8)),
-            TypeDescriptor::Integer(IntSize::U2) => ("<i2", raw!(i16)),
-            TypeDescriptor::Integer(IntSize::U4) => ("<i4", raw!(i32)),
-            TypeDescriptor::Integer(IntSize::U8) => ("<i8", raw!(i64)),
-            TypeDescriptor::Unsigned(IntSize::U1) => ("|u1", raw!(u8)),
-            TypeDescriptor::Unsigned(IntSize::U2) => ("<u2", raw!(u16)),
-            TypeDescriptor::Unsigned(IntSize::U4) => ("<u4", raw!(u32)),
-            TypeDescriptor::Unsigned(IntSize::U8) => ("<u8", raw!(u64)),
-            TypeDescriptor::Float(FloatSize::U4) => ("<f4", raw!(f32)),
-            TypeDescriptor::Float(FloatSize::U8) => ("<f8", raw!(f64)),
-            other => return Err(cannot(format!("of {other} values"))),
-        };
-        out.push(Info { key, descr: descr.into(), shape: shape[1..].to_vec(), rows: shape[0], bytes });
+    names.iter().map(|key| read_any(at, &format!("{episode}/infos"), group, key, &format!("infos/{key}"))).collect()
+}
+
+/// Dataset `key` of `group` (any shape, any bool, int, uint or float type) as its rows' bytes;
+/// `column` is the name `--drop` takes, which a refusal gives.
+pub(super) fn read_any(at: &str, within: &str, group: &hdf5::Group, key: &str, column: &str) -> Result<Info> {
+    let where_ = format!("{at}: {within}/{key}");
+    let cannot = |what: String| {
+        anyhow!("{where_} is {what}, which a table column cannot keep; pass --drop {column} to convert without it")
+    };
+    let ds = group.dataset(key).map_err(|_| cannot("a group (a nested dict)".into()))?;
+    let shape = ds.shape();
+    if shape.is_empty() {
+        return Err(cannot("a scalar".into()));
     }
-    Ok(out)
+    let d = ds.dtype().and_then(|t| t.to_descriptor()).map_err(|e| anyhow!("{where_}: {}", one_line(e)))?;
+    let failed = |e: hdf5::Error| anyhow!("{where_}: cannot read ({})", one_line(e));
+    macro_rules! raw {
+        ($t:ty) => {
+            ds.read_raw::<$t>().map_err(failed)?.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>()
+        };
+    }
+    let (descr, bytes) = match d {
+        TypeDescriptor::Boolean => {
+            ("|b1", ds.read_raw::<bool>().map_err(failed)?.iter().map(|&b| u8::from(b)).collect())
+        }
+        TypeDescriptor::Integer(IntSize::U1) => ("|i1", raw!(i8)),
+        TypeDescriptor::Integer(IntSize::U2) => ("<i2", raw!(i16)),
+        TypeDescriptor::Integer(IntSize::U4) => ("<i4", raw!(i32)),
+        TypeDescriptor::Integer(IntSize::U8) => ("<i8", raw!(i64)),
+        TypeDescriptor::Unsigned(IntSize::U1) => ("|u1", raw!(u8)),
+        TypeDescriptor::Unsigned(IntSize::U2) => ("<u2", raw!(u16)),
+        TypeDescriptor::Unsigned(IntSize::U4) => ("<u4", raw!(u32)),
+        TypeDescriptor::Unsigned(IntSize::U8) => ("<u8", raw!(u64)),
+        TypeDescriptor::Float(FloatSize::U4) => ("<f4", raw!(f32)),
+        TypeDescriptor::Float(FloatSize::U8) => ("<f8", raw!(f64)),
+        other => return Err(cannot(format!("of {other} values"))),
+    };
+    Ok(Info { key: key.to_string(), descr: descr.into(), shape: shape[1..].to_vec(), rows: shape[0], bytes })
 }
 
 /// One dataset of an episode group as little-endian bytes: its rows, checked to be

@@ -88,7 +88,14 @@ pub(crate) struct Episode {
     pub arrays: [Vec<u8>; 4],
     /// The episode's infos, a row per observation (or per step), each key's bytes.
     pub infos: Vec<infos::Info>,
+    /// Its rewards, terminations and truncations as recorded (those it has), a row per step.
+    pub outcomes: Vec<infos::Info>,
 }
+
+/// What a Minari episode records of each step besides its observation and action: kept as
+/// passthrough columns under these names, so that `export` gives them back as recorded rather
+/// than recomputed.
+pub const OUTCOMES: [&str; 3] = ["rewards", "terminations", "truncations"];
 
 /// The `data/` folder of a dataset given as `ID/` (as under MINARI_DATASETS_PATH) or as `ID/data/`.
 pub fn data_folder(dir: &Path) -> Result<PathBuf> {
@@ -188,9 +195,10 @@ struct Source {
     dropped: usize,
     /// Episodes whose last observation's desired goal differs from the step before's.
     goal_changed_last: usize,
-    /// The infos keys kept as passthrough columns (`infos/KEY`): each one's index among an
-    /// episode's infos and its record ([`Source::keep_infos`]).
-    infos: Vec<(usize, Passthrough)>,
+    /// The infos keys kept as passthrough columns (`infos/KEY`), then the rewards, terminations
+    /// and truncations: whether it is an outcome, its index among the episode's infos (or
+    /// outcomes) and its record ([`Source::keep_infos`]).
+    infos: Vec<(bool, usize, Passthrough)>,
 }
 
 /// One window of episodes as the four WGCSL arrays: o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`,
@@ -247,8 +255,9 @@ impl Source {
         let at = self.meta.data.display().to_string();
         let first = self.first.as_ref().expect("before the first window");
         let (mut kept, mut dropped) = (Vec::new(), Vec::new());
-        for (i, info) in first.infos.iter().enumerate() {
-            let column = format!("infos/{}", info.key);
+        let all = first.infos.iter().enumerate().map(|(i, info)| (false, i, info, format!("infos/{}", info.key)));
+        let outcomes = first.outcomes.iter().enumerate().map(|(i, o)| (true, i, o, o.key.clone()));
+        for (outcome, i, info, column) in all.chain(outcomes) {
             if drop.contains(&column) {
                 dropped.push(column);
                 continue;
@@ -265,7 +274,7 @@ impl Source {
                     first.steps
                 );
             };
-            kept.push((i, Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?));
+            kept.push((outcome, i, Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?));
         }
         // The Dict observation's other keys (an image beside the goals): not kept yet (a
         // subspace of its own would have to travel in the footer for export), so refused by
@@ -312,8 +321,11 @@ impl Source {
                     self.t
                 );
             }
-            for ((k, p), out) in self.infos.iter().zip(&mut w.extras) {
-                let info = ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column);
+            for ((outcome, k, p), out) in self.infos.iter().zip(&mut w.extras) {
+                let info = match outcome {
+                    true => ep.outcomes.get(*k).filter(|i| i.key == p.column),
+                    false => ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column),
+                };
                 let want_rows = if p.per == Per::Step { ep.steps + 1 } else { ep.steps };
                 let Some(info) = info.filter(|i| i.descr == p.dtype && i.shape == p.shape && i.rows == want_rows)
                 else {
@@ -354,7 +366,7 @@ impl Source {
             .infos
             .iter()
             .zip(&w.extras)
-            .map(|((_, p), data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
+            .map(|((_, _, p), data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
             .collect();
         EpisodeArrays {
             origin: self.meta.data.display().to_string(),
@@ -440,7 +452,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
     // Hashed before the table's temporary file exists, which may be in the dataset's folder.
     let sha256 = sha256_folder(&source.meta.data)?;
     let dropped_infos = source.keep_infos(&opts.drop)?;
-    let specs: Vec<Passthrough> = source.infos.iter().map(|(_, p)| p.clone()).collect();
+    let specs: Vec<Passthrough> = source.infos.iter().map(|(_, _, p)| p.clone()).collect();
     let kept = specs.iter().map(crate::trajectory::describe).collect();
     let mut writer = TrajectoryWriter::create_with(
         &opts.output,

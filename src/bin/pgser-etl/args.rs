@@ -267,9 +267,10 @@ pub enum Command {
         pgser-etl export og.parquet --format wgcsl -o og.pkl --drop last_action\n\n\
         A Minari dataset is a folder named by its dataset id (NAME-vN); `minari.load_dataset(\"NAME-vN\")` opens \
         it when MINARI_DATASETS_PATH is its parent folder. Its Arrow storage holds each episode's observations \
-        (Dict: observation, achieved_goal, desired_goal), actions, rewards recomputed from the goals (the task's \
-        sparse reward), no terminations, a truncation on the last step, and the table's per-step passthrough \
-        columns as its infos (infos/KEY as KEY). A WGCSL pickle holds float64 arrays \
+        (Dict: observation, achieved_goal, desired_goal), actions, the rewards, terminations and truncations a \
+        Minari dataset's table kept (else rewards recomputed from the goals, the task's sparse reward, no \
+        terminations and a truncation on the last step), and the table's per-step passthrough columns as its \
+        infos (infos/KEY as KEY). A WGCSL pickle holds float64 arrays \
         (a float32 table widens exactly; a table converted from float32 pickles gives float32 back), and every \
         passthrough column as the array it was. An OGBench file holds observations, actions and terminals, and \
         the source's other per-row arrays (qpos, qvel, …) in their dtypes; a table from an OGBench file comes back \
