@@ -203,49 +203,39 @@ fn minari_infos_come_back_whole() {
         let o = etl().arg("convert").arg(&src).arg("-o").arg(&t2).args(["--drop", "infos/distance"]).output().unwrap();
         assert!(o.status.success() && text(&o.stderr).contains("left out"), "{}", text(&o.stderr));
         let f2 = pgser::table::read_footer(&t2).unwrap();
-        assert_eq!(f2["passthrough"].as_array().unwrap().len(), 1);
+        let cols: Vec<&str> =
+            f2["passthrough"].as_array().unwrap().iter().map(|p| p["column"].as_str().unwrap()).collect();
+        assert_eq!(cols, ["infos/is_success", "rewards", "terminations", "truncations"]);
     }
 }
 
 #[test]
-fn a_minari_observation_key_a_table_does_not_keep_is_refused_by_name() {
-    // An image beside the goals in the Dict observation: refused, and left out with --drop.
+fn minari_observation_keys_beside_the_goals_come_back_whole() {
+    // A uint8 (2, 2) `image` in the Dict observation, recorded by Minari's DataCollector in both
+    // storages: a column `observations/IMAGE` with the Box's shape (Arrow storage flattens it),
+    // written back into the Dict with its subspace.
     let dir = tempfile::tempdir().unwrap();
-    let ds = dir.path().join("fetchreach-image-v0");
-    let src = repo().join("tests/fixtures/minari/fetchreach-arrow-v0");
-    for entry in walk(&src) {
-        let to = ds.join(entry.strip_prefix(&src).unwrap());
-        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
-        std::fs::copy(&entry, &to).unwrap();
+    for storage in ["hdf5", "arrow"] {
+        let src = repo().join(format!("tests/fixtures/minari/fetchreach-image-{storage}-v0"));
+        let table = dir.path().join(format!("{storage}.parquet"));
+        convert_ok(&[&src], &table, &[]);
+        let footer = pgser::table::read_footer(&table).unwrap();
+        let p = &footer["passthrough"][0];
+        assert_eq!(
+            (p["column"].as_str(), p["dtype"].as_str(), &p["shape"]),
+            (Some("observations/image"), Some("|u1"), &serde_json::json!([2, 2]))
+        );
+        assert!(p["space"].as_str().unwrap().contains("uint8"), "{p}");
+        let out = dir.path().join(format!("fetchreach-image-{storage}-v0"));
+        export_ok(&table, "minari", &out, &[]);
+        let o = py_ok("check_minari.py", &["same", src.to_str().unwrap(), out.to_str().unwrap()]);
+        let said = last_json(&text(&o.stdout));
+        assert_eq!(said["dtypes"]["image"], serde_json::json!(["uint8", "uint8"]));
+        let t2 = dir.path().join(format!("{storage}_d.parquet"));
+        let o =
+            etl().arg("convert").arg(&src).arg("-o").arg(&t2).args(["--drop", "observations/image"]).output().unwrap();
+        assert!(o.status.success() && text(&o.stderr).contains("left out"), "{}", text(&o.stderr));
     }
-    let meta_path = ds.join("data/metadata.json");
-    let mut meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
-    // Gymnasium's JSON has Infinity bounds, which serde_json does not parse: edited as text.
-    let space = meta["observation_space"].as_str().unwrap().replacen(
-        "\"subspaces\": {",
-        "\"subspaces\": {\"image\": {\"type\": \"Box\", \"dtype\": \"uint8\", \"shape\": [2, 2], \"low\": 0, \"high\": 255}, ",
-        1,
-    );
-    assert!(space.contains("image"), "{space}");
-    meta["observation_space"] = serde_json::Value::String(space);
-    std::fs::write(&meta_path, meta.to_string()).unwrap();
-    let out = dir.path().join("t.parquet");
-    let o = etl().arg("convert").arg(&ds).arg("-o").arg(&out).output().unwrap();
-    let e = text(&o.stderr);
-    assert!(!o.status.success() && e.contains("observations/image") && e.contains("--drop observations/image"), "{e}");
-    assert!(!out.exists());
-    let o = etl().arg("convert").arg(&ds).arg("-o").arg(&out).args(["--drop", "observations/image"]).output().unwrap();
-    assert!(o.status.success() && text(&o.stderr).contains("left out"), "{}", text(&o.stderr));
-}
-
-/// Every file below `dir`.
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() { out.extend(walk(&p)) } else { out.push(p) }
-    }
-    out
 }
 
 /// Every member of an `.npz` as (key, descr as stored, shape, little-endian C-order bytes).
@@ -329,7 +319,9 @@ fn what_a_format_cannot_hold_is_refused_by_name_and_dropped_only_when_asked() {
     let footer = pgser::table::read_footer(&back).unwrap();
     let cols: Vec<&str> =
         footer["passthrough"].as_array().unwrap().iter().map(|p| p["column"].as_str().unwrap()).collect();
-    assert_eq!(cols, ["infos/terminals", "infos/qpos", "infos/qvel"], "in the table's order");
+    // The infos in the table's order, then the rewards, terminations and truncations the export
+    // wrote (made from the goals: an OGBench file records none).
+    assert_eq!(cols, ["infos/terminals", "infos/qpos", "infos/qvel", "rewards", "terminations", "truncations"]);
     // WGCSL → OGBench: a per-transition array has no row on an episode's last step.
     let w = d.join("w.parquet");
     convert_ok(

@@ -26,11 +26,14 @@ pub struct Reader {
     data: PathBuf,
     spaces: Spaces,
     total: usize,
+    /// The Dict observation's other keys.
+    extra_obs: Vec<String>,
 }
 
 impl Reader {
     pub fn new(meta: &Metadata) -> Reader {
-        Reader { data: meta.data.clone(), spaces: meta.spaces.clone(), total: meta.total_episodes }
+        let extra_obs = meta.extra_obs.iter().map(|(k, _)| k.clone()).collect();
+        Reader { data: meta.data.clone(), spaces: meta.spaces.clone(), total: meta.total_episodes, extra_obs }
     }
 
     /// Episode i's observations (n + 1 rows) and actions (n rows).
@@ -50,6 +53,7 @@ impl Reader {
         let mut arrays: [Vec<u8>; 4] = Default::default();
         let mut infos: Vec<Info> = Vec::new();
         let mut outcomes: Vec<Info> = Vec::new();
+        let mut obs_extras: Vec<Info> = Vec::new();
         let mut rows = 0;
         for path in &files {
             let at = format!("{} (episode {i})", path.display());
@@ -66,6 +70,23 @@ impl Reader {
                 for (k, key) in OBS_KEYS.iter().enumerate() {
                     let col = obs.column_by_name(key).with_context(|| format!("{at}: no `observations.{key}`"))?;
                     append(&at, &format!("observations.{key}"), col, &self.spaces.obs[k], rows, &mut arrays[k])?;
+                }
+                if !self.extra_obs.is_empty() {
+                    let mut fields = Vec::new();
+                    let mut columns = Vec::new();
+                    for k in &self.extra_obs {
+                        let (i, f) = obs.fields().find(k).with_context(|| format!("{at}: no `observations.{k}`"))?;
+                        fields.push(f.clone());
+                        columns.push(obs.column(i).clone());
+                    }
+                    let s = StructArray::try_new(Fields::from(fields), columns, None)?;
+                    let more = infos::from_arrow(&at, &s).map_err(|e| {
+                        anyhow::anyhow!(
+                            "{}",
+                            e.to_string().replace("infos.", "observations.").replace("infos/", "observations/")
+                        )
+                    })?;
+                    infos::extend(&at, &mut obs_extras, more)?;
                 }
                 let actions = batch.column_by_name("actions").with_context(|| format!("{at}: no `actions` column"))?;
                 append(&at, "actions", actions, &self.spaces.action, rows, &mut arrays[3])?;
@@ -100,7 +121,7 @@ impl Reader {
             o.rows -= 1;
             o.bytes.truncate(o.rows * row);
         }
-        Ok(Episode { steps: rows - 1, arrays, infos, outcomes })
+        Ok(Episode { steps: rows - 1, arrays, infos, outcomes, obs_extras })
     }
 }
 
@@ -248,6 +269,8 @@ pub struct EpisodeOut {
     /// Rewards, terminations or truncations as the source recorded them, T − 1 rows each (name,
     /// numpy dtype, bytes): written instead of the recomputed rewards and the time-limit ending.
     pub outcomes: Vec<(String, String, Vec<u8>)>,
+    /// The Dict observation's other keys, T rows each: (key, numpy dtype, a value's shape, bytes).
+    pub obs_extras: Vec<(String, String, Vec<usize>, Vec<u8>)>,
 }
 
 /// The schema of an exported episode file, as Minari's Arrow storage writes it.
@@ -287,14 +310,27 @@ pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> 
     }
     let DataType::Struct(fields) = schema.field(0).data_type().clone() else { unreachable!("a struct") };
     let by_name = |name: &str| OBS_KEYS.iter().position(|k| *k == name).expect("an observation key");
-    let columns: Vec<ArrayRef> = fields
+    let mut obs: Vec<(Field, ArrayRef)> = fields
         .iter()
         .map(|f| {
             let k = by_name(f.name());
-            list(&spaces.obs[k], &ep.obs[k])
+            (f.as_ref().clone(), list(&spaces.obs[k], &ep.obs[k]))
         })
         .collect();
-    let observations = StructArray::try_new(fields, columns, None)?;
+    // The Dict's other keys, each a list of its values flattened, as Minari encodes a Box; the
+    // Dict's keys in Gymnasium's (sorted) order.
+    for (key, descr, shape, bytes) in &ep.obs_extras {
+        let width = shape.iter().product::<usize>().max(1);
+        let (_, array) = infos::to_arrow(&[(key.clone(), descr.clone(), vec![width], bytes.clone())], t)?;
+        let column = array.as_struct().column(0).clone();
+        obs.push((Field::new(key, column.data_type().clone(), true), column));
+    }
+    obs.sort_by(|a, b| a.0.name().cmp(b.0.name()));
+    let (obs_fields, columns): (Vec<Field>, Vec<ArrayRef>) = obs.into_iter().unzip();
+    let observations = StructArray::try_new(Fields::from(obs_fields), columns, None)?;
+    let mut top: Vec<Field> = schema.fields().iter().map(|f| f.as_ref().clone()).collect();
+    top[0] = Field::new("observations", observations.data_type().clone(), true);
+    schema = Arc::new(Schema::new(top));
     let mut actions = ep.actions;
     actions.extend(std::iter::repeat_n(0.0, spaces.action.dim));
     let mut rewards = ep.rewards;

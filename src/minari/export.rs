@@ -89,7 +89,7 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
         None => kept_for(&footer, &opts.table, "WGCSL pickle", &opts.drop, |_| true, false)?,
     };
     if dataset_id.is_some() {
-        let infos: Vec<&Passthrough> = extras.iter().filter(|p| !is_outcome(p)).collect();
+        let infos: Vec<&Passthrough> = extras.iter().filter(|p| !is_outcome(p) && obs_key(p).is_none()).collect();
         let names: Vec<&str> = infos.iter().map(|p| info_key(&p.column)).collect();
         if let Some((i, n)) = names.iter().enumerate().find(|(i, n)| names[..*i].contains(n)) {
             bail!(
@@ -269,6 +269,12 @@ fn minari_holds(p: &Passthrough) -> bool {
     p.per == Per::Step || is_outcome(p)
 }
 
+/// A Minari dataset's observation key (`observations/KEY`, with its subspace): written back into
+/// the Dict observation, not the infos.
+fn obs_key(p: &Passthrough) -> Option<&str> {
+    p.space.as_ref().and(p.column.strip_prefix("observations/"))
+}
+
 fn is_outcome(p: &Passthrough) -> bool {
     p.per == Per::Transition && super::OUTCOMES.contains(&p.column.as_str())
 }
@@ -318,10 +324,15 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
             .filter(|(p, _)| is_outcome(p))
             .map(|(p, bytes)| (p.column.clone(), p.dtype.clone(), slice(p, bytes)))
             .collect();
+        let obs_extras = table
+            .extras
+            .iter()
+            .filter_map(|(p, bytes)| Some((obs_key(p)?.to_string(), p.dtype.clone(), p.shape.clone(), slice(p, bytes))))
+            .collect();
         let infos = table
             .extras
             .iter()
-            .filter(|(p, _)| !is_outcome(p))
+            .filter(|(p, _)| !is_outcome(p) && obs_key(p).is_none())
             .map(|(p, bytes)| {
                 let per = p.episode_bytes(t);
                 (
@@ -332,7 +343,14 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
                 )
             })
             .collect();
-        let ep = EpisodeOut { obs: [o.to_vec(), ag.to_vec(), dg], actions: u.to_vec(), rewards, infos, outcomes };
+        let ep = EpisodeOut {
+            obs: [o.to_vec(), ag.to_vec(), dg],
+            actions: u.to_vec(),
+            rewards,
+            infos,
+            outcomes,
+            obs_extras,
+        };
         arrow_storage::write_episode(&dir, &spaces, ep)?;
         write_json(&dir.join("metadata.json"), &json!({"id": e, "total_steps": t - 1}))?;
     }
@@ -340,11 +358,21 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
     let (low, high) = if env_spec(&task).is_some() { (-1.0, 1.0) } else { (f64::NEG_INFINITY, f64::INFINITY) };
     let inf = |b: &BoxSpace| b.to_json(f64::NEG_INFINITY, f64::INFINITY);
     // Gymnasium's Dict sorts its keys.
+    let mut subspaces: Vec<(String, String)> = vec![
+        ("achieved_goal".into(), inf(&spaces.obs[1])),
+        ("desired_goal".into(), inf(&spaces.obs[2])),
+        ("observation".into(), inf(&spaces.obs[0])),
+    ];
+    // A Minari dataset's other observation keys, with the subspaces it had.
+    for (p, _) in &table.extras {
+        if let (Some(key), Some(space)) = (obs_key(p), &p.space) {
+            subspaces.push((key.to_string(), space.clone()));
+        }
+    }
+    subspaces.sort();
     let observation_space = format!(
-        r#"{{"type": "Dict", "subspaces": {{"achieved_goal": {}, "desired_goal": {}, "observation": {}}}}}"#,
-        inf(&spaces.obs[1]),
-        inf(&spaces.obs[2]),
-        inf(&spaces.obs[0])
+        r#"{{"type": "Dict", "subspaces": {{{}}}}}"#,
+        subspaces.iter().map(|(k, s)| format!("\"{k}\": {s}")).collect::<Vec<_>>().join(", ")
     );
     let mut meta = json!({
         "total_episodes": n,

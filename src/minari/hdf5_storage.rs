@@ -22,6 +22,8 @@ pub struct Reader {
     file: hdf5::File,
     spaces: Spaces,
     total: usize,
+    /// The Dict observation's other keys.
+    extra_obs: Vec<String>,
 }
 
 /// An HDF5 error as one line (the library's messages may hold line breaks).
@@ -37,7 +39,8 @@ impl Reader {
         }
         let file = hdf5::File::open(&path)
             .map_err(|e| anyhow!("{}: not a readable HDF5 file ({})", path.display(), one_line(e)))?;
-        Ok(Reader { path, file, spaces: meta.spaces.clone(), total: meta.total_episodes })
+        let extra_obs = meta.extra_obs.iter().map(|(k, _)| k.clone()).collect();
+        Ok(Reader { path, file, spaces: meta.spaces.clone(), total: meta.total_episodes, extra_obs })
     }
 
     /// Episode i's observations (n + 1 rows) and actions (n rows).
@@ -74,7 +77,18 @@ impl Reader {
             .filter(|k| group.link_exists(k))
             .map(|k| read_any(&at, &name, &group, k, k))
             .collect::<Result<Vec<_>>>()?;
-        Ok(Episode { steps: rows[3], arrays, infos, outcomes })
+        // The Dict observation's other keys, as metadata.json lists them.
+        let obs_extras = self
+            .extra_obs
+            .iter()
+            .map(|k| {
+                let mut info =
+                    read_any(&at, &name, &group, &format!("observations/{k}"), &format!("observations/{k}"))?;
+                info.key = k.clone();
+                Ok(info)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Episode { steps: rows[3], arrays, infos, outcomes, obs_extras })
     }
 }
 

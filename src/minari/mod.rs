@@ -73,8 +73,9 @@ pub struct Metadata {
     pub storage: Storage,
     pub total_episodes: usize,
     pub spaces: Spaces,
-    /// Subspaces of the Dict observation that pgser leaves out.
-    pub skipped_keys: Vec<String>,
+    /// The Dict observation's other keys (an image beside the goals), each with its subspace as
+    /// metadata.json's text has it: kept as passthrough columns `observations/KEY`.
+    pub extra_obs: Vec<(String, String)>,
     /// The Gymnasium id of `env_spec` (`FetchReach-v4`), when the dataset names one.
     pub env_id: Option<String>,
     /// What pgser's own export recorded about the task (`pgser` key): name, threshold, metric.
@@ -90,6 +91,17 @@ pub(crate) struct Episode {
     pub infos: Vec<infos::Info>,
     /// Its rewards, terminations and truncations as recorded (those it has), a row per step.
     pub outcomes: Vec<infos::Info>,
+    /// The Dict observation's other keys ([`Metadata::extra_obs`], in that order), a row per
+    /// observation.
+    pub obs_extras: Vec<infos::Info>,
+}
+
+/// Where a passthrough column of a Minari dataset comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Info,
+    Outcome,
+    Obs,
 }
 
 /// What a Minari episode records of each step besides its observation and action: kept as
@@ -132,7 +144,7 @@ pub fn read_metadata(dir: &Path) -> Result<Metadata> {
             as usize;
     let obs = string("observation_space").with_context(|| format!("{at}: no observation_space"))?;
     let act = string("action_space").with_context(|| format!("{at}: no action_space"))?;
-    let (spaces, skipped_keys) = Spaces::parse(&at, obs, act)?;
+    let (spaces, extra_obs) = Spaces::parse(&at, obs, act)?;
     // env_spec is Gymnasium's EnvSpec as a JSON string; only its id matters here.
     let env_id = string("env_spec")
         .and_then(|s| serde_json::from_str::<serde_json::Value>(s).ok())
@@ -143,7 +155,7 @@ pub fn read_metadata(dir: &Path) -> Result<Metadata> {
         let metric = serde_json::from_value(p.get("goal_metric")?.clone()).ok()?;
         Some((name, threshold, metric))
     });
-    Ok(Metadata { data, storage, total_episodes, spaces, skipped_keys, env_id, pgser_task })
+    Ok(Metadata { data, storage, total_episodes, spaces, extra_obs, env_id, pgser_task })
 }
 
 /// Reads the episodes of one storage; both check every array against the spaces, naming the
@@ -195,10 +207,10 @@ struct Source {
     dropped: usize,
     /// Episodes whose last observation's desired goal differs from the step before's.
     goal_changed_last: usize,
-    /// The infos keys kept as passthrough columns (`infos/KEY`), then the rewards, terminations
-    /// and truncations: whether it is an outcome, its index among the episode's infos (or
-    /// outcomes) and its record ([`Source::keep_infos`]).
-    infos: Vec<(bool, usize, Passthrough)>,
+    /// The infos keys kept as passthrough columns (`infos/KEY`), the rewards, terminations and
+    /// truncations, and the Dict observation's other keys (`observations/KEY`): where it comes
+    /// from, its index there and its record ([`Source::keep_infos`]).
+    infos: Vec<(Kind, usize, Passthrough)>,
 }
 
 /// One window of episodes as the four WGCSL arrays: o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`,
@@ -255,9 +267,17 @@ impl Source {
         let at = self.meta.data.display().to_string();
         let first = self.first.as_ref().expect("before the first window");
         let (mut kept, mut dropped) = (Vec::new(), Vec::new());
-        let all = first.infos.iter().enumerate().map(|(i, info)| (false, i, info, format!("infos/{}", info.key)));
-        let outcomes = first.outcomes.iter().enumerate().map(|(i, o)| (true, i, o, o.key.clone()));
-        for (outcome, i, info, column) in all.chain(outcomes) {
+        let all = first.infos.iter().enumerate().map(|(i, info)| (Kind::Info, i, info, format!("infos/{}", info.key)));
+        let outcomes = first.outcomes.iter().enumerate().map(|(i, o)| (Kind::Outcome, i, o, o.key.clone()));
+        let obs =
+            first.obs_extras.iter().enumerate().map(|(i, o)| (Kind::Obs, i, o, format!("observations/{}", o.key)));
+        for (kind, i, info, column) in obs.chain(all).chain(outcomes) {
+            // With its last step dropped (a time limit's extra step), an episode no longer ends
+            // where its recorded terminations and truncations say: those, and the rewards with
+            // them, are made anew by an export, as for any table.
+            if kind == Kind::Outcome && self.dropped > 0 {
+                continue;
+            }
             if drop.contains(&column) {
                 dropped.push(column);
                 continue;
@@ -274,19 +294,23 @@ impl Source {
                     first.steps
                 );
             };
-            kept.push((outcome, i, Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?));
-        }
-        // The Dict observation's other keys (an image beside the goals): not kept yet (a
-        // subspace of its own would have to travel in the footer for export), so refused by
-        // name unless dropped.
-        for key in &self.meta.skipped_keys {
-            if !drop.contains(key) {
-                bail!(
-                    "{at}: the observation Dict's {key} is not one a table keeps (observation, achieved_goal, \
-                     desired_goal); pass --drop {key} to convert without it"
-                );
+            let mut p = Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?;
+            if kind == Kind::Obs {
+                if per != Per::Step {
+                    bail!(
+                        "{at}: episode 0's `{column}` has {} rows for {} steps; pass --drop {column}",
+                        info.rows,
+                        first.steps
+                    );
+                }
+                let space = self.meta.extra_obs[i].1.clone();
+                // Arrow storage flattens a Box's values: its shape is the space's.
+                if let Some(shape) = space::box_shape(&space).filter(|s| s.iter().product::<usize>() == p.len()) {
+                    p.shape = shape;
+                }
+                p.space = Some(space);
             }
-            dropped.push(key.clone());
+            kept.push((kind, i, p));
         }
         if let Some(d) = drop.iter().find(|d| !dropped.contains(d)) {
             bail!("--drop {d}: {at} has no infos key or observation key {d:?} to leave out");
@@ -321,14 +345,18 @@ impl Source {
                     self.t
                 );
             }
-            for ((outcome, k, p), out) in self.infos.iter().zip(&mut w.extras) {
-                let info = match outcome {
-                    true => ep.outcomes.get(*k).filter(|i| i.key == p.column),
-                    false => ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column),
+            for ((kind, k, p), out) in self.infos.iter().zip(&mut w.extras) {
+                let info = match kind {
+                    Kind::Outcome => ep.outcomes.get(*k).filter(|i| i.key == p.column),
+                    Kind::Info => ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column),
+                    Kind::Obs => ep.obs_extras.get(*k).filter(|i| format!("observations/{}", i.key) == p.column),
                 };
                 let want_rows = if p.per == Per::Step { ep.steps + 1 } else { ep.steps };
-                let Some(info) = info.filter(|i| i.descr == p.dtype && i.shape == p.shape && i.rows == want_rows)
-                else {
+                let Some(info) = info.filter(|i| {
+                    i.descr == p.dtype
+                        && (i.shape == p.shape || (*kind == Kind::Obs && i.shape.iter().product::<usize>() == p.len()))
+                        && i.rows == want_rows
+                }) else {
                     bail!(
                         "{at}: episode {i}'s `{}` is not episode 0's ({} of shape {:?}, {want_rows} rows): a table's episodes \
                          all have the same columns; pass --drop {} to convert without it",
@@ -493,7 +521,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
     if source.dropped > 0 {
         notes.push(format!(
             "{}: episodes have {} steps and {} has T = {} observations ({} steps): dropped each episode's last \
-             step to fit (gymnasium's time limit records one step more than WGCSL's episodes; --exact-length refuses instead)",
+             step to fit (gymnasium's time limit records one step more than WGCSL's episodes; --exact-length refuses instead), and with it the recorded rewards, terminations and truncations, which no longer end the episodes (export makes them anew)",
             dir.display(),
             task.t,
             task.name,

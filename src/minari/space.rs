@@ -7,7 +7,7 @@
 //! turns those tokens into nulls before parsing, and the writer spells them as Python does,
 //! because Minari parses the bounds back into the Box.
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use serde_json::Value;
 
 use super::OBS_KEYS;
@@ -56,8 +56,9 @@ pub struct Spaces {
 
 impl Spaces {
     /// Parse metadata.json's two space strings (`at` names the file in errors). Returns the
-    /// spaces and the Dict keys pgser does not use.
-    pub fn parse(at: &str, observation: &str, action: &str) -> Result<(Spaces, Vec<String>)> {
+    /// spaces and the Dict's other keys, each with its subspace as the text metadata.json has it
+    /// (Gymnasium's JSON, `Infinity` bounds included), which an export writes back.
+    pub fn parse(at: &str, observation: &str, action: &str) -> Result<(Spaces, Vec<(String, String)>)> {
         let obs = parse_json(at, "observation_space", observation)?;
         let act = parse_json(at, "action_space", action)?;
         let kind = |v: &Value| v.get("type").and_then(|t| t.as_str()).unwrap_or("(no type)").to_string();
@@ -90,9 +91,49 @@ impl Spaces {
                 spaces.obs[2].dim
             );
         }
-        let skipped = sub.keys().filter(|k| !OBS_KEYS.contains(&k.as_str())).map(|k| format!("observations/{k}"));
-        Ok((spaces, skipped.collect()))
+        let mut extra = Vec::new();
+        for k in sub.keys().filter(|k| !OBS_KEYS.contains(&k.as_str())) {
+            let raw = raw_subspace(observation, k)
+                .with_context(|| format!("{at}: the observation space's {k:?} cannot be found in its text"))?;
+            extra.push((k.clone(), raw));
+        }
+        Ok((spaces, extra))
     }
+}
+
+/// The shape a serialized Box space names (`"shape": [2, 2]`), if any.
+pub fn box_shape(raw: &str) -> Option<Vec<usize>> {
+    let v: Value = serde_json::from_str(&lenient_json(raw)).ok()?;
+    v.get("shape")?.as_array()?.iter().map(|d| d.as_u64().map(|d| d as usize)).collect()
+}
+
+/// The text of subspace `key` of a serialized Dict space: the object after `"subspaces"`'s
+/// `"key":`, braces matched outside strings.
+fn raw_subspace(text: &str, key: &str) -> Option<String> {
+    let after = &text[text.find("\"subspaces\"")?..];
+    let start = after.find(&format!("\"{key}\":"))? + key.len() + 3;
+    let body = &after[start..];
+    let open = body.find('{')?;
+    let (mut depth, mut in_string, mut escaped) = (0usize, false, false);
+    for (i, c) in body[open..].char_indices() {
+        if in_string {
+            in_string = escaped || c != '"';
+            escaped = !escaped && c == '\\';
+            continue;
+        }
+        match c {
+            '"' => in_string = true,
+            '{' => depth += 1,
+            '}' => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(body[open..open + i + 1].to_string());
+                }
+            }
+            _ => {}
+        }
+    }
+    None
 }
 
 fn try_all(boxes: [Result<BoxSpace>; 3]) -> Result<[BoxSpace; 3]> {
@@ -162,7 +203,9 @@ mod tests {
 
     #[test]
     fn python_infinities_parse_and_extra_keys_are_reported() {
-        let (s, skipped) = Spaces::parse("m.json", FETCH_OBS, FETCH_ACT).unwrap();
+        let (s, extra) = Spaces::parse("m.json", FETCH_OBS, FETCH_ACT).unwrap();
+        let skipped: Vec<String> = extra.iter().map(|(k, _)| format!("observations/{k}")).collect();
+        assert_eq!(extra[0].1, r#"{"type": "Box", "dtype": "uint8", "shape": [2]}"#);
         assert_eq!(s.obs.map(|b| (b.dim, b.size)), [(10, 8), (3, 8), (3, 8)]);
         assert_eq!((s.action.dim, s.action.size), (4, 4));
         assert_eq!(skipped, ["observations/image"]);

@@ -134,6 +134,10 @@ pub struct Passthrough {
     pub dtype: String,
     /// The shape of one value (`[]` for a scalar; `[1]` for WGCSL's `info_is_success`).
     pub shape: Vec<usize>,
+    /// A Minari observation key's subspace, as the dataset's metadata.json has it (Gymnasium's
+    /// JSON), so that an export to Minari puts it back in the observation space. Absent else.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub space: Option<String>,
 }
 
 /// Names a passthrough column cannot take: the table's own.
@@ -183,7 +187,14 @@ impl Passthrough {
                 "{at}: key '{key}' has the name of one of the table's own columns; pass --drop {key} to convert without it"
             );
         }
-        let p = Passthrough { column: key.to_string(), files: vec![at.to_string()], per, dtype: elem.descr(), shape };
+        let p = Passthrough {
+            column: key.to_string(),
+            files: vec![at.to_string()],
+            per,
+            dtype: elem.descr(),
+            shape,
+            space: None,
+        };
         if p.is_empty() || p.len() > i32::MAX as usize {
             bail!(
                 "{at}: key '{key}' has values of shape {:?}, which a table column cannot keep; pass --drop {key}",

@@ -12,7 +12,9 @@
         The dataset opened with minari.load_dataset must hold the trajectory table (read with
         pyarrow): observations = obs / achieved_goal rows, desired_goal = the table's (its last
         row repeating the step before), actions = the non-null action rows, rewards =
-        -(|ag[t+1] - g[t]| > THRESHOLD), no terminations, truncation on the last step only.
+        -(|ag[t+1] - g[t]| > THRESHOLD), no terminations, truncation on the last step only; or,
+        where the table keeps a Minari dataset's recorded rewards, terminations or truncations
+        (passthrough columns of those names), those.
 
 Prints one JSON line of what was compared; exits non-zero with the first difference.
 """
@@ -102,9 +104,13 @@ def cmd_table(table, dataset_dir, threshold):
         same(f"episode {i} desired_goal", ep.observations["desired_goal"], np.concatenate([g[i], g[i][-1:]]))
         same(f"episode {i} actions", ep.actions, u[i])
         d = np.linalg.norm(ag[i][1:] - g[i], axis=-1)
-        same(f"episode {i} rewards", ep.rewards, -(d > threshold).astype(np.float32))
-        same(f"episode {i} terminations", ep.terminations, np.zeros(T - 1, bool))
-        same(f"episode {i} truncations", ep.truncations, np.arange(T - 1) == T - 2)
+        want = {"rewards": -(d > threshold).astype(np.float32), "terminations": np.zeros(T - 1, bool),
+                "truncations": np.arange(T - 1) == T - 2}
+        for key, default in want.items():
+            if key in t.column_names:
+                kept = t.column(key).combine_chunks().to_numpy(zero_copy_only=False).reshape(n, T)[i, : T - 1]
+                default = kept.astype(default.dtype)
+            same(f"episode {i} {key}", getattr(ep, key), default)
     env_id = ds.spec.env_spec.id if ds.spec.env_spec else None
     print(json.dumps({"episodes": n, "T": T, "env_id": env_id, "obs_dtype": str(ep.observations["observation"].dtype)}))
 

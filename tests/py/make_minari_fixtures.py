@@ -32,6 +32,9 @@ MINARI_DATASETS_PATH):
   info keys (gymnasium-robotics' `is_success` float, and a per-step `distance` float32 [1]), as
   Minari needs the same keys on every step: a Minari dataset with infos, for the lossless round
   trip.
+- fetchreach-image-hdf5-v0, fetchreach-image-arrow-v0: as those, with a fourth key in the Dict
+  observation, `image`, a uint8 Box of shape (2, 2) (the gripper's x, y, z and the goal's x
+  quantized): an observation key a table keeps beside the goals.
 
 Existing folders are replaced. HDF5 files carry creation times, so regenerated files differ
 in bytes but not in content.
@@ -126,6 +129,36 @@ def fetch_infos(minari, data_format, dataset_id):
     )
 
 
+class WithImage(gym.ObservationWrapper):
+    """FetchReach's Dict observation with an `image` key beside the goals: uint8 (2, 2)."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        spaces = dict(env.observation_space.spaces)
+        spaces["image"] = gym.spaces.Box(0, 255, (2, 2), np.uint8)
+        self.observation_space = gym.spaces.Dict(spaces)
+
+    def observation(self, obs):
+        v = np.concatenate([obs["observation"][:3], obs["desired_goal"][:1]])
+        obs = dict(obs)
+        obs["image"] = np.clip((v * 100) % 256, 0, 255).astype(np.uint8).reshape(2, 2)
+        return obs
+
+
+def fetch_image(minari, data_format, dataset_id):
+    env = minari.DataCollector(StepInfo(WithImage(gym.make("FetchReach-v4", max_episode_steps=49))),
+                               record_infos=True, data_format=data_format)
+    rng = np.random.default_rng(13)
+    for ep in range(2):
+        obs, _ = env.reset(seed=ep)
+        for _ in range(49):
+            obs, _, terminated, truncated, _ = env.step(reacher(obs, rng))
+            if terminated or truncated:
+                break
+    return env.create_dataset(dataset_id=dataset_id, algorithm_name="reacher with an image key", author="pgser tests",
+                              author_email="pgser@example.invalid", code_permalink="tests/py/make_minari_fixtures.py")
+
+
 def pendulum(minari, dataset_id):
     """A dataset that is not goal-conditioned."""
     env = minari.DataCollector(gym.make("Pendulum-v1", max_episode_steps=10), data_format="hdf5")
@@ -147,6 +180,8 @@ DATASETS = {
     "pendulum-hdf5-v0": lambda m, i: pendulum(m, i),
     "fetchreach-infos-hdf5-v0": lambda m, i: fetch_infos(m, "hdf5", i),
     "fetchreach-infos-arrow-v0": lambda m, i: fetch_infos(m, "arrow", i),
+    "fetchreach-image-hdf5-v0": lambda m, i: fetch_image(m, "hdf5", i),
+    "fetchreach-image-arrow-v0": lambda m, i: fetch_image(m, "arrow", i),
 }
 
 
