@@ -110,25 +110,6 @@ class StepInfo(gym.Wrapper):
         return obs, r, term, trunc, self._info(obs, info)
 
 
-def fetch_infos(minari, data_format, dataset_id):
-    env = minari.DataCollector(StepInfo(gym.make("FetchReach-v4", max_episode_steps=49)), record_infos=True,
-                               data_format=data_format)
-    rng = np.random.default_rng(11)
-    for ep in range(3):
-        obs, _ = env.reset(seed=ep)
-        for _ in range(49):
-            obs, _, terminated, truncated, _ = env.step(reacher(obs, rng))
-            if terminated or truncated:
-                break
-    return env.create_dataset(
-        dataset_id=dataset_id,
-        algorithm_name="noisy proportional reacher with infos (tests/py/make_minari_fixtures.py)",
-        author="pgser tests",
-        author_email="pgser@example.invalid",
-        code_permalink="tests/py/make_minari_fixtures.py",
-    )
-
-
 class WithImage(gym.ObservationWrapper):
     """FetchReach's Dict observation with an `image` key beside the goals: uint8 (2, 2)."""
 
@@ -145,18 +126,26 @@ class WithImage(gym.ObservationWrapper):
         return obs
 
 
-def fetch_image(minari, data_format, dataset_id):
-    env = minari.DataCollector(StepInfo(WithImage(gym.make("FetchReach-v4", max_episode_steps=49))),
-                               record_infos=True, data_format=data_format)
-    rng = np.random.default_rng(13)
-    for ep in range(2):
+def fetch_infos(minari, data_format, dataset_id, image=False):
+    """FetchReach with infos on every step (StepInfo), and with `image=True` an image key in the
+    Dict observation (WithImage): 3 episodes (seed 11), or 2 with the image (seed 13)."""
+    env = gym.make("FetchReach-v4", max_episode_steps=49)
+    env = minari.DataCollector(StepInfo(WithImage(env) if image else env), record_infos=True, data_format=data_format)
+    rng = np.random.default_rng(13 if image else 11)
+    for ep in range(2 if image else 3):
         obs, _ = env.reset(seed=ep)
         for _ in range(49):
             obs, _, terminated, truncated, _ = env.step(reacher(obs, rng))
             if terminated or truncated:
                 break
-    return env.create_dataset(dataset_id=dataset_id, algorithm_name="reacher with an image key", author="pgser tests",
-                              author_email="pgser@example.invalid", code_permalink="tests/py/make_minari_fixtures.py")
+    what = "reacher with an image key" if image else "noisy proportional reacher with infos (tests/py/make_minari_fixtures.py)"
+    return env.create_dataset(
+        dataset_id=dataset_id,
+        algorithm_name=what,
+        author="pgser tests",
+        author_email="pgser@example.invalid",
+        code_permalink="tests/py/make_minari_fixtures.py",
+    )
 
 
 def pendulum(minari, dataset_id):
@@ -180,8 +169,8 @@ DATASETS = {
     "pendulum-hdf5-v0": lambda m, i: pendulum(m, i),
     "fetchreach-infos-hdf5-v0": lambda m, i: fetch_infos(m, "hdf5", i),
     "fetchreach-infos-arrow-v0": lambda m, i: fetch_infos(m, "arrow", i),
-    "fetchreach-image-hdf5-v0": lambda m, i: fetch_image(m, "hdf5", i),
-    "fetchreach-image-arrow-v0": lambda m, i: fetch_image(m, "arrow", i),
+    "fetchreach-image-hdf5-v0": lambda m, i: fetch_infos(m, "hdf5", i, image=True),
+    "fetchreach-image-arrow-v0": lambda m, i: fetch_infos(m, "arrow", i, image=True),
 }
 
 
