@@ -61,6 +61,21 @@ pub fn duration(s: f64) -> String {
     }
 }
 
+/// "; last evaluation (10.0k): paper score 20.12 (15.98–25.04)" from each agent's (update, score)
+/// of its latest evaluation, or "success 42.0 % (…)" on a task scored by success; "" with none.
+pub fn last_evaluation(last: &[(u64, f64)], by_success: bool) -> String {
+    let Some(at) = last.iter().map(|&(u, _)| u).max() else { return String::new() };
+    let scores: Vec<f64> = last.iter().map(|&(_, p)| p).collect();
+    let mean = scores.iter().sum::<f64>() / scores.len() as f64;
+    let (name, unit, digits) = if by_success { ("success", " %", 1) } else { ("paper score", "", 2) };
+    let mut s = format!("; last evaluation ({}): {name} {mean:.digits$}{unit}", count(at));
+    if scores.len() > 1 {
+        let (lo, hi) = scores.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        s += &format!(" ({lo:.digits$}–{hi:.digits$}{unit})");
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -72,5 +87,16 @@ mod tests {
         assert_eq!(duration(3.0 * 3600.0), "3.0 h");
         assert_eq!(duration(5.1 * 86400.0), "5.1 days");
         assert_eq!((count(950), count(7_500), count(31_000_000)), ("950".into(), "7.5k".into(), "31.0M".into()));
+    }
+
+    #[test]
+    fn the_progress_line_shows_the_score_the_task_is_judged_by() {
+        let last = [(10_000, 20.0), (10_000, 24.0), (7_500, 16.0)];
+        assert_eq!(last_evaluation(&last, false), "; last evaluation (10.0k): paper score 20.00 (16.00–24.00)");
+        // OGBench's mazes: success in percent (T + return would be 150–550 there, and mean nothing).
+        let last = [(20_000, 40.0), (20_000, 60.0)];
+        assert_eq!(last_evaluation(&last, true), "; last evaluation (20.0k): success 50.0 % (40.0–60.0 %)");
+        assert_eq!(last_evaluation(&[(500, 12.5)], true), "; last evaluation (500): success 12.5 %");
+        assert_eq!(last_evaluation(&[], false), "");
     }
 }
