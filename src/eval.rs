@@ -39,6 +39,23 @@ pub struct EvalReport {
     pub task_success: Vec<f64>,
 }
 
+impl EvalReport {
+    /// One line for a terminal: "50 episodes of FetchReach: return …, success …, paper score …"
+    /// (and each fixed task's success, where the environment has them).
+    pub fn summary(&self, task: &str) -> String {
+        let tasks = if self.task_success.is_empty() {
+            String::new()
+        } else {
+            let each: Vec<String> = self.task_success.iter().map(|s| format!("{s:.3}")).collect();
+            format!("; success per task (1–{}): {}", each.len(), each.join(" "))
+        };
+        format!(
+            "{} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}{tasks}",
+            self.episodes, self.return_mean, self.return_std, self.success_rate, self.paper_score
+        )
+    }
+}
+
 /// A batched policy: `n` rows of observations and desired goals in, `n` actions out.
 pub trait Policy {
     fn act(&self, obs: &[f32], goal: &[f32], n: usize) -> Vec<f32>;

@@ -235,16 +235,7 @@ pub(crate) fn main() -> ExitCode {
                         println!("{v}");
                         continue;
                     }
-                    let tasks = if report.task_success.is_empty() {
-                        String::new()
-                    } else {
-                        let each: Vec<String> = report.task_success.iter().map(|s| format!("{s:.3}")).collect();
-                        format!("; success per task (1–{}): {}", each.len(), each.join(" "))
-                    };
-                    println!(
-                        "{what}: {} episodes of {task}: return {:.2} ± {:.2}, success {:.3}, paper score {:.2}{tasks}",
-                        report.episodes, report.return_mean, report.return_std, report.success_rate, report.paper_score
-                    );
+                    println!("{what}: {}", report.summary(&task));
                 }
             }
             Some(Command::Online { output, resume, cfg, json }) => {

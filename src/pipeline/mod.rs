@@ -34,6 +34,7 @@
 
 mod check;
 mod cost;
+pub mod demo;
 mod exec;
 mod lock;
 pub mod slurm;

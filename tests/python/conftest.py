@@ -2,6 +2,7 @@
 sample by pgser itself (the module's convert and score, the CLI's pgser-train), once per session."""
 
 import json
+import os
 import subprocess
 import types
 from pathlib import Path
@@ -20,7 +21,9 @@ _mj.mjtJoint = types.SimpleNamespace(**{k: int(v) for k, v in mujoco.mjtJoint.__
 mujoco_utils.mujoco = _mj
 
 REPO = Path(__file__).resolve().parents[2]
-BIN = REPO / "target" / "release"
+# The pgser-etl / pgser-train these tests run: the clone's release build, or, where
+# tests/wheel/check.sh runs them against an installed wheel, the wheel's own commands.
+BIN = Path(os.environ["PGSER_BIN"]) if os.environ.get("PGSER_BIN") else REPO / "target" / "release"
 
 
 def run(*args):

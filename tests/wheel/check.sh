@@ -7,10 +7,15 @@
 # traced (strace), and none may open or even look for a file under the clone's .deps, target or
 # python folders: what the wheel needs, it carries.
 #
-#   tests/wheel/check.sh target/wheels/pgser-VERSION-cpXY-cpXY-manylinux_*.whl
+# With --demo it also runs `pgser-etl demo` (about 4 minutes on 2 cores) and checks its results
+# table: tests/wheel/distro.sh (make test-wheel-distro) does, on Debian 13 and here.
+#
+#   tests/wheel/check.sh [--demo] target/wheels/pgser-VERSION-cp310-abi3-manylinux_2_28_x86_64.whl
 set -euo pipefail
 REPO=$(cd "$(dirname "$0")/../.." && pwd)
-[ $# -eq 1 ] && [ -f "$1" ] || { echo "usage: tests/wheel/check.sh WHEEL (one file; make wheel builds it)" >&2; exit 2; }
+DEMO=0
+[ "${1:-}" = --demo ] && { DEMO=1; shift; }
+[ $# -eq 1 ] && [ -f "$1" ] || { echo "usage: tests/wheel/check.sh [--demo] WHEEL (one file; make wheel builds it)" >&2; exit 2; }
 WHEEL=$(realpath "$1")
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/pgser-wheel.XXXXXX")
 trap 'rm -rf "$WORK"' EXIT
@@ -65,6 +70,23 @@ assert b["obs"].shape[0] == 32
 print("module ok:", pgser.long_version)
 PY
 
+if [ "$DEMO" = 1 ]; then
+  echo "check.sh: pgser-etl demo (PGSER on 20 FetchReach episodes, from the wheel alone)"
+  traced demo "$V/pgser-etl" demo pgser-demo | tee demo.txt
+  # The results table with its three agents and the tests against the baseline, the random
+  # policy for scale, and the figures where the summary says they are.
+  grep -q '^| TD3+BC mem | ' demo.txt && grep -q '^| TD3+BC swap | ' demo.txt && grep -q '^| TD3+BC baseline | ' demo.txt
+  grep -q '^for scale: random policy: 50 episodes of FetchReach' demo.txt
+  for f in pgser-demo/demo.toml pgser-demo/results.md pgser-demo/report/fig5_q_hist.png; do
+    [ -s "$f" ] || { echo "check.sh: FAIL: the demo left no $f" >&2; exit 1; }
+  done
+  ls pgser-demo/curves_*.png >/dev/null
+fi
+
+echo "check.sh: tests/python (environment parity, tables, Sampler) against the installed module and commands"
+PGSER_BIN=$V traced pytest "$V/python" -m pytest -q -p no:cacheprovider "$REPO/tests/python/test_envs.py" "$REPO/tests/python/test_tables.py" \
+  "$REPO/tests/python/test_sampler.py"
+
 traces=("$WORK"/trace.*)
 if [ -e "${traces[0]}" ]; then
   echo "check.sh: ${#traces[@]} traces: no file of the clone's .deps, target or python folders looked for"
@@ -75,8 +97,5 @@ else
   echo "check.sh: strace is missing: the runs were not traced (make strace-deps installs it)"
 fi
 
-echo "check.sh: tests/python (environment parity, tables, Sampler) against the installed module"
-"$V/python" -m pytest -q -p no:cacheprovider "$REPO/tests/python/test_envs.py" "$REPO/tests/python/test_tables.py" \
-  "$REPO/tests/python/test_sampler.py"
 t2=$(date +%s)
 echo "check.sh: ok ($(du -m "$WHEEL" | cut -f1) MB wheel; install $((t1 - t0)) s, checks $((t2 - t1)) s)"

@@ -192,6 +192,18 @@ pub(crate) fn main() -> ExitCode {
             let r = pipeline::run(&p, &o, &log)?;
             print_report(&r, json)
         }
+        Command::Demo { dir, device, threads } => {
+            if let Some(n) = threads {
+                rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+            }
+            let o = pipeline::RunOptions { until: None, dry_run: false, device, measure: true, jobs: 1, threads };
+            let (r, random) = pipeline::demo::run(&dir, &o, &|line| eprintln!("demo: {line}"))?;
+            print_report(&r, false)?;
+            pipeline::finished(&r)?;
+            println!("for scale: random policy: {}\n", random.summary("FetchReach"));
+            print!("{}", pipeline::demo::EXPLAIN);
+            Ok(())
+        }
         Command::Pipeline(PipelineCommand::Step { file, steps, device, threads }) => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
