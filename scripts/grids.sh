@@ -14,7 +14,8 @@
 #   scripts/grids.sh times            wall time per grid, summed over its runs in the log
 #   scripts/grids.sh collect [FILE...]
 #                                     copy each finished grid's results and report to results/NAME/,
-#                                     then remake results/table2 and results/fig5 from all of them
+#                                     then remake results/table2 (with the chosen priority's rows of
+#                                     results/*_priority_*: --chosen) and results/fig5 from all of them
 #                                     (figures drawn by target/release when built, else the pinned build;
 #                                     the numbers are always the grid's). A task split over two grids,
 #                                     one per learner, joins Table 2 once both are in (Fig. 5 draws
@@ -293,9 +294,19 @@ case "${1:-}" in
         echo "$(basename "$(dirname "$c")"): $half has one learner so far: left out of Table 2"
       else tables+=("$c"); fi
     done
+    # Table 2's rows for the priority chosen by issue 57 (rank α = 1, RESULTS.md): each
+    # *_priority_* pipeline trains it beside its own baseline and -swap (its first arm's file for
+    # FetchPush, whose TD3+BC half also ran q α = 3). A build older than --chosen leaves them out.
+    chosen=()
+    for c in "$results"/*_priority_td3bc_cpu/results.csv "$results"/*_priority_td3_cpu/results.csv; do
+      [ -f "$c" ] && grep -q ',mem_rank,' "$c" && chosen+=("$c")
+    done
+    if [ "${#chosen[@]}" -gt 0 ] && with_pinned "$render" table2 --help | grep -q -- --chosen; then
+      chosen=(--chosen "${chosen[@]}")
+    else chosen=(); fi
     # The two tables across tasks read only committed CSV and JSON.
     echo "tables across tasks drawn by $render"
-    with_pinned "$render" table2 "${tables[@]}" -o "$results/table2"
+    with_pinned "$render" table2 "${tables[@]}" -o "$results/table2" "${chosen[@]}"
     [ "${#reports[@]}" = 0 ] || with_pinned "$render" fig5 "${reports[@]}" -o "$results/fig5"
     ;;
   status)

@@ -136,6 +136,126 @@ fn table2_assembles_the_papers_layout_with_its_values_and_tests() {
     assert!(lines.contains(&"FetchSlide,TD3,0,,,,,,,,,,,,,,not run"), "{csv}");
 }
 
+/// A chosen-setting pipeline's results.csv (the arm beside its own baseline and swap, and another
+/// arm to leave out) and the table1.json of its report with the shares of both settings.
+fn chosen_files(dir: &Path, name: &str, task: &str, algo: &str, means: [f64; 4]) -> PathBuf {
+    std::fs::create_dir_all(dir.join(name)).unwrap();
+    let rows = [
+        (algo, "baseline", 5, means[0], 1.0),
+        (algo, "swap", 5, means[1], 1.0),
+        (algo, "mem_q3", 5, means[2], 1.0),
+        (algo, "mem_rank", 5, means[3], 1.0),
+    ];
+    let results = results_csv(&dir.join(name).join("results.csv"), task, &rows);
+    let shares = r#"{"task": "X", "priority": {"threshold": -2.0, "rows": 1000, "above": 27, "uniform": 0.027,
+        "settings": [{"priority": "q", "priority_alpha": 3.0, "priority_eps": 0.01, "share_above": 0.133},
+                     {"priority": "rank", "priority_alpha": 1.0, "priority_eps": 0.01, "share_above": 0.736}]}}"#;
+    std::fs::write(dir.join(name).join("table1.json"), shares).unwrap();
+    results
+}
+
+/// `--chosen`: the arm's rows per task and learner, marked against the baseline and swap of its
+/// own file (not the grid's), with its share and the grids' α = 1 cell and the paper's beside it,
+/// and the counts for both settings; the other arm is left out; table2_chosen.csv holds the cells.
+#[test]
+fn table2_gives_the_chosen_settings_rows_against_their_own_baseline_and_swap() {
+    let dir = tempfile::tempdir().unwrap();
+    let grid = results_csv(&dir.path().join("grid.csv"), "FetchPush", &six(0.0));
+    // TD3+BC: rank far above its swap and baseline; TD3: rank 1 below its swap (not significant).
+    let bc = chosen_files(dir.path(), "push_bc", "FetchPush", "td3bc", [7.0, 15.0, 23.0, 27.0]);
+    let td3 = chosen_files(dir.path(), "push_td3", "FetchPush", "td3", [20.0, 33.0, 30.0, 32.0]);
+    let out = dir.path().join("t2");
+    let o = table2(&[&grid], &out, &["--chosen", bc.to_str().unwrap(), td3.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = std::fs::read_to_string(out.join("table2.md")).unwrap();
+    assert!(md.contains("## -mem with the chosen priority, rank α = 1"), "{md}");
+    assert_eq!(
+        cells(&md, "TD3BC-mem, rank α = 1 (pgser)"),
+        ["not run", "27.00 ± 1.00 ▲b ▲s", "not run", "not run", "not run", "not run"]
+    );
+    assert_eq!(cells(&md, "TD3BC-swap beside it (pgser)")[1], "15.00 ± 1.00");
+    assert_eq!(cells(&md, "TD3BC beside it (pgser)")[1], "7.00 ± 1.00");
+    assert_eq!(cells(&md, "TD3-mem, rank α = 1 (pgser)")[1], "32.00 ± 1.00 ▲b");
+    assert_eq!(cells(&md, "TD3BC-mem, rank α = 1: share above the own-goal median (uniform)")[1], "0.736 (0.027)");
+    // The grid's own -mem (q α = 1) and the paper's, unchanged beside it.
+    assert_eq!(cells(&md, "TD3BC-mem, q α = 1 (pgser, the grids)")[1], "30.00 ± 1.00 ▲b ▲s");
+    assert_eq!(cells(&md, "TD3BC-mem (paper)")[1], "29.85 ± 11.57 ▲b ▲s");
+    // Counts over the one task measured with each: the chosen setting's mem above swap once.
+    assert!(md.contains("| rank α = 1 | 2 | 1 (2) | "), "{md}");
+    assert!(md.contains("| q α = 1 (the grids) | 2 | 1 (2) | "), "{md}");
+    // The other arm (mem_q3, 23 and 30) is in no row.
+    assert!(!md.contains("23.00"), "{md}");
+    let csv = std::fs::read_to_string(out.join("table2_chosen.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 3, "{csv}");
+    let f: Vec<&str> = lines[1].split(',').collect();
+    assert_eq!(&f[..7], ["FetchPush", "TD3BC", "rank α = 1", "5", "27", "1", "▲b ▲s"]);
+    let p = report::welch_from_summary((27.0, 1.0, 5), (15.0, 1.0, 5)).unwrap().2;
+    assert_eq!(f[8].parse::<f64>().unwrap(), p);
+    assert_eq!(&f[13..15], ["0.736", "0.027"]);
+    assert!(f[15].ends_with("results.csv:5"), "{}", f[15]);
+
+    // Another setting by name: q α = 3 is the arm mem_q3 here, with its own share.
+    let out2 = dir.path().join("t2q");
+    let o = table2(
+        &[&grid],
+        &out2,
+        &["--chosen", bc.to_str().unwrap(), "--chosen-arm", "mem_q3", "--chosen-setting", "q:3"],
+    );
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = std::fs::read_to_string(out2.join("table2.md")).unwrap();
+    assert_eq!(cells(&md, "TD3BC-mem, q α = 3 (pgser)")[1], "23.00 ± 1.00 ▲b ▲s");
+    assert_eq!(cells(&md, "TD3BC-mem, q α = 3: share above the own-goal median (uniform)")[1], "0.133 (0.027)");
+    assert_eq!(cells(&md, "TD3-mem, q α = 3 (pgser)")[1], "not run");
+}
+
+/// The committed FetchPush runs of the chosen setting (issue 57 step 1) beside the committed
+/// grid: RESULTS.md's numbers, the share its report measured, and its marks against its own
+/// baseline and swap.
+#[test]
+fn table2_gives_the_committed_fetch_push_rank_runs_beside_the_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = |name: &str| repo().join("results").join(name).join("results.csv");
+    let grid = r("fetch_push_grid_cpu");
+    let (bc, td3) = (r("fetch_push_priority_td3bc_cpu"), r("fetch_push_priority_td3_cpu"));
+    let o = table2(&[&grid], dir.path(), &["--chosen", bc.to_str().unwrap(), td3.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = text(&o.stdout);
+    assert_eq!(cells(&md, "TD3BC-mem, rank α = 1 (pgser)")[1], "27.10 ± 1.81 ▲b ▲s");
+    assert_eq!(cells(&md, "TD3BC-swap beside it (pgser)")[1], "15.70 ± 2.92");
+    assert_eq!(cells(&md, "TD3-mem, rank α = 1 (pgser)")[1], "28.66 ± 1.91 ▲b ▼s");
+    assert_eq!(cells(&md, "TD3-mem, rank α = 1: share above the own-goal median (uniform)")[1], "0.736 (0.027)");
+    assert_eq!(cells(&md, "TD3BC-mem, q α = 1 (pgser, the grids)")[1], "16.04 ± 1.62 ▲b");
+    assert!(md.contains("| rank α = 1 | 2 | 1 (2) | 2 of 2 | 5 of 6 | 1 of 2 |"), "{md}");
+    assert!(md.contains("| q α = 1 (the grids), the same pairs | 2 | 0 (2) | 2 of 2 | 4 of 6 | 2 of 2 |"), "{md}");
+}
+
+/// A chosen file without the swap beside its arm, a (task, learner) given twice, an arm no file
+/// has, a setting that is not one: one line naming the file and the fault, and nothing written.
+#[test]
+fn table2_refuses_a_chosen_file_it_cannot_read_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let grid = results_csv(&dir.path().join("grid.csv"), "FetchPush", &six(0.0));
+    let bc = chosen_files(dir.path(), "bc", "FetchPush", "td3bc", [7.0, 15.0, 23.0, 27.0]);
+    let again = chosen_files(dir.path(), "again", "FetchPush", "td3bc", [7.0, 15.0, 23.0, 27.0]);
+    let no_swap = dir.path().join("no_swap.csv");
+    results_csv(&no_swap, "FetchPush", &[("td3", "baseline", 5, 1.0, 1.0), ("td3", "mem_rank", 5, 2.0, 1.0)]);
+    let out = dir.path().join("t2");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["--chosen"];
+        args.extend_from_slice(extra);
+        table2(&[&grid], &out, &args)
+    };
+    refused(&run(&[no_swap.to_str().unwrap()]), &out, &["no_swap.csv", "FetchPush td3 has no swap"]);
+    refused(
+        &run(&[bc.to_str().unwrap(), again.to_str().unwrap()]),
+        &out,
+        &["again/results.csv", "FetchPush td3bc is also in"],
+    );
+    refused(&run(&[bc.to_str().unwrap(), "--chosen-arm", "mem_x"]), &out, &["has no arm mem_x"]);
+    refused(&run(&[bc.to_str().unwrap(), "--chosen-setting", "rank:x"]), &out, &["\"rank:x\"", "not a number"]);
+}
+
 #[test]
 fn table2_refuses_duplicates_unknown_tasks_and_missing_learners_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
@@ -217,6 +337,9 @@ fn table2_prints_the_papers_36_values_and_marks_beside_the_committed_grids() {
     assert!(push.contains("mem vs swap not significant (p = 0.577), the paper ▲: differ"), "{push}");
     assert_eq!(md.lines().filter(|l| l.starts_with("- **")).count(), 6);
     assert!(md.contains("the marks agree in 19 of 36 comparisons by the test over seeds"), "{md}");
+    // mem vs baseline (counted by hand from the rows above: TD3BC Reach, Push, Slide; TD3 Push,
+    // Pick) 5 of 12, mem above swap in none (the paper: 5).
+    assert!(md.contains("Of the marks, mem vs baseline agrees in 5 of 12; mem is significantly above swap in 0 of 12 pairs (the paper marks 5 of them)."), "{md}");
     // The paper's marks against its own printed numbers (computed by hand with Welch's formula).
     assert!(md.contains("18 of 36 come out as it marks them with n = 10 a side"), "{md}");
     assert!(md.contains("26 of 36 with n = 500"), "{md}");

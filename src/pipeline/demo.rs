@@ -79,7 +79,8 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
             continue;
         }
         let f = AtomicFile::create(&path)?;
-        std::io::Write::write_all(&mut f.handle()?, &bytes).with_context(|| format!("{}: write failed", path.display()))?;
+        std::io::Write::write_all(&mut f.handle()?, &bytes)
+            .with_context(|| format!("{}: write failed", path.display()))?;
         f.commit()?;
     }
     Ok(toml)

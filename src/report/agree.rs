@@ -15,6 +15,11 @@ use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
 /// A measured cell by task and row index.
 type Lookup<'a> = &'a dyn Fn(&str, usize) -> Option<&'a Measured>;
 
+/// The comparisons of a (task, learner) pair, in the order [`Agreement::by_comparison`] counts them.
+pub const COMPARISONS: [&str; 3] = ["mem vs swap", "swap vs baseline", "mem vs baseline"];
+pub const MEM_VS_SWAP: usize = 0;
+pub const MEM_VS_BASELINE: usize = 2;
+
 /// Counts of agreement with the paper over the measured tasks.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Agreement {
@@ -28,6 +33,15 @@ pub struct Agreement {
     pub episodes_agree: usize,
     pub episodes_of: usize,
     pub episodes_unavailable: usize,
+    /// (task, learner) pairs with all three variants measured.
+    pub pairs: usize,
+    /// Of those, where pgser's test over seeds finds mem significantly above swap, and where the
+    /// paper marks it so (its bold).
+    pub mem_above_swap: usize,
+    pub paper_mem_above_swap: usize,
+    /// The test over seeds agreeing with the paper's mark, per comparison ([`COMPARISONS`]):
+    /// (agree, of).
+    pub by_comparison: [(usize, usize); 3],
 }
 
 impl Agreement {
@@ -46,7 +60,12 @@ impl Agreement {
                 self.episodes_unavailable
             );
         }
-        s + "."
+        let (mb, mbo) = self.by_comparison[MEM_VS_BASELINE];
+        s + &format!(
+            ". Of the marks, mem vs baseline agrees in {mb} of {mbo}; mem is significantly above swap in {} of {} \
+             pairs (the paper marks {} of them).",
+            self.mem_above_swap, self.pairs, self.paper_mem_above_swap
+        )
     }
 }
 
@@ -81,6 +100,8 @@ pub(super) fn task_line(task: &str, short: &str, find: Lookup, paper: &[PaperCel
         let (im, is, ib) = (row("mem"), row("swap"), row("baseline"));
         let (Some(m), Some(s), Some(b)) = (find(task, im), find(task, is), find(task, ib)) else { continue };
         let theirs = |a: usize| paper.iter().find(|p| p.task == task && p.agent == a);
+        tally.pairs += 1;
+        tally.paper_mem_above_swap += usize::from(theirs(im).and_then(|p| p.above_swap) == Some(true));
         let holds = |x: bool| if x { "holds" } else { "does not hold" };
         let ours = m.mean >= s.mean && s.mean >= b.mean;
         let mut text =
@@ -103,11 +124,12 @@ pub(super) fn task_line(task: &str, short: &str, find: Lookup, paper: &[PaperCel
         }
         let mut tests = Vec::new();
         let comparisons = [
-            (m, s, "mem vs swap", theirs(im).and_then(|p| p.above_swap)),
-            (s, b, "swap vs baseline", theirs(is).and_then(|p| p.above_baseline)),
-            (m, b, "mem vs baseline", theirs(im).and_then(|p| p.above_baseline)),
+            (m, s, theirs(im).and_then(|p| p.above_swap)),
+            (s, b, theirs(is).and_then(|p| p.above_baseline)),
+            (m, b, theirs(im).and_then(|p| p.above_baseline)),
         ];
-        for (x, y, names, paper_mark) in comparisons {
+        for (k, (x, y, paper_mark)) in comparisons.into_iter().enumerate() {
+            let names = COMPARISONS[k];
             let above = x.mean > y.mean;
             let over_seeds = welch_from_summary(x.seeds_side(), y.seeds_side()).map(|t| t.2);
             let pooled = x.episodes_side().zip(y.episodes_side());
@@ -118,6 +140,9 @@ pub(super) fn task_line(task: &str, short: &str, find: Lookup, paper: &[PaperCel
             }
             // The paper's mark and, where it has one, whether each test agrees.
             let significant = |p: Option<f64>| p.is_some_and(|p| p < ALPHA) && above;
+            if k == MEM_VS_SWAP && significant(over_seeds) {
+                tally.mem_above_swap += 1;
+            }
             match paper_mark {
                 None => t += ", the paper: —",
                 Some(marked) => {
@@ -125,6 +150,8 @@ pub(super) fn task_line(task: &str, short: &str, find: Lookup, paper: &[PaperCel
                     let ok = significant(over_seeds) == marked;
                     tally.seeds_of += 1;
                     tally.seeds_agree += usize::from(ok);
+                    tally.by_comparison[k].1 += 1;
+                    tally.by_comparison[k].0 += usize::from(ok);
                     t += &format!(", the paper {}: {}", if marked { BETTER } else { "unmarked" }, verdict(ok));
                     if pooled.is_some() {
                         let ok = significant(over_episodes) == marked;

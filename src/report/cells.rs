@@ -46,3 +46,11 @@ impl Measured {
         self.pooled.map(|(n, m, s)| (m, s, n))
     }
 }
+
+/// Where a results.csv row goes in Table 2: a row of the paper's table ([`AGENTS`]' index), a row
+/// to leave out (another arm of a chosen-setting pipeline), or one the table cannot have.
+pub(super) enum RowOf {
+    Agent(usize),
+    Skip,
+    Unknown,
+}

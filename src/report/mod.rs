@@ -20,6 +20,7 @@
 
 mod agree;
 mod cells;
+mod chosen;
 mod classify;
 mod fig5;
 mod negatives;
@@ -38,6 +39,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
+pub use chosen::{Chosen, ChosenCell, ChosenOptions};
 pub use classify::{ClassifierScore, classify};
 pub use fig5::{Fig5All, Fig5Options, fig5_all};
 pub use negatives::{Negatives, negatives};

@@ -29,7 +29,8 @@ use polars::prelude::{DataFrame, DataType};
 use serde::Serialize;
 
 use super::agree::{self, Agreement};
-use super::cells::{AGENTS, Measured, TASKS};
+use super::cells::{AGENTS, Measured, RowOf, TASKS};
+use super::chosen::{self, Chosen, ChosenOptions};
 use super::paper::{self, PaperCell, paper_task};
 use super::spread::read_scores;
 use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
@@ -43,6 +44,8 @@ pub struct Table2Options {
     /// The paper's values; None: the compiled-in `assets/paper_table2.csv`.
     pub reference: Option<PathBuf>,
     pub out_dir: PathBuf,
+    /// Rows for a `-mem` setting beside the grids' ([`super::chosen`]), where given.
+    pub chosen: Option<ChosenOptions>,
 }
 
 /// One cell of the table: a measured (task, agent), with the paper's value beside it.
@@ -91,6 +94,8 @@ pub struct Table2 {
     pub orderings: Vec<String>,
     /// How many orderings and marks agree with the paper's.
     pub agreement: Agreement,
+    /// The chosen setting's rows and counts, with `--chosen`.
+    pub chosen: Option<Chosen>,
     pub markdown: PathBuf,
     pub csv: PathBuf,
 }
@@ -101,8 +106,11 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
         bail!("table2 needs at least one results.csv (a pipeline writes one in its out folder)");
     }
     let mut measured: Vec<Measured> = Vec::new();
+    let paper_row = |algo: &str, variant: &str| {
+        AGENTS.iter().position(|x| x.0 == algo && x.1 == variant).map_or(RowOf::Unknown, RowOf::Agent)
+    };
     for path in &opts.inputs {
-        for m in read_results(path)? {
+        for m in read_results(path, &paper_row)? {
             if let Some(other) = measured.iter().find(|o| o.task == m.task && o.agent == m.agent) {
                 bail!(
                     "{}: {} {} is also in {}: give each cell of Table 2 once",
@@ -203,6 +211,8 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
         .map(|(t, short)| agree::task_line(t, short, &find, &paper, &mut agreement))
         .collect();
 
+    let chosen = opts.chosen.as_ref().map(|o| chosen::chosen(o, &paper)).transpose()?;
+
     ensure_dir(&opts.out_dir)?;
     let t = Table2 {
         cells,
@@ -210,10 +220,34 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
         paper_missing,
         orderings,
         agreement,
+        chosen,
         markdown: opts.out_dir.join("table2.md"),
         csv: opts.out_dir.join("table2.csv"),
     };
-    write_text(&t.markdown, &markdown(&t, &paper))?;
+    let mut text = markdown(&t, &paper);
+    if let Some(c) = &t.chosen {
+        let grid_mem = |task: &str, learner: &str| {
+            let agent = format!("{learner}-mem");
+            t.cells.iter().find(|x| x.task == task && x.agent == agent).map(|x| fmt_cell(x.mean, x.std, &x.marks))
+        };
+        // The grids' counts again over only the pairs the chosen setting was measured on.
+        let learner = |a: usize| if AGENTS[a].0 == "td3bc" { "TD3BC" } else { "TD3" };
+        let same_pairs = |task: &str, a: usize| {
+            find(task, a).filter(|_| c.cells.iter().any(|x| x.task == task && x.learner == learner(a)))
+        };
+        let mut on_same = Agreement::default();
+        for (task, short) in TASKS {
+            agree::task_line(task, short, &same_pairs, &paper, &mut on_same);
+        }
+        text += &chosen::markdown(
+            c,
+            &grid_mem,
+            &paper,
+            &[("q α = 1 (the grids)", &t.agreement), ("q α = 1 (the grids), the same pairs", &on_same)],
+        );
+        write_text(&opts.out_dir.join("table2_chosen.csv"), &chosen::csv(c))?;
+    }
+    write_text(&t.markdown, &text)?;
     write_text(&t.csv, &csv(&t, &paper))?;
     Ok(t)
 }
@@ -224,8 +258,8 @@ fn mark(p: Option<f64>, above: bool, letter: &str) -> Option<String> {
 }
 
 /// The cells of one results.csv, each checked, with the pooled spread of its columns or of the
-/// scores.csv beside it.
-fn read_results(path: &Path) -> Result<Vec<Measured>> {
+/// scores.csv beside it; `row` says where each (algo, variant) goes, or that it is left out.
+pub(super) fn read_results(path: &Path, row: &dyn Fn(&str, &str) -> RowOf) -> Result<Vec<Measured>> {
     let at = path.display();
     let df = crate::query::scan(path)?.collect().map_err(|e| anyhow!("{at}: {}", first_line(&e)))?;
     let text = |name: &str| -> Result<Vec<Option<String>>> {
@@ -250,10 +284,12 @@ fn read_results(path: &Path) -> Result<Vec<Measured>> {
             let names: Vec<&str> = TASKS.iter().map(|x| x.0).collect();
             bail!("{source}: task {t} is not in the paper's Table 2 ({})", names.join(", "));
         };
-        let Some(agent) = AGENTS.iter().position(|x| x.0 == al && x.1 == v) else {
-            bail!(
+        let agent = match row(&al, &v) {
+            RowOf::Agent(a) => a,
+            RowOf::Skip => continue,
+            RowOf::Unknown => bail!(
                 "{source}: {al} {v} is not a row of the paper's Table 2 (algo td3 or td3bc; variant baseline, swap or mem)"
-            );
+            ),
         };
         let n = seeds[i]
             .filter(|s| *s >= 1.0 && s.fract() == 0.0)
@@ -281,7 +317,7 @@ fn read_results(path: &Path) -> Result<Vec<Measured>> {
     }
     let scores = path.with_file_name("scores.csv");
     if scores.is_file() {
-        with_scores(&mut out, &scores)?;
+        with_scores(&mut out, &scores, row)?;
     }
     Ok(out)
 }
@@ -289,7 +325,7 @@ fn read_results(path: &Path) -> Result<Vec<Measured>> {
 /// Takes each cell's pooled spread from the per-run scores in `scores`, after checking that they
 /// are the runs the results.csv summarizes: the same seeds, mean and std over seeds, and pooled
 /// std where the results.csv has one.
-fn with_scores(cells: &mut [Measured], scores: &Path) -> Result<()> {
+fn with_scores(cells: &mut [Measured], scores: &Path, row: &dyn Fn(&str, &str) -> RowOf) -> Result<()> {
     let at = scores.display();
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0) || (a.is_nan() && b.is_nan());
     let mut seen = vec![false; cells.len()];
@@ -297,12 +333,14 @@ fn with_scores(cells: &mut [Measured], scores: &Path) -> Result<()> {
         let pos = format!("{at}:{}", c.line);
         let task =
             paper_task(&c.task).ok_or_else(|| anyhow!("{pos}: task {} is not in the paper's Table 2", c.task))?;
-        let i = cells
-            .iter()
-            .position(|m| m.task == task && AGENTS[m.agent].0 == c.algo && AGENTS[m.agent].1 == c.variant)
-            .ok_or_else(|| {
-                anyhow!("{pos}: {} {} {} has no row in the results.csv beside it", c.task, c.algo, c.variant)
-            })?;
+        let agent = match row(&c.algo, &c.variant) {
+            RowOf::Agent(a) => Some(a),
+            RowOf::Skip => continue,
+            RowOf::Unknown => None,
+        };
+        let i = cells.iter().position(|m| m.task == task && Some(m.agent) == agent).ok_or_else(|| {
+            anyhow!("{pos}: {} {} {} has no row in the results.csv beside it", c.task, c.algo, c.variant)
+        })?;
         let m = &mut cells[i];
         let (n, sm) = (c.seed_means.len(), c.seed_means.iter().sum::<f64>() / c.seed_means.len() as f64);
         let ss = c.seed_means.iter().map(|x| (x - sm) * (x - sm)).sum::<f64>();

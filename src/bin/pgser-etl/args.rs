@@ -213,7 +213,8 @@ pub enum Command {
     /// The paper's Table 2 across tasks: several pipelines' results.csv in one table, the paper's values beside.
     #[command(
         after_help = "Examples:\n  pgser-etl table2 results/fetch_*_grid_cpu/results.csv results/hand_*_grid_cpu/results.csv -o table2/\n  \
-        pgser-etl table2 out/fetch_push/results/results.csv -o table2/ --reference my_table2.csv\n\n\
+        pgser-etl table2 out/fetch_push/results/results.csv -o table2/ --reference my_table2.csv\n  \
+        pgser-etl table2 results/*_grid_cpu/results.csv -o table2/ --chosen results/*_priority_*_cpu/results.csv\n\n\
         Rows TD3BC-mem, TD3BC-swap, TD3BC, TD3-mem, TD3-swap, TD3, each three times: mean +- std over the seeds' \
         means, the same over all evaluation episodes pooled, and the paper's value with its marks; a column per \
         task of the paper (FetchReach, FetchPush, FetchPick, FetchSlide, HandBlock-Z, HandEgg-Rotate). A task with \
@@ -222,7 +223,10 @@ pub enum Command {
         against swap, over seed means (the marks of the first row) and over pooled episodes (the second); the \
         pooled spread comes from the results.csv or the scores.csv beside it, and is n/a for results that kept \
         neither. A line per task says whether mem >= swap >= baseline holds here and in the paper, and where \
-        each test agrees with the paper's marks. Writes DIR/table2.md and DIR/table2.csv."
+        each test agrees with the paper's marks. Writes DIR/table2.md and DIR/table2.csv. With --chosen, a second \
+        section gives the -mem arm those files train (--chosen-arm, --chosen-setting) per task and learner, marked \
+        against the baseline and swap trained beside it, its share of draws above the own-goal median Q, and the \
+        counts against the paper for both settings; its cells also go to DIR/table2_chosen.csv."
     )]
     Table2 {
         /// results.csv files (a pipeline's out folder has one under results/).
@@ -238,6 +242,17 @@ pub enum Command {
         /// Print a JSON summary instead of the markdown table.
         #[arg(long)]
         json: bool,
+        /// results.csv files of pipelines that train one more -mem arm beside their own baseline and swap
+        /// (pipelines/*_priority_*_cpu.toml): Table 2 gains that setting's rows, its share of draws above the
+        /// own-goal median (from the table1.json beside each file), and its counts against the paper.
+        #[arg(long, num_args = 1..)]
+        chosen: Vec<PathBuf>,
+        /// The arm's name in the --chosen files (their variant column).
+        #[arg(long, default_value = "mem_rank", requires = "chosen")]
+        chosen_arm: String,
+        /// The arm's priority setting, KIND[:ALPHA] (q:3, rank:1), which names its rows and finds its share.
+        #[arg(long, default_value = "rank:1", requires = "chosen")]
+        chosen_setting: String,
     },
     /// Run SQL over pgser tables and CSV files (polars' SQL on lazy scans); print or write the result.
     #[command(

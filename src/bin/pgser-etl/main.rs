@@ -262,8 +262,14 @@ pub(crate) fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Table2 { inputs, output, reference, json } => {
-            let t = report::table2(&report::Table2Options { inputs, reference, out_dir: output })?;
+        Command::Table2 { inputs, output, reference, json, chosen, chosen_arm, chosen_setting } => {
+            let chosen = (!chosen.is_empty())
+                .then(|| -> anyhow::Result<_> {
+                    let setting = report::parse_setting(&chosen_setting)?;
+                    Ok(report::ChosenOptions { inputs: chosen, arm: chosen_arm, setting })
+                })
+                .transpose()?;
+            let t = report::table2(&report::Table2Options { inputs, reference, out_dir: output, chosen })?;
             if json {
                 println!("{}", serde_json::to_string(&t)?);
             } else {
