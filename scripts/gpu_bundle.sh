@@ -35,11 +35,23 @@ done
 rm -rf "$tmp"
 mkdir -p "$tmp"/{bin,lib,debs,data,bench,kernels}
 
+# The GPU machine starts bare: a binary may need only glibc's libraries, libgcc_s, libstdc++ (the
+# image's PyTorch needs it too) and the MuJoCo the bundle carries. Until pgser 0.3.0 compiled HDF5 in, pgser-train and pgser-etl needed
+# Debian's libhdf5_serial.so.103, which such a machine does not have: the bundle would have
+# failed at its first command (found 2026-11-28, before any run used it).
+runs_bare() {
+  local extra
+  extra=$(readelf -d "$1" | sed -n 's/.*(NEEDED).*\[\(.*\)\]/\1/p' |
+    grep -v -E '^(libc|libm|libdl|librt|libpthread|libgcc_s|libstdc\+\+)\.so\.[0-9]+$|^ld-linux-x86-64\.so\.2$|^libmujoco\.so\.3\.17\.0$' || true)
+  [ -z "$extra" ] || { echo "gpu-bundle: $1 needs $(echo $extra) beyond glibc, libgcc_s, libstdc++ and the bundled MuJoCo: a bare GPU machine lacks it" >&2; exit 1; }
+}
 for x in "${bins[@]}"; do
+  runs_bare "$rel/$x"
   strip -o "$tmp/bin/$x" "$rel/$x"
   xz -6 -T0 "$tmp/bin/$x"
 done
 if [ -x "$burn/pgser-train" ]; then
+  runs_bare "$burn/pgser-train"
   strip -o "$tmp/bin/pgser-train-burn" "$burn/pgser-train"
   xz -6 -T0 "$tmp/bin/pgser-train-burn"
 else

@@ -98,3 +98,24 @@ def test_without_a_sanitizer_the_run_says_so(tmp_path):
         assert "no compute-sanitizer on this machine" in said, said
     # The repeated run trained and was compared with the CPU's (here: a CPU run that is missing).
     assert "cuda-blocking" in said, said
+
+
+def test_the_bundle_refuses_a_binary_a_bare_gpu_machine_cannot_load(tmp_path):
+    """gpu_bundle.sh's `runs_bare`: a binary that needs a library beyond glibc's, libgcc_s,
+    libstdc++ and the bundled MuJoCo (as pgser needed Debian's libhdf5 before 0.3.0) stops the
+    bundle, naming the library; one that needs only those passes."""
+    text = (REPO / "scripts" / "gpu_bundle.sh").read_text()
+    start = text.index("runs_bare() {")
+    func = text[start : text.index("\n}\n", start) + 3]
+    src = tmp_path / "main.c"
+    src.write_text("int main(void) { return 0; }\n")
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    subprocess.run(["gcc", src, "-o", good, "-lm"], check=True)
+    extra = next(p for p in ["/lib/x86_64-linux-gnu/libz.so.1", "/usr/lib/x86_64-linux-gnu/libz.so.1"] if Path(p).exists())
+    subprocess.run(["gcc", src, "-o", bad, "-Wl,--no-as-needed", extra], check=True)
+    run = lambda exe: subprocess.run(["bash", "-c", func + f"runs_bare {exe}"], capture_output=True, text=True)
+    ok = run(good)
+    assert ok.returncode == 0, ok.stderr
+    refused = run(bad)
+    assert refused.returncode == 1
+    assert "needs libz.so.1 beyond glibc" in refused.stderr and str(bad) in refused.stderr, refused.stderr
