@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The wheel as a user gets it (make test-wheel; make test runs it): installed with pip into a new
 # venv outside the clone, it must work without the clone. The commands it installs convert the
-# sample data, train on it with evaluation in MuJoCo, and run a hand task; the module makes every
-# task, reads tables and samples batches; tests/python's environment-parity (against
+# sample data and a Minari dataset in HDF5 storage (the HDF5 compiled in), train on it with
+# evaluation in MuJoCo, and run a hand task; the module makes every task, converts the same Minari
+# dataset to the same table, reads tables and samples batches; tests/python's environment-parity (against
 # gymnasium-robotics), table and Sampler tests pass against it. Each of the wheel's own runs is
 # traced (strace), and none may open or even look for a file under the clone's .deps, target or
 # python folders: what the wheel needs, it carries.
@@ -49,11 +50,14 @@ traced verify "$V/pgser-etl" verify traj.parquet
 traced train "$V/pgser-train" --data traj.parquet -o agent.ckpt --updates 100 --hidden 32 --batch-size 64 \
   --eval-episodes 2 --threads 2
 traced score "$V/pgser-etl" score --q agent.ckpt --data traj.parquet -o scored.parquet --swaps 2
+# Minari's HDF5 storage, through the HDF5 compiled into the binary (no system libhdf5).
+traced minari "$V/pgser-etl" convert "$REPO/tests/fixtures/minari/fetchreach-hdf5-v0" -o minari.parquet
+traced minari-verify "$V/pgser-etl" verify minari.parquet
 traced hand "$V/pgser-train" eval --random --task HandManipulateEggRotate --episodes 1 --json > hand.json
 grep -q '"episodes":1' hand.json
 
 echo "check.sh: the module"
-traced module "$V/python" - <<'PY'
+traced module "$V/python" - "$REPO" <<'PY'
 import pathlib, sys
 import pgser
 venv = pathlib.Path(sys.prefix)
@@ -64,6 +68,10 @@ for task in pgser.TASKS:
     env.step(env.action_space.sample())
 t = pgser.read_table("traj.parquet")
 assert t.num_rows == 36 * 50, t.num_rows
+# The module's own HDF5, on the same Minari dataset: the same table as the command wrote.
+m = pgser.convert([sys.argv[1] + "/tests/fixtures/minari/fetchreach-hdf5-v0"], "minari-module.parquet")
+assert m["episodes"] == 4 and m["rows"] == 200, m
+assert pgser.read_table("minari-module.parquet").equals(pgser.read_table("minari.parquet"))
 s = pgser.Sampler("scored.parquet", batch_size=32, seed=0)
 b = next(iter(s))
 assert b["obs"].shape[0] == 32
