@@ -179,6 +179,6 @@ fn test(p: Option<f64>, above: bool) -> String {
     }
 }
 
-fn fmt_p(p: f64) -> String {
+pub(super) fn fmt_p(p: f64) -> String {
     if p < 1e-3 { format!("{p:.1e}") } else { format!("{p:.3}") }
 }

@@ -63,6 +63,12 @@ pub struct ChosenCell {
     pub p_vs_swap: Option<f64>,
     /// `▲b ▲s`, as the grids' rows mark them.
     pub marks: String,
+    /// Welch's p against the grid's own `-mem` (q α = 1) of the same pair, where the grids have
+    /// it: the comparison step 5 of issue 57 decides the default by (a grid ran on an older build,
+    /// so this compares settings and builds together; RESULTS.md says so).
+    pub p_vs_grid_mem: Option<f64>,
+    /// Not significantly below the grid's `-mem`: "at least as well as α = 1".
+    pub as_well_as_grid: Option<bool>,
     /// Share of the arm's draws above the own-goal median Q, and uniform drawing's; None where
     /// the pipeline's table1.json is absent or has no share of this setting.
     pub share: Option<f64>,
@@ -81,7 +87,12 @@ pub struct Chosen {
 }
 
 /// The chosen setting's cells from `o.inputs`, each checked, and their agreement with `paper`.
-pub fn chosen(o: &ChosenOptions, paper: &[PaperCell]) -> Result<Chosen> {
+/// `grid_mem(task, agent)`: the grids' cell of that row, for the comparison with α = 1.
+pub fn chosen<'g>(
+    o: &ChosenOptions,
+    paper: &[PaperCell],
+    grid_mem: &dyn Fn(&str, usize) -> Option<&'g Measured>,
+) -> Result<Chosen> {
     let mut measured: Vec<Measured> = Vec::new();
     let mut shares: Vec<(&'static str, &'static str, Option<f64>, Option<f64>)> = Vec::new();
     for path in &o.inputs {
@@ -141,6 +152,9 @@ pub fn chosen(o: &ChosenOptions, paper: &[PaperCell]) -> Result<Chosen> {
                 p.filter(|p| *p < ALPHA).map(|_| format!("{}{letter}", if m.mean > o.mean { BETTER } else { WORSE }))
             };
             let marks: Vec<String> = [mark(pb, b, "b"), mark(ps, s, "s")].into_iter().flatten().collect();
+            let grid = grid_mem(task, row("mem"));
+            let p_vs_grid_mem = grid.and_then(p);
+            let as_well_as_grid = grid.map(|g| !(p_vs_grid_mem.is_some_and(|p| p < ALPHA) && m.mean < g.mean));
             let (share, uniform) =
                 shares.iter().find(|x| x.0 == task && x.1 == algo).map_or((None, None), |x| (x.2, x.3));
             cells.push(ChosenCell {
@@ -154,6 +168,8 @@ pub fn chosen(o: &ChosenOptions, paper: &[PaperCell]) -> Result<Chosen> {
                 p_vs_baseline: pb,
                 p_vs_swap: ps,
                 marks: marks.join(" "),
+                p_vs_grid_mem,
+                as_well_as_grid,
                 share,
                 uniform,
                 source: m.source.clone(),
@@ -244,6 +260,21 @@ pub fn markdown(
     for (name, a) in grids.iter().copied().chain([(c.label.as_str(), &c.agreement)]) {
         let _ = writeln!(s, "{}", count_row(name, a));
     }
+    let compared: Vec<&ChosenCell> = c.cells.iter().filter(|x| x.as_well_as_grid.is_some()).collect();
+    let below: Vec<String> = compared
+        .iter()
+        .filter(|x| x.as_well_as_grid == Some(false))
+        .map(|x| format!("{} {} (p = {})", x.task, x.learner, agree::fmt_p(x.p_vs_grid_mem.unwrap_or(f64::NAN))))
+        .collect();
+    let _ = writeln!(
+        s,
+        "\n**{} at least as well as q α = 1** (its `-mem` not significantly below the grid's `-mem` of the same \
+         pair, Welch over seeds; the grids ran on an older build): {} of {} pairs{}.",
+        c.label,
+        compared.len() - below.len(),
+        compared.len(),
+        if below.is_empty() { String::new() } else { format!("; below it: {}", below.join(", ")) }
+    );
     s += "\n### Per task, with the chosen setting\n\n";
     for line in &c.orderings {
         let _ = writeln!(s, "- {line}");
@@ -268,14 +299,14 @@ fn fmt(mean: f64, std: f64, marks: &str) -> String {
 pub fn csv(c: &Chosen) -> String {
     let mut s = String::from(
         "task,learner,setting,seeds,mean,std,marks,p_vs_baseline,p_vs_swap,baseline_mean,baseline_std,swap_mean,\
-         swap_std,share_above_median,uniform_share,source\n",
+         swap_std,p_vs_grid_mem,as_well_as_grid_mem,share_above_median,uniform_share,source\n",
     );
     let opt = |x: Option<f64>| x.map(|v| v.to_string()).unwrap_or_default();
     let num = |x: f64| if x.is_finite() { x.to_string() } else { String::new() };
     for x in &c.cells {
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             x.task,
             x.learner,
             c.label,
@@ -289,6 +320,8 @@ pub fn csv(c: &Chosen) -> String {
             num(x.baseline.1),
             num(x.swap.0),
             num(x.swap.1),
+            opt(x.p_vs_grid_mem),
+            x.as_well_as_grid.map(|b| b.to_string()).unwrap_or_default(),
             opt(x.share),
             opt(x.uniform),
             x.source.replace(',', ";")

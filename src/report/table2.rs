@@ -211,7 +211,7 @@ pub fn table2(opts: &Table2Options) -> Result<Table2> {
         .map(|(t, short)| agree::task_line(t, short, &find, &paper, &mut agreement))
         .collect();
 
-    let chosen = opts.chosen.as_ref().map(|o| chosen::chosen(o, &paper)).transpose()?;
+    let chosen = opts.chosen.as_ref().map(|o| chosen::chosen(o, &paper, &find)).transpose()?;
 
     ensure_dir(&opts.out_dir)?;
     let t = Table2 {
