@@ -1,7 +1,9 @@
 //! The data of Table 2, below everything that compares or renders it: the paper's six tasks and
 //! six rows, and a cell pgser measured. [`super::paper`] holds the paper's own cells in the same
-//! terms, [`super::agree`] compares the two, and [`super::table2`] reads and renders them, so
-//! imports run one way: cells, then the paper's values, then the comparison, then the table.
+//! terms, [`super::measured`] reads results.csv files into cells, [`super::agree`] compares the
+//! two, [`super::chosen`] assembles a chosen setting's rows and [`super::table2`] renders them all,
+//! so imports run one way: cells, then the paper's values and the reading, then the comparison,
+//! then the chosen rows, then the table.
 
 /// One side of Welch's test: (mean, sample std, n).
 pub(super) type Side = (f64, f64, usize);
@@ -53,4 +55,10 @@ pub(super) enum RowOf {
     Agent(usize),
     Skip,
     Unknown,
+}
+
+/// A measured cell as the tables print it: `mean ± std` (the mean alone with one seed) and its marks.
+pub(super) fn fmt_cell(mean: f64, std: f64, marks: &str) -> String {
+    let cell = if std.is_finite() { format!("{mean:.2} ± {std:.2}") } else { format!("{mean:.2}") };
+    if marks.is_empty() { cell } else { format!("{cell} {marks}") }
 }

@@ -20,11 +20,11 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 
 use super::agree::{self, Agreement};
-use super::cells::{AGENTS, Measured, RowOf, TASKS};
+use super::cells::{AGENTS, Measured, RowOf, TASKS, fmt_cell};
+use super::measured::read_results;
 use super::paper::PaperCell;
 use super::share::PriorityShares;
-use super::table2::read_results;
-use super::welch::{ALPHA, BETTER, WORSE, welch_from_summary};
+use super::welch::{ALPHA, mark, welch_from_summary};
 use crate::sampler::priority::PriorityConfig;
 
 /// Which arm is the chosen setting, and the results files that train it.
@@ -148,10 +148,8 @@ pub fn chosen<'g>(
             };
             let p = |o: &Measured| welch_from_summary(m.seeds_side(), o.seeds_side()).map(|t| t.2);
             let (pb, ps) = (p(b), p(s));
-            let mark = |p: Option<f64>, o: &Measured, letter: &str| {
-                p.filter(|p| *p < ALPHA).map(|_| format!("{}{letter}", if m.mean > o.mean { BETTER } else { WORSE }))
-            };
-            let marks: Vec<String> = [mark(pb, b, "b"), mark(ps, s, "s")].into_iter().flatten().collect();
+            let marks: Vec<String> =
+                [mark(pb, m.mean > b.mean, "b"), mark(ps, m.mean > s.mean, "s")].into_iter().flatten().collect();
             let grid = grid_mem(task, row("mem"));
             let p_vs_grid_mem = grid.and_then(p);
             let as_well_as_grid = grid.map(|g| !(p_vs_grid_mem.is_some_and(|p| p < ALPHA) && m.mean < g.mean));
@@ -223,9 +221,9 @@ pub fn markdown(
         let row = |f: &dyn Fn(&ChosenCell) -> String| -> String {
             TASKS.iter().map(|(t, _)| cell(t).map_or("not run".to_string(), f)).collect::<Vec<_>>().join(" | ")
         };
-        let _ = writeln!(s, "| {learner}-mem, {} (pgser) | {} |", c.label, row(&|x| fmt(x.mean, x.std, &x.marks)));
-        let _ = writeln!(s, "| {learner}-swap beside it (pgser) | {} |", row(&|x| fmt(x.swap.0, x.swap.1, "")));
-        let _ = writeln!(s, "| {learner} beside it (pgser) | {} |", row(&|x| fmt(x.baseline.0, x.baseline.1, "")));
+        let _ = writeln!(s, "| {learner}-mem, {} (pgser) | {} |", c.label, row(&|x| fmt_cell(x.mean, x.std, &x.marks)));
+        let _ = writeln!(s, "| {learner}-swap beside it (pgser) | {} |", row(&|x| fmt_cell(x.swap.0, x.swap.1, "")));
+        let _ = writeln!(s, "| {learner} beside it (pgser) | {} |", row(&|x| fmt_cell(x.baseline.0, x.baseline.1, "")));
         let share = |x: &ChosenCell| match (x.share, x.uniform) {
             (Some(a), Some(u)) => format!("{a:.3} ({u:.3})"),
             _ => "n/a".to_string(),
@@ -239,10 +237,7 @@ pub fn markdown(
             .iter()
             .map(|(t, _)| {
                 let a = AGENTS.iter().position(|x| x.2 == format!("{learner}-mem")).expect("a known row");
-                paper.iter().find(|r| r.task == *t && r.agent == a).map_or("—".to_string(), |r| {
-                    let cell = format!("{} ± {}", r.mean, r.std);
-                    if r.marks().is_empty() { cell } else { format!("{cell} {}", r.marks()) }
-                })
+                paper.iter().find(|r| r.task == *t && r.agent == a).map_or("—".to_string(), PaperCell::text)
             })
             .collect();
         let _ = writeln!(s, "| {learner}-mem (paper) | {} |", theirs.join(" | "));
@@ -288,11 +283,6 @@ fn count_row(name: &str, a: &Agreement) -> String {
         "| {name} | {} | {} ({}) | {mb} of {mbo} | {} of {} | {} of {} |",
         a.pairs, a.mem_above_swap, a.paper_mem_above_swap, a.seeds_agree, a.seeds_of, a.ordering_agree, a.ordering_of
     )
-}
-
-fn fmt(mean: f64, std: f64, marks: &str) -> String {
-    let cell = if std.is_finite() { format!("{mean:.2} ± {std:.2}") } else { format!("{mean:.2}") };
-    if marks.is_empty() { cell } else { format!("{cell} {marks}") }
 }
 
 /// The chosen cells as CSV (table2_chosen.csv).

@@ -23,6 +23,7 @@ mod cells;
 mod chosen;
 mod classify;
 mod fig5;
+mod measured;
 mod negatives;
 mod paper;
 mod plot;

@@ -44,6 +44,18 @@ impl PaperCell {
         let s = self.above_swap.unwrap_or(false).then_some("▲s");
         [b, s].into_iter().flatten().collect::<Vec<_>>().join(" ")
     }
+
+    /// The cell as the paper prints it, with its marks: `29.85 ± 11.57 ▲b ▲s`.
+    pub(super) fn text(&self) -> String {
+        let cell = format!("{} ± {}", fmt_paper(self.mean), fmt_paper(self.std));
+        if self.marks().is_empty() { cell } else { format!("{cell} {}", self.marks()) }
+    }
+}
+
+/// A number of the paper as it prints it: at least two decimals, more where it gave more.
+fn fmt_paper(x: f64) -> String {
+    let s = x.to_string();
+    if s.split_once('.').is_some_and(|(_, d)| d.len() >= 2) { s } else { format!("{x:.2}") }
 }
 
 /// A pgser or paper name of one of the six tasks.

@@ -11,6 +11,12 @@ pub const ALPHA: f64 = 0.05;
 pub const BETTER: &str = "▲";
 pub const WORSE: &str = "▼";
 
+/// A significant difference's mark: its direction and the letter of what it is against
+/// (`▲b`: significantly above the baseline); None where p is not below [`ALPHA`].
+pub(super) fn mark(p: Option<f64>, above: bool, letter: &str) -> Option<String> {
+    p.filter(|p| *p < ALPHA).map(|_| format!("{}{letter}", if above { BETTER } else { WORSE }))
+}
+
 /// Welch's t-test (unequal variances) of `a` against `b`: (t, degrees of freedom, two-sided
 /// p). None with fewer than 2 samples on either side or when both variances are 0 (t undefined).
 pub fn welch_t_test(a: &[f64], b: &[f64]) -> Option<(f64, f64, f64)> {
