@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use super::{Pipeline, RunOptions, RunReport};
-use crate::eval::{self, EvalReport};
+use crate::eval;
 use crate::output::AtomicFile;
 
 /// The demo's pipeline file as committed; `write` points its paths into the demo folder.
@@ -87,13 +87,13 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
 }
 
 /// Runs the demo in `dir`: its pipeline (a rerun repeats nothing that is up to date), then the
-/// random policy on FetchReach for scale.
-pub fn run(dir: &Path, o: &RunOptions, log: &(dyn Fn(&str) + Sync)) -> Result<(RunReport, EvalReport)> {
+/// random policy on the pipeline's task for scale, as a line for the terminal.
+pub fn run(dir: &Path, o: &RunOptions, log: &(dyn Fn(&str) + Sync)) -> Result<(RunReport, String)> {
     let p = Pipeline::load(&write(dir)?)?;
     let report = super::run(&p, o, log)?;
     let t = crate::env::task(&p.task)?;
     let random = eval::evaluate(&t.name, &eval::RandomPolicy::new(t.act_dim, 0), RANDOM_EPISODES, 0)?;
-    Ok((report, random))
+    Ok((report, format!("random policy: {}", random.summary(&t.name))))
 }
 
 #[cfg(test)]

@@ -200,7 +200,7 @@ pub(crate) fn main() -> ExitCode {
             let (r, random) = pipeline::demo::run(&dir, &o, &|line| eprintln!("demo: {line}"))?;
             print_report(&r, false)?;
             pipeline::finished(&r)?;
-            println!("for scale: random policy: {}\n", random.summary("FetchReach"));
+            println!("for scale: {random}\n");
             print!("{}", pipeline::demo::EXPLAIN);
             Ok(())
         }
