@@ -2,7 +2,7 @@
 """Assemble the self-contained wheel (`make wheel`): maturin's wheel of the Python module, plus
 what it needs at run time so that nothing is read from the clone it was built in.
 
-    scripts/wheel.py --base target/wheels/dev/pgser-….whl --binary target/release/pgser --deps .deps \\
+    scripts/wheel.py --base target/wheels/base/pgser-….whl --binary target/release/pgser --deps .deps \\
         --out target/wheels
 
 Added under `pgser/` (the module's package):
@@ -16,8 +16,8 @@ Added under `pgser/` (the module's package):
 The binary and the module are stripped and their run path set to the bundled MuJoCo
 (`$ORIGIN/../.libs`, `$ORIGIN/.libs`), replacing the clone's `.deps/mujoco`. Then `auditwheel
 repair` tags the wheel with the manylinux policy `auditwheel show` finds for it (the glibc symbol
-versions the build machine's toolchain gave it) and copies in the libraries outside it (HDF5 and
-what it links, when built with Minari's HDF5 reading). Prints the wheel's path, size and what
+versions the files were linked against: 2.28 by `make wheel`'s zig link, scripts/zigcc) and would
+copy in any library outside that policy (none since HDF5 is compiled in). Prints the wheel's path, size and what
 `auditwheel show` says of it.
 """
 
@@ -140,7 +140,7 @@ def main():
         )
 
         # Tag and graft: auditwheel finds the policy the files' symbol versions allow, copies in
-        # the libraries outside that policy (HDF5, for Minari datasets, and what it links) and
+        # any library outside that policy (none since HDF5 is compiled into pgser) and
         # points the files' run paths at them.
         linux = Path(t) / a.base.name
         zip_dir(root, linux)
