@@ -17,6 +17,10 @@ ASSETS_STAMP := $(ASSETS_DIR)/fetch/push.xml
 # tasks' resets draw numpy's normals to the bit (scripts/numpy_ziggurat.py says why).
 ZIGGURAT := $(DEPS)/numpy_ziggurat.bin
 NUMPY_WHEEL_VERSION := 2.4.6
+# CMake from its PyPI wheel, for HDF5's source build (see its rule). Defined up here because make
+# reads a rule's prerequisites when it reads the rule: `deps` names it.
+CMAKE_VERSION := 4.4.5
+CMAKE_BIN := $(DEPS)/cmake/bin/cmake
 NVRTC_VERSION := 13.0.88
 NVRTC_LIB := $(DEPS)/nvrtc/nvidia/cu13/lib/libnvrtc.so.13
 CARGO ?= cargo
@@ -77,8 +81,6 @@ $(VENV)/.stamp: tests/requirements.txt
 # `hdf5` (on by default) compiles from source into pgser with CMake: CMake's own binary and
 # modules from the cmake wheel on PyPI (a manylinux build), unpacked into .deps/cmake, where
 # .cargo/config.toml points the build (CMAKE). Nothing from the system's packages, no root.
-CMAKE_VERSION := 4.4.5
-CMAKE_BIN := $(DEPS)/cmake/bin/cmake
 $(CMAKE_BIN):
 	@mkdir -p $(DEPS)/wheels
 	$(PYTHON) -m pip download --quiet --no-deps --only-binary=:all: --platform manylinux_2_17_x86_64 \
@@ -88,7 +90,7 @@ $(CMAKE_BIN):
 	  [(z.extract(i, t), os.chmod(os.path.join(t, i.filename), (i.external_attr >> 16) & 0o777 or 0o644)) \
 	   for i in z.infolist() if i.filename.startswith('cmake/data/') and not i.is_dir()]; \
 	  shutil.rmtree('$(DEPS)/cmake', ignore_errors=True); os.rename(t + '/cmake/data', '$(DEPS)/cmake'); shutil.rmtree(t)"
-	@$(CMAKE_BIN) --version | head -1
+	$(CMAKE_BIN) --version >/dev/null
 
 build: deps
 	$(CARGO) build --release
