@@ -297,9 +297,16 @@ case "${1:-}" in
     # Table 2's rows for the priority chosen by issue 57 (rank α = 1, RESULTS.md): each
     # *_priority_* pipeline trains it beside its own baseline and -swap (its first arm's file for
     # FetchPush, whose TD3+BC half also ran q α = 3). A build older than --chosen leaves them out.
+    # Step 3's files on OGBench tasks (PointMaze) are named alike but have no column in the table:
+    # a chosen row joins only a task of the grids going into it.
+    grid_tasks=""
+    [ "${#tables[@]}" = 0 ] || grid_tasks=$(tail -q -n +2 "${tables[@]}" | cut -d, -f1 | sort -u)
     chosen=()
     for c in "$results"/*_priority_td3bc_cpu/results.csv "$results"/*_priority_td3_cpu/results.csv; do
-      [ -f "$c" ] && grep -q ',mem_rank,' "$c" && chosen+=("$c")
+      [ -f "$c" ] && grep -q ',mem_rank,' "$c" || continue
+      task=$(sed -n 2p "$c" | cut -d, -f1)
+      if grep -qxF -- "$task" <<<"$grid_tasks"; then chosen+=("$c")
+      else echo "$(basename "$(dirname "$c")"): $task is not a task of Table 2's grids: left out of it"; fi
     done
     if [ "${#chosen[@]}" -gt 0 ] && with_pinned "$render" table2 --help | grep -q -- --chosen; then
       chosen=(--chosen "${chosen[@]}")

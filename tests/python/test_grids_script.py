@@ -75,6 +75,7 @@ case "$1 $2" in
       echo redrawn > "$out/curves_A.png.tmp" && mv "$out/curves_A.png.tmp" "$out/curves_A.png"
       if [ -n "${RESULTS_CSV:-}" ]; then echo "$RESULTS_CSV" > "$out/r.tmp" && mv "$out/r.tmp" "$out/results.csv"; fi
     fi ;;
+  "table2 --help") echo "  --chosen <CHOSEN>..." ;;
   table2*|fig5*) echo "$*" >> "$GRID_ROOT/calls" ;;
 esac
 """
@@ -126,6 +127,32 @@ def test_collect_copies_finished_grids_and_remakes_table2_and_fig5(tmp_path):
         f"table2 {results}/a_grid_cpu/results.csv {results}/c_grid_cpu/results.csv -o {results}/table2",
         f"fig5 {results}/a_grid_cpu {results}/c_grid_cpu/q_remade_abc -o {results}/fig5",
     ]
+
+
+def test_collect_gives_table2_the_chosen_rows_of_its_own_tasks_only(tmp_path):
+    """Issue 57's *_priority_* results join Table 2 as --chosen rows; step 3's PointMaze files,
+    named alike, are left out (their task has no grid in the table), and a file without the
+    chosen arm is not passed at all."""
+    root, results = pinned_fake(tmp_path)
+    header = "task,algo,variant,seeds,paper_score_mean\n"
+    for name, body in [("fetch_push_priority_td3bc_cpu", "FetchPush,td3bc,mem_rank,5,27.1\n"),
+                       ("pointmaze_medium_stitch_priority_td3_cpu", "pointmaze-medium-stitch-v0,td3,mem_rank,5,15.2\n"),
+                       ("fetch_reach_priority_td3_cpu", "FetchReach,td3,mem_q3,5,48.4\n")]:
+        (results / name).mkdir(parents=True)
+        (results / name / "results.csv").write_text(header + body)
+    (results / "a_grid_cpu").mkdir()
+    (results / "a_grid_cpu" / "results.csv").write_text(header + "FetchPush,td3bc,baseline,5,7.7\nFetchPush,td3,baseline,5,19.9\n")
+    (results / "b_grid_cpu").mkdir()
+    (results / "b_grid_cpu" / "results.csv").write_text(header + "FetchReach,td3bc,baseline,5,48.4\nFetchReach,td3,baseline,5,48.4\n")
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results),
+               GRID_RENDER_ETL=str(tmp_path / "absent"))
+    p = subprocess.run(["bash", str(SCRIPT), "collect"], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert "pointmaze_medium_stitch_priority_td3_cpu: pointmaze-medium-stitch-v0 is not a task of " \
+        "Table 2's grids: left out of it" in p.stdout.splitlines()
+    assert (root / "calls").read_text().splitlines()[0] == (
+        f"table2 {results}/a_grid_cpu/results.csv {results}/b_grid_cpu/results.csv -o {results}/table2 "
+        f"--chosen {results}/fetch_push_priority_td3bc_cpu/results.csv")
 
 
 def newer_build_layout(tmp_path):
