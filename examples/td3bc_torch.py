@@ -154,7 +154,8 @@ def main():
 
     info = pgser.task_info(args.task)
     agent = TD3BC(info["obs_dim"], info["goal_dim"], info["act_dim"], data_norm(traj))
-    sampler = pgser.Sampler(scored, batch_size=args.batch_size, aug_ratio=0.5, priority="q", seed=args.seed,
+    # priority="rank" is pgser's default (docs/domain.md); "q" is the paper's reading
+    sampler = pgser.Sampler(scored, batch_size=args.batch_size, aug_ratio=0.5, priority="rank", seed=args.seed,
                             num_batches=args.updates)
     for i, batch in enumerate(sampler, 1):
         loss = agent.update(batch)

@@ -492,27 +492,27 @@ save_every = 0
 checkpoint = "{}"
 updates = 40
 [agents]
-variants = ["baseline", "mem", "mem_a3", "mem_rank"]
+variants = ["baseline", "mem", "mem_a3", "mem_q"]
 seeds = [0, 1]
 updates = 20
 [agents.arms.mem_a3]
 variant = "mem"
 priority_alpha = 3.0
-[agents.arms.mem_rank]
+[agents.arms.mem_q]
 variant = "mem"
-priority = "rank"
+priority = "q"
 "#,
         given.display()
     );
     let file = common::sample_pipeline(&arms, "arms.toml", "arms", &rest);
     let steps = run(&file, &[]);
     assert!(!steps.contains_key("pretrain"), "a given Q is not trained again: {steps:?}");
-    for id in ["baseline_s0", "mem_s1", "mem_a3_s0", "mem_rank_s1"] {
+    for id in ["baseline_s0", "mem_s1", "mem_a3_s0", "mem_q_s1"] {
         assert_eq!(steps.get(&format!("agent td3bc_{id}")).map(String::as_str), Some("ran"), "{steps:?}");
     }
     let out = arms.join("out");
     let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
-    for arm in ["mem_a3", "mem_rank"] {
+    for arm in ["mem_a3", "mem_q"] {
         let row = csv
             .lines()
             .find(|l| l.starts_with(&format!("FetchReach,td3bc,{arm},2,")))
@@ -528,7 +528,8 @@ priority = "rank"
         .iter()
         .map(|s| (s["priority"].as_str().unwrap().to_string(), s["priority_alpha"].as_f64().unwrap()))
         .collect();
-    assert_eq!(settings, [("q".to_string(), 1.0), ("q".to_string(), 3.0), ("rank".to_string(), 1.0)]);
+    // `mem` and `mem_a3` name no priority: the default's (rank), at α = 1 and 3.
+    assert_eq!(settings, [("rank".to_string(), 1.0), ("rank".to_string(), 3.0), ("q".to_string(), 1.0)]);
     assert_eq!(t1["priority"]["rows"].as_u64(), t1["negatives_available"].as_u64());
 
     // The same Q at another path is another scored table's footer: score runs again, and only
@@ -552,8 +553,8 @@ priority = "rank"
         format!(
             "name = \"s\"\ntitle = \"arms\"\nout = \"study\"\ntask = \"FetchReach\"\nalgo = \"td3bc\"\nx_label = \"α\"\n\
              [[arm]]\nlabel = \"baseline\"\nresults = \"arms/out\"\nvariant = \"baseline\"\n{}{}",
-            arm("q α=1", "mem", "x = 1\nseries = \"q\"\n", ""),
-            arm("q α=3", "mem_a3", "x = 3\nseries = \"q\"\n", "priority = \"q:3\"\n"),
+            arm("rank α=1", "mem", "x = 1\nseries = \"rank\"\n", ""),
+            arm("rank α=3", "mem_a3", "x = 3\nseries = \"rank\"\n", "priority = \"rank:3\"\n"),
         ),
     )
     .unwrap();
@@ -563,15 +564,16 @@ priority = "rank"
     let rows = s["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 3);
     assert_eq!(rows[2]["share_above"], t1["priority"]["settings"][1]["share_above"]);
+    assert_eq!(rows[1]["share_above"], t1["priority"]["settings"][0]["share_above"], "no priority: the default's");
     assert!(rows[1]["p"][0].as_f64().is_some() && rows[0]["p"].as_array().unwrap().is_empty(), "{s}");
     for f in ["study.md", "study.csv", "study.png"] {
         assert!(dir.path().join("study").join(f).exists(), "{f}");
     }
     // An arm whose report lacks its priority is named.
-    std::fs::write(&study, std::fs::read_to_string(&study).unwrap().replace("q:3", "q:2")).unwrap();
+    std::fs::write(&study, std::fs::read_to_string(&study).unwrap().replace("rank:3", "rank:2")).unwrap();
     let o = etl().args(["study"]).arg(&study).output().unwrap();
     let e = text(&o.stderr);
-    assert!(!o.status.success() && e.contains("arm 3") && e.contains("no share for priority q:2"), "{e}");
+    assert!(!o.status.success() && e.contains("arm 3") && e.contains("no share for priority rank:2"), "{e}");
 }
 
 /// `[data] oracle`: OGBench's recipe for the dataset the task names, made by a `collect_oracle`

@@ -272,6 +272,43 @@ fn every_committed_pipeline_plans_and_is_listed_in_the_pipelines_readme() {
     assert!(!dir.path().join("out").exists(), "a dry run wrote its out folder");
 }
 
+#[test]
+fn no_pipeline_with_committed_results_leaves_its_priority_to_the_default() {
+    // pgser's default priority changed (q to rank, 0.4: RESULTS.md, "Rank priorities on every
+    // task"). A file whose results are committed must say what its -mem arms drew with, so that
+    // running it again with a later pgser measures the same thing: each -mem arm names its
+    // priority, or `[train]` / `[agents]` does.
+    let root = repo();
+    let mut checked = 0;
+    for e in std::fs::read_dir(root.join("pipelines")).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_str().unwrap().to_string();
+        if !name.ends_with(".toml") || name.ends_with("_study.toml") {
+            continue;
+        }
+        let doc: toml::Table = std::fs::read_to_string(&p).unwrap().parse().unwrap();
+        let stem = doc["name"].as_str().unwrap();
+        if !root.join("results").join(stem).join("results.csv").exists() {
+            continue;
+        }
+        let set = |t: Option<&toml::Value>| t.and_then(|t| t.get("priority")).is_some();
+        let agents = doc.get("agents");
+        if set(doc.get("train")) || set(agents) {
+            checked += 1;
+            continue;
+        }
+        let arms = agents.and_then(|a| a.get("arms"));
+        let variants = agents.and_then(|a| a.get("variants")).and_then(|v| v.as_array()).cloned().unwrap_or_default();
+        for v in variants.iter().filter_map(|v| v.as_str()) {
+            let arm = arms.and_then(|a| a.get(v));
+            let mem = v == "mem" || arm.and_then(|a| a.get("variant")).and_then(|x| x.as_str()) == Some("mem");
+            assert!(!mem || set(arm), "{name}: -mem arm {v} names no priority, and its results are committed");
+        }
+        checked += 1;
+    }
+    assert!(checked >= 20, "only {checked} pipelines with results found");
+}
+
 /// The file names a README's `code` spans name: `a.toml`, and `a_{b,c}_d.toml` as both names.
 fn listed(readme: &str) -> Vec<String> {
     fn expand(t: &str) -> Vec<String> {

@@ -181,7 +181,17 @@ fn bad_runs_fail_in_one_line_and_leave_no_checkpoint() {
     let (_, out) = short_run(d, "r.ckpt", "5", &[]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let (_, out) = short_run(d, "r.ckpt", "10", &["--resume", "--lr", "0.1"]);
-    assert!(one_line_error(&out).contains("differ from the checkpoint"));
+    let e = one_line_error(&out);
+    assert!(
+        e.contains("differ from the checkpoint")
+            && e.contains("(only --updates may change): --lr: saved null, given 0.1"),
+        "{e}"
+    );
+    // The setting that differs is named, alone: here the default priority of pgser ≥ 0.4 against
+    // the paper's q that a run of an older pgser recorded.
+    let (_, out) = short_run(d, "r.ckpt", "10", &["--resume", "--priority", "q"]);
+    let e = one_line_error(&out);
+    assert!(e.contains("(only --updates may change): --priority: saved \"rank\", given \"q\""), "{e}");
     // --resume with fewer updates than the checkpoint has.
     let (_, out) = short_run(d, "r.ckpt", "3", &["--resume"]);
     assert!(one_line_error(&out).contains("already has 5 updates"), "{}", text(&out.stderr));

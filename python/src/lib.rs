@@ -265,7 +265,7 @@ fn task_info<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
 #[pymodule]
 fn _pgser(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
-    // "0.3.0 (MuJoCo 3.17.0)": the library actually loaded, as `pgser-etl --version` says.
+    // "0.4.0 (MuJoCo 3.17.0)": the library actually loaded, as `pgser-etl --version` says.
     m.add("long_version", pgser::cli::LONG_VERSION.as_str())?;
     m.add_function(wrap_pyfunction!(read_table, m)?)?;
     m.add_function(wrap_pyfunction!(read_footer, m)?)?;

@@ -64,7 +64,7 @@ impl Sampler {
     /// (--priority-eps), `is_beta`, `seed`, `in_memory` (--aug-in-memory).
     #[new]
     #[pyo3(signature = (path, *, batch_size=512, her=0.5, swap=None, swap_ratio=0.5, aug_ratio=0.5,
-        priority="q", alpha=1.0, eps=0.01, is_beta=None, seed=0, in_memory=false, num_batches=None, prefetch=4))]
+        priority="rank", alpha=1.0, eps=0.01, is_beta=None, seed=0, in_memory=false, num_batches=None, prefetch=4))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,

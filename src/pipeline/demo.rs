@@ -34,11 +34,11 @@ What Table 2 shows: the data is 20 expert FetchReach episodes and nothing else. 
 baseline trains on is one its own trajectory reaches, so its critic sees almost only rewards
 of 0, learns nothing about which action reaches which goal, and the agent scores about 0, below
 random actions. The -swap and -mem agents also train on goals swapped in from other episodes,
-which these actions do not reach: that is what takes them to about 47 of 50 (goal swapping,
-Alg. 1). -mem is no better than -swap here, as every swapped row is expert data; the paper's
-gain from prioritizing the swaps is about large expert + random data and far longer training:
-pipelines/fetch_*.toml in the repository run that, and its RESULTS.md reports it. Why this
-data: the comments of demo.toml.
+which these actions do not reach: that is what takes them to 47-48 of 50 (goal swapping,
+Alg. 1). -mem, which draws its swapped rows by the rank of their Q, is not significantly better
+than -swap here, as every swapped row is expert data; the gain from prioritizing the swaps is
+about large expert + random data: pipelines/fetch_*.toml in the repository run that, and its
+RESULTS.md reports it. Why this data: the comments of demo.toml.
 ";
 
 /// The demo's pipeline text for a folder that holds its pickle: the committed file with its

@@ -453,6 +453,7 @@ mod tests {
         assert_eq!(c.agent.algo, Algo::Td3);
         assert_eq!(c.sampler.swap, crate::sampler::Swap::Random);
         assert_eq!(c.priority.priority_alpha, 0.5);
+        assert_eq!(c.priority.priority, PriorityKind::Rank, "a file that names no priority gets the default");
         let q = p.pretrain_config().unwrap();
         assert_eq!((q.agent.algo, q.sampler.swap, q.updates), (Algo::Td3bc, crate::sampler::Swap::Random, 500_000));
         let variants: Vec<_> = p.agents.variants.iter().map(|a| (a.name.as_str(), a.variant)).collect();
@@ -461,10 +462,13 @@ mod tests {
     }
 
     /// Named arms: `-mem` twice with other priority settings, in the order `variants` lists
-    /// them, each cell with its arm's settings over `[agents]`'s; and a Q given by path.
+    /// them, each cell with its arm's settings over `[agents]`'s, and `[train]`'s priority (as
+    /// the committed pipelines pin the paper's q) under an arm that names none; and a Q given by path.
     #[test]
     fn named_arms_and_a_given_q() {
-        let text = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"mem\", \"mem_a3\", \"rank\"]")
+        let text = MIN
+            .replace("lr = 0.001", "lr = 0.001\npriority = \"q\"")
+            .replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"mem\", \"mem_a3\", \"rank\"]")
             + "[agents.arms.mem_a3]\nvariant = \"mem\"\npriority_alpha = 3.0\n\
                [agents.arms.rank]\nvariant = \"mem\"\npriority = \"rank\"\n\
                [pretrain]\ncheckpoint = \"../q/q.ckpt\"\nupdates = 10\n";

@@ -53,7 +53,8 @@ struct ArmFile {
     series: Option<String>,
     /// A folder holding the report (table1.json) of the Q this arm sampled with.
     report: Option<String>,
-    /// The priority this arm drew with, `KIND[:ALPHA[:EPS]]` (default `q:1`, pgser-train's).
+    /// The priority this arm drew with, `KIND[:ALPHA[:EPS]]`; unset: pgser-train's default (`rank:1`
+    /// since 0.4; an arm trained by 0.3 with its default drew with `q:1`, and says so).
     priority: Option<String>,
 }
 
@@ -110,13 +111,17 @@ pub fn study(path: &Path) -> Result<Study> {
             read_row(&resolve(&a.results).join("results.csv"), &f.task, &f.algo, &a.variant).context(arm.clone())?;
         let (mut accuracy, mut accuracy_controlled, mut share_above, mut share_uniform) = (None, None, None, None);
         if let Some(r) = &a.report {
-            let priority = parse_setting(a.priority.as_deref().unwrap_or("q")).context(arm.clone())?;
+            let priority =
+                a.priority.as_deref().map(parse_setting).transpose().context(arm.clone())?.unwrap_or_default();
             let t = read_report(&resolve(r).join("table1.json")).context(arm.clone())?;
             accuracy = Some(t.accuracy);
             accuracy_controlled = Some(t.accuracy_controlled);
             if let Some(s) = &t.priority {
                 share_above = Some(share_of(s, &priority).with_context(|| {
-                    format!("{arm}: its report gives no share for priority {}", a.priority.as_deref().unwrap_or("q"))
+                    format!(
+                        "{arm}: its report gives no share for priority {}",
+                        a.priority.as_deref().unwrap_or("rank:1 (the default)")
+                    )
                 })?);
                 share_uniform = Some(s.uniform);
             }

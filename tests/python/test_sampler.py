@@ -29,6 +29,8 @@ CASES = [
      dict(batch_size=50, swap="random", swap_ratio=0.3, her=0.8)),
     ("scored", ["--batch-size", "64", "--aug-ratio", "0.25", "--is-beta", "0.4", "--seed", "5"],
      dict(batch_size=64, aug_ratio=0.25, is_beta=0.4, seed=5)),
+    # the paper's reading, no longer the default: both sides must still agree on it
+    ("scored", ["--batch-size", "64", "--priority", "q", "--seed", "2"], dict(batch_size=64, priority="q", seed=2)),
     ("scored", ["--batch-size", "32", "--priority", "rank", "--priority-alpha", "0.7", "--aug-in-memory"],
      dict(batch_size=32, priority="rank", alpha=0.7, in_memory=True)),
 ]

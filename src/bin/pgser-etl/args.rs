@@ -173,7 +173,7 @@ pub enum Command {
         #[arg(long, default_value_t = 2_000)]
         svm_max_train: usize,
         /// A priority setting KIND[:ALPHA[:EPS]] (q:1, q:3, rank:1, uniform) whose share of draws
-        /// above the own-goal median Q to report; repeat for several [default: q:1].
+        /// above the own-goal median Q to report; repeat for several [default: rank:1, pgser-train's].
         #[arg(long = "share", value_parser = parse_share)]
         shares: Vec<pgser::sampler::priority::PriorityConfig>,
         /// Print the report as JSON instead of the markdown table.

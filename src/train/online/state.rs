@@ -191,9 +191,8 @@ pub(super) fn restore(cfg: &OnlineConfig, out: &Path, command: &str, device: Dev
         .with_context(|| format!("{at}: the checkpoint's online settings are not readable"))?;
     if saved.identity() != cfg.identity() {
         return stale(format!(
-            "{at}: --resume with settings that differ from the checkpoint's (only --epochs may change): saved {}, given {}",
-            serde_json::to_string(&saved)?,
-            serde_json::to_string(cfg)?
+            "{at}: --resume with settings that differ from the checkpoint's (only --epochs may change): {}",
+            crate::train::differing_settings(&saved.identity(), &cfg.identity())?
         ));
     }
     let resume_file = checkpoint::resume_path(out);
