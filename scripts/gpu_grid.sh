@@ -72,9 +72,12 @@ case $device in cuda*)
   fi;;
 esac
 
-# The pipeline's folders: its `out` is relative to the pipeline file.
+# The pipeline's folders: its `out` is relative to the pipeline file, unless it is absolute.
 rel_out=$(sed -n 's/^out *= *"\(.*\)"/\1/p' "$pipeline" | head -1)
-dest=$(realpath -m "$(dirname "$pipeline")/$rel_out")
+case $rel_out in
+  /*) dest=$(realpath -m "$rel_out");;
+  *) dest=$(realpath -m "$(dirname "$pipeline")/$rel_out");;
+esac
 t0=$SECONDS
 timeout -s TERM -k 90 $((budget - 45 - SECONDS)) "$etl" pipeline run "$pipeline" --device "$device" --no-measure \
   >"$logs/pipeline.out" 2>"$logs/pipeline.log" &
@@ -161,7 +164,8 @@ print(f"  {len(agents)} agents, {doc['updates_reached']} updates reached in {wal
       + (f", {doc['agent_updates_per_s']:.0f} agent-updates/s" if doc["agent_updates_per_s"] else "")
       + " (evaluations and saves included)")
 for name, c in check.items():
-    print(f"  data {name}: {'the same bytes as' if c['same'] else 'DIFFERS from'} the data the Q was trained on")
+    said = "the same bytes as" if c["same"] else "DIFFERS from" if c["here"] else "MISSING here, so not checked against"
+    print(f"  data {name}: {said} the data the Q was trained on")
 EOF
 tar -czf "$out/logs.tar.gz" -C "$work" logs 2>/dev/null
 say "done: $out/grid.json"
