@@ -225,7 +225,7 @@ pub fn markdown(
         let _ = writeln!(s, "| {learner}-swap beside it (pgser) | {} |", row(&|x| fmt_cell(x.swap.0, x.swap.1, "")));
         let _ = writeln!(s, "| {learner} beside it (pgser) | {} |", row(&|x| fmt_cell(x.baseline.0, x.baseline.1, "")));
         let share = |x: &ChosenCell| match (x.share, x.uniform) {
-            (Some(a), Some(u)) => format!("{a:.3} ({u:.3})"),
+            (Some(a), Some(u)) => format!("{} ({})", fmt_share(a), fmt_share(u)),
             _ => "n/a".to_string(),
         };
         let _ =
@@ -318,4 +318,22 @@ pub fn csv(c: &Chosen) -> String {
         );
     }
     s
+}
+
+/// A share to three decimals, or to two significant digits when it is smaller than that shows:
+/// uniform drawing's share on HandBlock-Z is 0.00046 (454 of 990,000 rows), which "0.000" would
+/// hide, and a ratio to it (1000×) is the point of the column.
+fn fmt_share(x: f64) -> String {
+    let decimals = if x > 0.0 && x < 0.01 { (1.0 - x.log10().floor()) as usize } else { 3 };
+    format!("{x:.decimals$}")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn small_shares_keep_two_significant_digits() {
+        let f = super::fmt_share;
+        assert_eq!([f(0.736), f(0.027), f(0.012), f(0.117)], ["0.736", "0.027", "0.012", "0.117"]);
+        assert_eq!([f(0.000458), f(0.0091), f(0.0), f(1.0)], ["0.00046", "0.0091", "0.000", "1.000"]);
+    }
 }
