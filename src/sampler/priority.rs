@@ -35,7 +35,7 @@ pub struct PriorityConfig {
     /// place of q (the paper's reading): with the 20k-update Qs of pgser's Table 2 grids, q at α = 1
     /// drew the rows its Q calls reachable only 1.1–1.9× as often as uniform drawing, and -mem beat
     /// -swap in 0 of 12 task × learner pairs; rank drew them 7–1000× as often, beat -swap in 4 of
-    /// the first 9 pairs and did at least as well as q in 7 of 9 (docs/domain.md)
+    /// 12 and did at least as well as q in 10 of 12 (docs/domain.md)
     #[arg(long, value_enum, default_value = "rank")]
     pub priority: PriorityKind,
     /// Exponent α of the priorities (0: uniform; larger: greedier).
