@@ -192,7 +192,7 @@ pub(super) fn restore(cfg: &OnlineConfig, out: &Path, command: &str, device: Dev
     if saved.identity() != cfg.identity() {
         return stale(format!(
             "{at}: --resume with settings that differ from the checkpoint's (only --epochs may change): {}",
-            crate::train::differing_settings(&saved.identity(), &cfg.identity())?
+            crate::train::differ::differing_settings(&saved.identity(), &cfg.identity())?
         ));
     }
     let resume_file = checkpoint::resume_path(out);
