@@ -15,7 +15,9 @@
 #   scripts/grids.sh collect [FILE...]
 #                                     copy each finished grid's results and report to results/NAME/,
 #                                     then remake results/table2 (with the chosen priority's rows of
-#                                     results/*_priority_*: --chosen) and results/fig5 from all of them
+#                                     results/*_priority_*: --chosen; the arm $GRID_CHOSEN_ARM, default
+#                                     mem_rank, of the setting $GRID_CHOSEN_SETTING, default rank:1, as
+#                                     table2's --chosen-arm and --chosen-setting) and results/fig5 from all of them
 #                                     (figures drawn by target/release when built, else the pinned build;
 #                                     the numbers are always the grid's). A task split over two grids,
 #                                     one per learner, joins Table 2 once both are in (Fig. 5 draws
@@ -42,6 +44,11 @@ DEFAULT_GRIDS="pipelines/fetch_slide_grid_cpu.toml pipelines/fetch_pick_and_plac
   pipelines/hand_egg_rotate_grid_cpu.toml pipelines/hand_block_z_td3_grid_cpu.toml
   pipelines/hand_block_z_td3bc_grid_cpu.toml"
 RESULTS_DIR=${GRID_RESULTS:-results}
+# The chosen priority's arm in the *_priority_* results and its setting (issue 57: rank α = 1), given
+# to table2 as they are: the files passed with --chosen are the ones that have this arm. Another arm
+# needs its own setting, so one is not taken without the other.
+CHOSEN_ARM=${GRID_CHOSEN_ARM:-mem_rank}
+CHOSEN_SETTING=${GRID_CHOSEN_SETTING:-rank:1}
 
 grid_name() { sed -n 's/^name *= *"\(.*\)"/\1/p' "$1"; }
 
@@ -185,6 +192,9 @@ case "${1:-}" in
     # finished when `pipeline status` finds its last step, results, up to date, so a grid stopped
     # half way, or one whose file changed since, is left out and says so.
     shift
+    if [ -n "${GRID_CHOSEN_ARM:-}" ] && [ -z "${GRID_CHOSEN_SETTING:-}" ]; then
+      echo "grids.sh: GRID_CHOSEN_ARM=$GRID_CHOSEN_ARM needs GRID_CHOSEN_SETTING, its KIND:ALPHA (q:3, rank:1)" >&2; exit 2
+    fi
     results=$RESULTS_DIR
     bin=$(pinned)
     # The training curves, the Q histogram of the report and the tables across tasks are drawn by
@@ -294,22 +304,22 @@ case "${1:-}" in
         echo "$(basename "$(dirname "$c")"): $half has one learner so far: left out of Table 2"
       else tables+=("$c"); fi
     done
-    # Table 2's rows for the priority chosen by issue 57 (rank α = 1, RESULTS.md): each
+    # Table 2's rows for the priority chosen by issue 57 (rank α = 1, RESULTS.md; $CHOSEN_ARM): each
     # *_priority_* pipeline trains it beside its own baseline and -swap (its first arm's file for
-    # FetchPush, whose TD3+BC half also ran q α = 3). A build older than --chosen leaves them out.
+    # FetchPush, whose TD3+BC half also ran q α = 3). A build older than --chosen-arm leaves them out.
     # Step 3's files on OGBench tasks (PointMaze) are named alike but have no column in the table:
     # a chosen row joins only a task of the grids going into it.
     grid_tasks=""
     [ "${#tables[@]}" = 0 ] || grid_tasks=$(tail -q -n +2 "${tables[@]}" | cut -d, -f1 | sort -u)
     chosen=()
     for c in "$results"/*_priority_td3bc_cpu/results.csv "$results"/*_priority_td3_cpu/results.csv; do
-      [ -f "$c" ] && grep -q ',mem_rank,' "$c" || continue
+      [ -f "$c" ] && grep -qF -- ",$CHOSEN_ARM," "$c" || continue
       task=$(sed -n 2p "$c" | cut -d, -f1)
       if grep -qxF -- "$task" <<<"$grid_tasks"; then chosen+=("$c")
       else echo "$(basename "$(dirname "$c")"): $task is not a task of Table 2's grids: left out of it"; fi
     done
-    if [ "${#chosen[@]}" -gt 0 ] && with_pinned "$render" table2 --help | grep -q -- --chosen; then
-      chosen=(--chosen "${chosen[@]}")
+    if [ "${#chosen[@]}" -gt 0 ] && with_pinned "$render" table2 --help | grep -q -- --chosen-arm; then
+      chosen=(--chosen-arm "$CHOSEN_ARM" --chosen-setting "$CHOSEN_SETTING" --chosen "${chosen[@]}")
     else chosen=(); fi
     # The two tables across tasks read only committed CSV and JSON.
     echo "tables across tasks drawn by $render"

@@ -17,8 +17,9 @@ The binary and the module are stripped and their run path set to the bundled MuJ
 (`$ORIGIN/../.libs`, `$ORIGIN/.libs`), replacing the clone's `.deps/mujoco`. Then `auditwheel
 repair` tags the wheel with the manylinux policy `auditwheel show` finds for it (the glibc symbol
 versions the files were linked against: 2.28 by `make wheel`'s zig link, scripts/zigcc) and would
-copy in any library outside that policy (none since HDF5 is compiled in). Prints the wheel's path, size and what
-`auditwheel show` says of it.
+copy in any library outside that policy (none since HDF5 is compiled in). A policy newer than
+manylinux_2_28, or none, is an error: such a wheel would not install where pgser says it does
+(any glibc from 2.28 on). Prints the wheel's path, size and what `auditwheel show` says of it.
 """
 
 import argparse
@@ -39,6 +40,52 @@ MUJOCO = "libmujoco.so.3.17.0"
 # What the Fetch and Hand environments read (src/env/fetch.rs, hand.rs): their XML and the meshes
 # and textures those include. The other robots of gymnasium-robotics (Adroit, Kitchen) are left out.
 ASSETS = ["LICENSE.md", "fetch", "hand", "stls/fetch", "stls/hand", "textures"]
+# The newest glibc the wheel may need: the one scripts/zigcc links against, and the tag the wheel's
+# name promises (docs/python.md).
+GLIBC = (2, 28)
+# PEP 600's names of the older manylinux tags, as auditwheel may still add them to a wheel's name.
+LEGACY = {"manylinux1": (2, 5), "manylinux2010": (2, 12), "manylinux2014": (2, 17)}
+
+
+def glibc_of(tag):
+    """The glibc (major, minor) a platform tag needs, or None where it is no x86-64 manylinux tag
+    (`linux_x86_64`: auditwheel found no policy the files fit)."""
+    m = re.fullmatch(r"manylinux_(\d+)_(\d+)_x86_64", tag)
+    if m:
+        return int(m.group(1)), int(m.group(2))
+    m = re.fullmatch(r"(manylinux\d+)_x86_64", tag)
+    return LEGACY.get(m.group(1)) if m else None
+
+
+def check_tag(tag, what):
+    """`tag` itself when it needs no glibc newer than GLIBC; else exits, naming `what` and why."""
+    need = glibc_of(tag)
+    want = "manylinux_{}_{}_x86_64".format(*GLIBC)
+    if need is None:
+        sys.exit(f"wheel.py: {what}: platform tag {tag!r} is no manylinux tag; the wheel must be {want} or older "
+                 f"(link with scripts/zigcc, as `make wheel` does)")
+    if need > GLIBC:
+        sys.exit(f"wheel.py: {what}: platform tag {tag} needs glibc {need[0]}.{need[1]}, newer than {want} allows "
+                 f"(link with scripts/zigcc, as `make wheel` does)")
+    return tag
+
+
+def shown_tag(shown):
+    """The platform tag `auditwheel show` gives a wheel, checked by check_tag: the one its
+    versioned symbols constrain it to, or, where they constrain nothing, the one it is consistent
+    with."""
+    text = " ".join(shown.split())
+    m = re.search(r'constrains the platform tag to "([^"]+)"', text) or re.search(
+        r'consistent with the following platform tag: "([^"]+)"', text)
+    if not m:
+        sys.exit(f"wheel.py: auditwheel show names no platform tag for the wheel:\n{shown}")
+    return check_tag(m.group(1), "auditwheel show")
+
+
+def wheel_tags(name):
+    """The platform tags in a wheel's file name (`…-cp310-abi3-A.B.whl`: A and B), each checked."""
+    platforms = name.removesuffix(".whl").split("-")[-1]
+    return [check_tag(t, name) for t in platforms.split(".")]
 
 
 def sh(*args):
@@ -144,14 +191,11 @@ def main():
         # points the files' run paths at them.
         linux = Path(t) / a.base.name
         zip_dir(root, linux)
-        shown = sh(auditwheel, "show", linux)
-        m = re.search(r'constrains the platform tag to "(manylinux_[0-9_]+_x86_64)"', " ".join(shown.split()))
-        if not m:
-            sys.exit(f"wheel.py: auditwheel finds no manylinux policy for the wheel:\n{shown}")
-        tag = m.group(1)
+        tag = shown_tag(sh(auditwheel, "show", linux))
         repaired = Path(t) / "repaired"
         sh(auditwheel, "repair", "--plat", tag, "-w", repaired, linux)
         (built,) = repaired.glob("*.whl")
+        wheel_tags(built.name)
         a.out.mkdir(parents=True, exist_ok=True)
         dest = a.out / built.name
         shutil.copy2(built, dest)

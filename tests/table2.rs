@@ -136,6 +136,49 @@ fn table2_assembles_the_papers_layout_with_its_values_and_tests() {
     assert!(lines.contains(&"FetchSlide,TD3,0,,,,,,,,,,,,,,not run"), "{csv}");
 }
 
+/// Welch's test against scipy's, not against itself: t, degrees of freedom and two-sided p of
+/// `scipy.stats.ttest_ind(a, b, equal_var=False)`, and the one-sided p with
+/// `alternative="greater"`, computed once with scipy 1.17.1 and written here:
+///
+/// ```text
+/// .venv/bin/python -c 'from scipy import stats; r = stats.ttest_ind(A, B, equal_var=False); \
+///     g = stats.ttest_ind(A, B, equal_var=False, alternative="greater"); \
+///     print(repr(r.statistic), repr(r.df), repr(r.pvalue), repr(g.pvalue))'
+/// ```
+///
+/// Clearly apart, overlapping, unequal sizes and spreads, and a p of 1e-18 (where 1 − cdf would
+/// have lost it); the summaries' test (what table2 runs on results.csv) gives the same.
+#[test]
+fn welch_p_values_match_scipys() {
+    #[rustfmt::skip]
+    let cases: [(&[f64], &[f64], [f64; 4]); 4] = [
+        (&[30.1, 28.4, 31.7, 29.9, 30.6], &[15.2, 14.1, 17.9, 16.0, 13.8],
+         [16.16367997284499, 7.29560336546222, 5.595910415550308e-07, 2.797955207775154e-07]),
+        (&[24.0, 26.1, 22.3, 25.4, 23.9], &[25.2, 27.0, 24.1, 26.5, 23.8],
+         [-1.0718226661865242, 7.987402939755961, 0.315113280939038, 0.842443359530481]),
+        (&[1.0, 2.5, 0.3, 4.2, 3.3, 2.2, 1.9], &[2.1, 2.0, 2.4],
+         [0.06499616998140073, 6.650210176897376, 0.9500874378674383, 0.47504371893371916]),
+        (&[100.0, 100.1, 99.9, 100.05], &[0.0, 0.1, -0.1, 0.05],
+         [1656.1573424216972, 6.0, 3.2710841220606258e-18, 1.6355420610303129e-18]),
+    ];
+    let close = |got: f64, want: f64, what: &str| {
+        assert!((got - want).abs() <= 1e-10 * want.abs(), "{what}: {got:e}, scipy {want:e}");
+    };
+    for (a, b, [t, df, p, greater]) in cases {
+        let (got_t, got_df, got_p) = report::welch_t_test(a, b).unwrap();
+        close(got_t, t, "t");
+        close(got_df, df, "df");
+        close(got_p, p, "p");
+        close(report::welch_greater(a, b).unwrap(), greater, "one-sided p");
+        let side = |v: &[f64]| {
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            let s = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt();
+            (m, s, v.len())
+        };
+        close(report::welch_from_summary(side(a), side(b)).unwrap().2, p, "p from the summaries");
+    }
+}
+
 /// A chosen-setting pipeline's results.csv (the arm beside its own baseline and swap, and another
 /// arm to leave out) and the table1.json of its report with the shares of both settings.
 fn chosen_files(dir: &Path, name: &str, task: &str, algo: &str, means: [f64; 4]) -> PathBuf {
@@ -194,7 +237,7 @@ fn table2_gives_the_chosen_settings_rows_against_their_own_baseline_and_swap() {
     assert_eq!(f[8].parse::<f64>().unwrap(), p);
     // Against the grid's -mem of the same pair (30 ± 1): significantly below, so not "as well".
     assert_eq!(f[13].parse::<f64>().unwrap(), report::welch_from_summary((27.0, 1.0, 5), (30.0, 1.0, 5)).unwrap().2);
-    assert_eq!(&f[14..17], ["false", "0.736", "0.027"]);
+    assert_eq!(&f[14..17], ["no", "0.736", "0.027"]);
     assert!(f[17].ends_with("results.csv:5"), "{}", f[17]);
     assert!(md.contains("**rank α = 1 at least as well as q α = 1** (its `-mem` not significantly below the grid's `-mem` of the same pair, Welch over seeds; the grids ran on an older build): 1 of 2 pairs; below it: FetchPush TD3BC (p = "), "{md}");
 
@@ -210,6 +253,71 @@ fn table2_gives_the_chosen_settings_rows_against_their_own_baseline_and_swap() {
     assert_eq!(cells(&md, "TD3BC-mem, q α = 3 (pgser)")[1], "23.00 ± 1.00 ▲b ▲s");
     assert_eq!(cells(&md, "TD3BC-mem, q α = 3: share above the own-goal median (uniform)")[1], "0.133 (0.027)");
     assert_eq!(cells(&md, "TD3-mem, q α = 3 (pgser)")[1], "not run");
+}
+
+/// A pair whose p against the grid's `-mem` cannot be computed (the arm over one seed; both sides
+/// without spread) is neither "as well" nor "below": the count says how many are unknown and
+/// which, and the CSV says "unknown", where a pair with no grid cell stays empty.
+#[test]
+fn table2_counts_a_chosen_pair_without_a_p_against_the_grid_as_unknown() {
+    let dir = tempfile::tempdir().unwrap();
+    // The grid's TD3-mem without spread (std 0 over its 5 seeds).
+    let mut rows = six(0.0);
+    rows[5].4 = 0.0;
+    let grid = results_csv(&dir.path().join("grid.csv"), "FetchPush", &rows);
+    let arm = |name: &str, algo: &'static str, seeds: usize, mean: f64, std: f64| {
+        std::fs::create_dir_all(dir.path().join(name)).unwrap();
+        let rows =
+            [(algo, "baseline", 5, 10.0, 1.0), (algo, "swap", 5, 15.0, 1.0), (algo, "mem_rank", seeds, mean, std)];
+        results_csv(&dir.path().join(name).join("results.csv"), "FetchPush", &rows)
+    };
+    // TD3+BC: the arm over one seed (well below the grid's 30, but no test can say so); TD3: the
+    // arm without spread either (20 against the grid's 24).
+    let (bc, td3) = (arm("bc", "td3bc", 1, 20.0, 1.0), arm("td3", "td3", 5, 20.0, 0.0));
+    let out = dir.path().join("t2");
+    let o = table2(&[&grid], &out, &["--chosen", bc.to_str().unwrap(), td3.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = std::fs::read_to_string(out.join("table2.md")).unwrap();
+    assert!(
+        md.contains(
+            "the grids ran on an older build): 0 of 2 pairs (2 unknown: FetchPush TD3BC (the arm over one seed), \
+             FetchPush TD3 (no spread on either side))."
+        ),
+        "{md}"
+    );
+    let csv = std::fs::read_to_string(out.join("table2_chosen.csv")).unwrap();
+    let verdicts: Vec<(&str, &str, &str)> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[1], f[13], f[14])
+        })
+        .collect();
+    assert_eq!(verdicts, [("TD3BC", "", "unknown"), ("TD3", "", "unknown")], "{csv}");
+
+    // One pair known and below, one unknown: both said.
+    let td3 = arm("td3_spread", "td3", 5, 20.0, 1.0);
+    std::fs::remove_dir_all(&out).unwrap();
+    let o = table2(&[&grid], &out, &["--chosen", bc.to_str().unwrap(), td3.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let md = std::fs::read_to_string(out.join("table2.md")).unwrap();
+    assert!(
+        md.contains("0 of 2 pairs (1 unknown: FetchPush TD3BC (the arm over one seed)); below it: FetchPush TD3 (p = "),
+        "{md}"
+    );
+    let j = {
+        let o = table2(
+            &[&grid],
+            &dir.path().join("t2j"),
+            &["--json", "--chosen", bc.to_str().unwrap(), td3.to_str().unwrap()],
+        );
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        last_json(&text(&o.stdout))
+    };
+    let verdicts: Vec<&str> =
+        j["chosen"]["cells"].as_array().unwrap().iter().map(|c| c["as_well_as_grid"].as_str().unwrap()).collect();
+    assert_eq!(verdicts, ["unknown", "no"], "{j}");
 }
 
 /// The committed FetchPush runs of the chosen setting (issue 57 step 1) beside the committed

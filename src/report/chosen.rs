@@ -67,13 +67,40 @@ pub struct ChosenCell {
     /// it: the comparison step 5 of issue 57 decides the default by (a grid ran on an older build,
     /// so this compares settings and builds together; RESULTS.md says so).
     pub p_vs_grid_mem: Option<f64>,
-    /// Not significantly below the grid's `-mem`: "at least as well as α = 1".
-    pub as_well_as_grid: Option<bool>,
+    /// Against the grid's `-mem`, where the grids have the pair: "at least as well as α = 1" or
+    /// not, or unknown where Welch's test has no p.
+    pub as_well_as_grid: Option<AsWell>,
+    /// Why it is unknown: "the arm over one seed", "no spread on either side".
+    pub why_unknown: Option<String>,
     /// Share of the arm's draws above the own-goal median Q, and uniform drawing's; None where
     /// the pipeline's table1.json is absent or has no share of this setting.
     pub share: Option<f64>,
     pub uniform: Option<f64>,
     pub source: String,
+}
+
+/// The arm against the grid's `-mem` of the same pair, by Welch's test over seeds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AsWell {
+    /// Not significantly below it.
+    Yes,
+    /// Significantly below it.
+    No,
+    /// No p to decide by: a side over one seed, or neither side with any spread (t undefined).
+    /// Counting such a pair as "not significantly below" would count a test that was never made.
+    Unknown,
+}
+
+impl AsWell {
+    /// As table2_chosen.csv writes it.
+    fn as_str(self) -> &'static str {
+        match self {
+            AsWell::Yes => "yes",
+            AsWell::No => "no",
+            AsWell::Unknown => "unknown",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -152,7 +179,20 @@ pub fn chosen<'g>(
                 [mark(pb, m.mean > b.mean, "b"), mark(ps, m.mean > s.mean, "s")].into_iter().flatten().collect();
             let grid = grid_mem(task, row("mem"));
             let p_vs_grid_mem = grid.and_then(p);
-            let as_well_as_grid = grid.map(|g| !(p_vs_grid_mem.is_some_and(|p| p < ALPHA) && m.mean < g.mean));
+            let as_well_as_grid = grid.map(|g| match p_vs_grid_mem {
+                None => AsWell::Unknown,
+                Some(p) if p < ALPHA && m.mean < g.mean => AsWell::No,
+                Some(_) => AsWell::Yes,
+            });
+            let why_unknown = grid.filter(|_| p_vs_grid_mem.is_none()).map(|g| {
+                match (m.seeds < 2, g.seeds < 2) {
+                    (true, false) => "the arm over one seed",
+                    (false, true) => "the grid's over one seed",
+                    (true, true) => "both over one seed",
+                    (false, false) => "no spread on either side",
+                }
+                .to_string()
+            });
             let (share, uniform) =
                 shares.iter().find(|x| x.0 == task && x.1 == algo).map_or((None, None), |x| (x.2, x.3));
             cells.push(ChosenCell {
@@ -168,6 +208,7 @@ pub fn chosen<'g>(
                 marks: marks.join(" "),
                 p_vs_grid_mem,
                 as_well_as_grid,
+                why_unknown,
                 share,
                 uniform,
                 source: m.source.clone(),
@@ -256,18 +297,27 @@ pub fn markdown(
         let _ = writeln!(s, "{}", count_row(name, a));
     }
     let compared: Vec<&ChosenCell> = c.cells.iter().filter(|x| x.as_well_as_grid.is_some()).collect();
-    let below: Vec<String> = compared
-        .iter()
-        .filter(|x| x.as_well_as_grid == Some(false))
-        .map(|x| format!("{} {} (p = {})", x.task, x.learner, agree::fmt_p(x.p_vs_grid_mem.unwrap_or(f64::NAN))))
-        .collect();
+    let pairs = |verdict: AsWell, note: &dyn Fn(&ChosenCell) -> String| -> Vec<String> {
+        compared
+            .iter()
+            .filter(|x| x.as_well_as_grid == Some(verdict))
+            .map(|x| format!("{} {} ({})", x.task, x.learner, note(x)))
+            .collect()
+    };
+    let below = pairs(AsWell::No, &|x| format!("p = {}", agree::fmt_p(x.p_vs_grid_mem.unwrap_or(f64::NAN))));
+    let unknown = pairs(AsWell::Unknown, &|x| x.why_unknown.clone().unwrap_or_default());
+    let as_well = compared.iter().filter(|x| x.as_well_as_grid == Some(AsWell::Yes)).count();
     let _ = writeln!(
         s,
         "\n**{} at least as well as q α = 1** (its `-mem` not significantly below the grid's `-mem` of the same \
-         pair, Welch over seeds; the grids ran on an older build): {} of {} pairs{}.",
+         pair, Welch over seeds; the grids ran on an older build): {as_well} of {} pairs{}{}.",
         c.label,
-        compared.len() - below.len(),
         compared.len(),
+        if unknown.is_empty() {
+            String::new()
+        } else {
+            format!(" ({} unknown: {})", unknown.len(), unknown.join(", "))
+        },
         if below.is_empty() { String::new() } else { format!("; below it: {}", below.join(", ")) }
     );
     s += "\n### Per task, with the chosen setting\n\n";
@@ -311,7 +361,7 @@ pub fn csv(c: &Chosen) -> String {
             num(x.swap.0),
             num(x.swap.1),
             opt(x.p_vs_grid_mem),
-            x.as_well_as_grid.map(|b| b.to_string()).unwrap_or_default(),
+            x.as_well_as_grid.map_or("", AsWell::as_str),
             opt(x.share),
             opt(x.uniform),
             x.source.replace(',', ";")

@@ -40,7 +40,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
-pub use chosen::{Chosen, ChosenCell, ChosenOptions};
+pub use chosen::{AsWell, Chosen, ChosenCell, ChosenOptions};
 pub use classify::{ClassifierScore, classify};
 pub use fig5::{Fig5All, Fig5Options, fig5_all};
 pub use negatives::{Negatives, negatives};

@@ -5,6 +5,7 @@ named; and `compare_ok` says 1 only when every figure of a comparison is within 
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -22,9 +23,21 @@ def helpers() -> str:
     return text[start:]
 
 
-def bash(tmp_path, script: str, path_dirs=()):
-    env = dict(os.environ, PATH=":".join([*map(str, path_dirs), str(Path(sys.executable).parent), "/usr/bin", "/bin"]))
-    (tmp_path / "helpers.sh").write_text(helpers())
+# Where cuda_diagnose looks for compute-sanitizer besides the PATH: CUDA's installs.
+CUDA_INSTALLS = "/usr/local/cuda*/"
+
+
+def bash(tmp_path, script: str, path_dirs=(), system_path=True, cuda_installs=None):
+    """`script` after env.sh's helpers, with `path_dirs` first on the PATH, then (with
+    `system_path`) this Python's and the system's folders; `cuda_installs`, a glob standing in for
+    CUDA's install folders where the helpers look for compute-sanitizer."""
+    system = [str(Path(sys.executable).parent), "/usr/bin", "/bin"] if system_path else []
+    env = dict(os.environ, PATH=":".join([*map(str, path_dirs), *system]))
+    text = helpers()
+    if cuda_installs is not None:
+        assert CUDA_INSTALLS in text, f"{ENV_SH} no longer looks in {CUDA_INSTALLS}: update this test"
+        text = text.replace(CUDA_INSTALLS, cuda_installs)
+    (tmp_path / "helpers.sh").write_text(text)
     prelude = f"""
         set -uo pipefail
         here={REPO}/; work={tmp_path}/work; logs={tmp_path}/work/logs; out={tmp_path}/out
@@ -32,7 +45,8 @@ def bash(tmp_path, script: str, path_dirs=()):
         say() {{ echo "say: $*" >>"$out/said.log"; }}
         . {tmp_path}/helpers.sh
     """
-    return subprocess.run(["bash", "-c", textwrap.dedent(prelude) + script], capture_output=True, text=True, env=env)
+    return subprocess.run([shutil.which("bash"), "-c", textwrap.dedent(prelude) + script], capture_output=True,
+                          text=True, env=env)
 
 
 def fake(path, body):
@@ -85,17 +99,24 @@ echo "========= ERROR SUMMARY: 1 error"
 
 
 def test_without_a_sanitizer_the_run_says_so(tmp_path):
+    """On every machine, one with CUDA's compute-sanitizer included: the PATH holds only the tools
+    the helper calls (each a link to this machine's), and CUDA's install folders are looked for
+    in an empty folder."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     fake(bin_dir / "pgser-train", "exit 0\n")
+    for tool in ["timeout", "tail", "ls", "head", "grep", "tr", "mkdir", "cat"]:
+        (bin_dir / tool).symlink_to(shutil.which(tool))
+    # This Python (its venv's packages) as python3, for bench/gpu_compare.py.
+    fake(bin_dir / "python3", f'exec {sys.executable} "$@"\n')
     r = bash(tmp_path, f"""
         train={bin_dir}/pgser-train
         cuda_diagnose check-cuda $work/check-cpu --device cuda
-    """, path_dirs=[bin_dir])
+    """, path_dirs=[bin_dir], system_path=False, cuda_installs=f"{tmp_path}/no-cuda*/")
     assert r.returncode == 0, r.stderr
     said = (tmp_path / "out" / "said.log").read_text()
-    if not any(Path("/usr/local").glob("cuda*/bin/compute-sanitizer")):
-        assert "no compute-sanitizer on this machine" in said, said
+    assert "no compute-sanitizer on this machine" in said, said
+    assert "compute-sanitizer memcheck" not in said, said
     # The repeated run trained and was compared with the CPU's (here: a CPU run that is missing).
     assert "cuda-blocking" in said, said
 

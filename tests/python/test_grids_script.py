@@ -75,7 +75,7 @@ case "$1 $2" in
       echo redrawn > "$out/curves_A.png.tmp" && mv "$out/curves_A.png.tmp" "$out/curves_A.png"
       if [ -n "${RESULTS_CSV:-}" ]; then echo "$RESULTS_CSV" > "$out/r.tmp" && mv "$out/r.tmp" "$out/results.csv"; fi
     fi ;;
-  "table2 --help") echo "  --chosen <CHOSEN>..." ;;
+  "table2 --help") printf '  --chosen <CHOSEN>...\n  --chosen-arm <CHOSEN_ARM>\n' ;;
   table2*|fig5*) echo "$*" >> "$GRID_ROOT/calls" ;;
 esac
 """
@@ -152,7 +152,35 @@ def test_collect_gives_table2_the_chosen_rows_of_its_own_tasks_only(tmp_path):
         "Table 2's grids: left out of it" in p.stdout.splitlines()
     assert (root / "calls").read_text().splitlines()[0] == (
         f"table2 {results}/a_grid_cpu/results.csv {results}/b_grid_cpu/results.csv -o {results}/table2 "
-        f"--chosen {results}/fetch_push_priority_td3bc_cpu/results.csv")
+        f"--chosen-arm mem_rank --chosen-setting rank:1 --chosen {results}/fetch_push_priority_td3bc_cpu/results.csv")
+
+
+def test_collect_gives_table2_the_chosen_arm_it_is_told(tmp_path):
+    """The arm that picks the --chosen files is the one table2 is given (--chosen-arm), with its
+    setting: mem_q3 passes the file that trains mem_q3 and not the one with mem_rank alone; an arm
+    without its setting is refused before anything is drawn."""
+    root, results = pinned_fake(tmp_path)
+    header = "task,algo,variant,seeds,paper_score_mean\n"
+    for name, body in [("fetch_push_priority_td3bc_cpu", "FetchPush,td3bc,mem_rank,5,27.1\n"),
+                       ("fetch_reach_priority_td3_cpu", "FetchReach,td3,mem_q3,5,48.4\n")]:
+        (results / name).mkdir(parents=True)
+        (results / name / "results.csv").write_text(header + body)
+    (results / "a_grid_cpu").mkdir()
+    (results / "a_grid_cpu" / "results.csv").write_text(
+        header + "".join(f"{t},{a},baseline,5,1\n" for t in ["FetchPush", "FetchReach"] for a in ["td3", "td3bc"]))
+    env = dict(os.environ, GRID_ROOT=str(root), GRID_RESULTS=str(results), GRID_RENDER_ETL=str(tmp_path / "absent"),
+               GRID_CHOSEN_ARM="mem_q3", GRID_CHOSEN_SETTING="q:3")
+    p = subprocess.run(["bash", str(SCRIPT), "collect"], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert (root / "calls").read_text().splitlines()[0] == (
+        f"table2 {results}/a_grid_cpu/results.csv -o {results}/table2 --chosen-arm mem_q3 --chosen-setting q:3 "
+        f"--chosen {results}/fetch_reach_priority_td3_cpu/results.csv")
+    (root / "calls").unlink()
+    del env["GRID_CHOSEN_SETTING"]
+    p = subprocess.run(["bash", str(SCRIPT), "collect"], capture_output=True, text=True, env=env)
+    assert p.returncode == 2
+    assert p.stderr.strip() == "grids.sh: GRID_CHOSEN_ARM=mem_q3 needs GRID_CHOSEN_SETTING, its KIND:ALPHA (q:3, rank:1)"
+    assert not (root / "calls").exists()
 
 
 def newer_build_layout(tmp_path):
