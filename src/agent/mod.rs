@@ -114,6 +114,41 @@ pub struct AgentConfig {
     #[arg(long)]
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub action_l2: Option<f64>,
+    /// How the CPU engine's matrix products round: `native` (gemm's fastest kernels for this CPU:
+    /// the bytes are the same on another machine only when it picks the same kernels), or
+    /// `portable` (one fixed order: the same bytes on every x86-64, at a cost; docs/domain.md,
+    /// "The same bytes on another machine"). Only `--device cpu` has it.
+    #[arg(long, value_enum, default_value = "native")]
+    #[serde(default, skip_serializing_if = "Arithmetic::is_native")]
+    pub arithmetic: Arithmetic,
+}
+
+/// How the hand-written CPU engine computes its matrix products (`fused/product.rs` says why and
+/// how). Not written into a run's settings when native, so that the runs before this setting
+/// existed keep their bytes and their pipelines' keys.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Arithmetic {
+    /// `gemm`'s kernels for the CPU at hand (AVX-512, AVX2 or scalar): fastest; a machine with
+    /// other kernels trains a run that is the same in distribution, not in bytes.
+    #[default]
+    Native,
+    /// Every sum in one fixed order of single-rounding FMAs: the same bytes on any machine.
+    Portable,
+}
+
+impl Arithmetic {
+    pub fn is_native(&self) -> bool {
+        *self == Arithmetic::Native
+    }
+
+    /// The name users write (flags, pipeline files).
+    pub fn name(self) -> &'static str {
+        match self {
+            Arithmetic::Native => "native",
+            Arithmetic::Portable => "portable",
+        }
+    }
 }
 
 impl Default for AgentConfig {
@@ -131,6 +166,7 @@ impl Default for AgentConfig {
             layers: 3,
             norm_clip: 5.0,
             action_l2: None,
+            arithmetic: Arithmetic::Native,
         }
     }
 }

@@ -44,6 +44,14 @@ impl Shards {
     /// that fails, in one line, where the engine cannot start (no GPU).
     pub fn new(agents: Vec<Agent>, backend: Backend) -> anyhow::Result<Shards> {
         assert!(!agents.is_empty(), "no agent to shard");
+        let arithmetic = agents[0].config.arithmetic;
+        if !arithmetic.is_native() && backend.engine().is_none() {
+            anyhow::bail!(
+                "--arithmetic {} with --device {}: only the CPU engine (--device cpu) has it; burn's products round as gemm picks",
+                arithmetic.name(),
+                backend.name()
+            );
+        }
         let k = shard_count(agents.len(), backend).clamp(1, agents.len());
         let mut rest = agents.into_iter();
         let (mut parts, mut starts, mut start) = (Vec::with_capacity(k), Vec::with_capacity(k), 0);

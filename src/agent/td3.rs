@@ -9,11 +9,11 @@
 use burn::tensor::activation::tanh;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 
 use super::engine::{Batch, Engine, EngineKind, Net, Nets, Rows, State, Stats, Table};
-use super::fused::{self, Fused};
-use super::{Adam, AgentConfig, Algo, Member, Mlp, Normalizer, host, init_member};
+use super::fused::{self, Fused, Product};
+use super::{Adam, AgentConfig, Algo, Arithmetic, Member, Mlp, Normalizer, host, init_member};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
 
@@ -169,11 +169,22 @@ impl Agent {
             return Ok(());
         }
         let (actor_sizes, critic_sizes) = super::net_sizes(&self.config, &self.task);
+        if kind != EngineKind::Cpu && !self.config.arithmetic.is_native() {
+            bail!(
+                "--arithmetic {}: only the CPU engine (--device cpu) has it; a GPU rounds as its own library does",
+                self.config.arithmetic.name()
+            );
+        }
         let state = self.burn_state();
         self.engine = Some(match kind {
-            EngineKind::Cpu => {
-                Box::new(Fused::new(&actor_sizes, &critic_sizes, state.nets, state.actor_step, state.critic_step))
-            }
+            EngineKind::Cpu => Box::new(Fused::with_product(
+                &actor_sizes,
+                &critic_sizes,
+                state.nets,
+                state.actor_step,
+                state.critic_step,
+                Product::of(self.config.arithmetic),
+            )),
             EngineKind::Cuda(precision) => Box::new(super::cuda::CudaEngine::new(
                 super::cuda::open(0, precision)?,
                 &actor_sizes,
@@ -395,6 +406,9 @@ impl Agent {
         if let Some(e) = self.engine.as_deref() {
             return e.act_all(&self.norms, rows, n).unwrap_or_else(|err| panic!("acting: {err:#}"));
         }
+        if let Some(f) = self.portable() {
+            return f.act_all(&self.norms, rows, n);
+        }
         let out = host(tanh(self.actor.forward(self.input(rows.iter().copied(), n)))).1;
         out.chunks(n * self.task.act_dim).map(<[f32]>::to_vec).collect()
     }
@@ -405,11 +419,27 @@ impl Agent {
         if let Some(e) = self.engine.as_deref() {
             return e.q(&self.norms[0], obs, goal, action, n).unwrap_or_else(|err| panic!("scoring: {err:#}"));
         }
+        if let Some(f) = self.portable() {
+            return f.q(&self.norms[0], obs, goal, action, n);
+        }
         let a = self.agents();
         let sg = self.input(std::iter::repeat_n((obs, goal), a), n);
         let act = self.stacked(std::iter::repeat_n(action, a), [a, n, self.task.act_dim]);
         let q = ensemble(&self.critics, Tensor::cat(vec![sg, act], 2), self.config.algo.critics());
         host(smallest(q)).1[..n].to_vec()
+    }
+
+    /// With portable arithmetic and no engine (a checkpoint loaded to act or to score), the CPU
+    /// engine's forward pass on the current networks: burn's products round as `gemm` picks, and
+    /// a run that pins its arithmetic must score and act in the same fixed order it trained in.
+    fn portable(&self) -> Option<Fused> {
+        if self.config.arithmetic != Arithmetic::Portable {
+            return None;
+        }
+        let (actor_sizes, critic_sizes) = super::net_sizes(&self.config, &self.task);
+        let state = self.burn_state();
+        let product = Product::of(self.config.arithmetic);
+        Some(Fused::with_product(&actor_sizes, &critic_sizes, state.nets, state.actor_step, state.critic_step, product))
     }
 
     /// Normalized [s, g] of each agent's rows, `[A, n, obs + goal]`.

@@ -32,10 +32,10 @@ pub enum PriorityKind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
 pub struct PriorityConfig {
     /// How priorities are derived from the scored rows' q. rank is the default since pgser 0.4, in
-    /// place of q (the paper's reading): with the 20k-update Qs of pgser's Table 2 grids, q at α = 1
-    /// drew the rows its Q calls reachable only 1.1–1.9× as often as uniform drawing, and -mem beat
-    /// -swap in 0 of 12 task × learner pairs; rank drew them 7–1000× as often, beat -swap in 4 of
-    /// 12 and did at least as well as q in 10 of 12 (docs/domain.md)
+    /// place of q (the paper's reading): a Q trained as briefly as a CPU affords spans a narrow band
+    /// of values, so q barely prefers the rows it calls reachable and -mem draws almost like -swap;
+    /// rank depends only on Q's order, not its scale. The measurements behind this, kept current:
+    /// docs/domain.md, "Why rank is the default"
     #[arg(long, value_enum, default_value = "rank")]
     pub priority: PriorityKind,
     /// Exponent α of the priorities (0: uniform; larger: greedier).

@@ -34,7 +34,10 @@ use super::engine::{Batch, Engine, Nets, State, Stats};
 use super::{AgentConfig, Algo, Normalizer};
 use crate::nprandom::NpRandom;
 
+#[cfg(test)]
+mod arith_tests;
 mod net;
+mod product;
 #[cfg(test)]
 mod tests;
 
@@ -43,6 +46,7 @@ pub use net::flatten;
 pub(in crate::agent) use net::gemm_raw;
 pub(in crate::agent) use net::{ADAM_BETAS, AdamStep, Shape, adam_step, unflatten};
 use net::{MAX_PARTS, adam, backward, forward};
+pub(in crate::agent) use product::Product;
 
 /// The parts a batch of `n` rows is cut into: about 256 rows each (a product of that height still
 /// runs near the micro-kernel's peak), at least one, at most four. A function of `n` only, so the
@@ -109,6 +113,8 @@ pub struct Fused {
 }
 
 impl Fused {
+    /// A stack whose products are `gemm`'s (native arithmetic): the tests'.
+    #[cfg(test)]
     pub fn new(
         actor_sizes: &[usize],
         critic_sizes: &[usize],
@@ -116,9 +122,21 @@ impl Fused {
         actor_step: u64,
         critic_step: u64,
     ) -> Fused {
+        Fused::with_product(actor_sizes, critic_sizes, nets, actor_step, critic_step, Product::Native)
+    }
+
+    /// A stack whose products are computed as `product` says (`product.rs`).
+    pub(in crate::agent) fn with_product(
+        actor_sizes: &[usize],
+        critic_sizes: &[usize],
+        nets: Vec<Nets>,
+        actor_step: u64,
+        critic_step: u64,
+        product: Product,
+    ) -> Fused {
         Fused {
-            actor: Shape::new(actor_sizes),
-            critic: Shape::new(critic_sizes),
+            actor: Shape::with(actor_sizes, product),
+            critic: Shape::with(critic_sizes, product),
             noise: vec![Vec::new(); nets.len()],
             lambdas: vec![1.0; nets.len()],
             nets,

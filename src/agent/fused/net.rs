@@ -5,6 +5,7 @@
 
 use rayon::prelude::*;
 
+use super::product::{self, Product};
 use crate::agent::Member;
 use crate::agent::engine::Net;
 
@@ -18,23 +19,30 @@ pub(super) const MAX_PARTS: usize = 4;
 const ADAM_CHUNK: usize = 16 * 1024;
 
 /// Layer sizes of one network and where each layer's weight `[in, out]` and bias `[out]` sit in
-/// its flat parameter buffer (in `Member` order: w0, b0, w1, b1, ...).
+/// its flat parameter buffer (in `Member` order: w0, b0, w1, b1, ...), and how its products
+/// round (`product.rs`).
 #[derive(Debug, Clone)]
 pub(in crate::agent) struct Shape {
     pub(in crate::agent) sizes: Vec<usize>,
     offsets: Vec<usize>,
     pub(in crate::agent) len: usize,
+    product: Product,
 }
 
 impl Shape {
+    /// A network whose products are `gemm`'s (native arithmetic).
     pub(in crate::agent) fn new(sizes: &[usize]) -> Shape {
+        Shape::with(sizes, Product::Native)
+    }
+
+    pub(in crate::agent) fn with(sizes: &[usize], product: Product) -> Shape {
         let mut offsets = Vec::new();
         let mut len = 0;
         for io in sizes.windows(2) {
             offsets.push(len);
             len += io[0] * io[1] + io[1];
         }
-        Shape { sizes: sizes.to_vec(), offsets, len }
+        Shape { sizes: sizes.to_vec(), offsets, len, product }
     }
 
     pub(in crate::agent) fn layers(&self) -> usize {
@@ -75,7 +83,7 @@ pub(super) fn forward(shape: &Shape, p: &[f32], x: &[f32], x_rs: usize, rows: us
         let (below, here) = outs.split_at_mut(l);
         let (input, in_rs) = if l == 0 { (x, x_rs) } else { (&below[l - 1][..], din) };
         let out = &mut here[0][..rows * dout];
-        matmul(rows, dout, din, out, (input, in_rs, 1), (&p[shape.weight(l)], dout, 1));
+        matmul(shape.product, rows, dout, din, out, (input, in_rs, 1), (&p[shape.weight(l)], dout, 1));
         let b = &p[shape.bias(l)];
         for row in out.chunks_exact_mut(dout) {
             if l == top {
@@ -117,12 +125,20 @@ pub(super) fn backward(
         let (input, in_rs) = if l == 0 { (x, x_rs) } else { (&outs[l - 1][..], din) };
         if let Some(grad) = grad.as_deref_mut() {
             // ∂W = inputᵀ·G: the input read transposed through its strides.
-            matmul(din, dout, rows, &mut grad[shape.weight(l)], (input, 1, in_rs), (&g[..rows * dout], dout, 1));
+            matmul(
+                shape.product,
+                din,
+                dout,
+                rows,
+                &mut grad[shape.weight(l)],
+                (input, 1, in_rs),
+                (&g[..rows * dout], dout, 1),
+            );
         }
         let w = &p[shape.weight(l)];
         if l > 0 {
             // G·Wᵀ, masked by the ReLU below, with that layer's ∂b in the same pass.
-            matmul(rows, din, dout, &mut tmp[..rows * din], (&g[..rows * dout], dout, 1), (w, 1, dout));
+            matmul(shape.product, rows, din, dout, &mut tmp[..rows * din], (&g[..rows * dout], dout, 1), (w, 1, dout));
             let mut db = grad.as_deref_mut().map(|grad| &mut grad[shape.bias(l - 1)]);
             if let Some(db) = db.as_deref_mut() {
                 db.fill(0.0);
@@ -139,6 +155,7 @@ pub(super) fn backward(
             // The input columns from..din only: rows from..din of W.
             let cols = din - from;
             matmul(
+                shape.product,
                 rows,
                 cols,
                 dout,
@@ -153,8 +170,21 @@ pub(super) fn backward(
 
 /// `dst` (`m × n`, row-major) = A·B, A given as (values, row stride, column stride) of an `m × k`
 /// matrix and B of a `k × n` one: transposes are strides, never copies. One thread: the caller
-/// spreads whole products over the pool, which keeps every sum in one fixed order.
-fn matmul(m: usize, n: usize, k: usize, dst: &mut [f32], a: (&[f32], usize, usize), b: (&[f32], usize, usize)) {
+/// spreads whole products over the pool, which keeps every sum in one fixed order. `kind`
+/// says whose: `gemm`'s, or the portable order's (`product.rs`).
+fn matmul(
+    kind: Product,
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    a: (&[f32], usize, usize),
+    b: (&[f32], usize, usize),
+) {
+    if let Product::Portable(path) = kind {
+        product::portable(m, n, k, dst, a, b, path);
+        return;
+    }
     let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
         assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "matmul operand out of bounds");
     };
