@@ -665,3 +665,63 @@ updates = 40
     let o = etl().args(["pipeline", "run"]).arg(&file).output().unwrap();
     assert!(!o.status.success() && text(&o.stderr).contains("names none"), "{}", text(&o.stderr));
 }
+
+/// A pipeline over a user's pickle that carries what a table cannot keep (a dict of settings, a
+/// list of names): refused before any step, saying where the keys go; run with `[data] drop`;
+/// and `drop` is in the convert step's key, so changing it reruns convert and what reads β.
+#[test]
+fn drop_leaves_a_pickles_metadata_out_and_is_part_of_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    common::py_ok("make_key_pickles.py", &[dir.path().to_str().unwrap()]);
+    let write = |drop: &str| {
+        let toml = format!(
+            r#"
+name = "meta"
+task = "FetchReach"
+out = "out"
+[data]
+pickles = ["metadata.pkl"]
+{drop}
+[train]
+batch_size = 32
+eval_every = 0
+eval_episodes = 0
+save_every = 0
+[pretrain]
+updates = 5
+[report]
+positive_episodes = 2
+[agents]
+variants = ["baseline"]
+updates = 5
+"#
+        );
+        let path = dir.path().join("meta.toml");
+        std::fs::write(&path, toml).unwrap();
+        path
+    };
+    let file = write("");
+    let o = etl().args(["pipeline", "run"]).arg(&file).args(["--until", "pretrain"]).output().unwrap();
+    let err = text(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("[data] drop") && err.contains("metadata.pkl: key 'meta' is a dict"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!dir.path().join("out").exists(), "nothing written");
+
+    let file = write("drop = [\"meta\", \"names\"]");
+    let first = run(&file, &["--until", "pretrain"]);
+    assert_eq!(ran(&first), ["convert", "pretrain"], "{first:?}");
+    let traj = dir.path().join("out/traj.parquet");
+    let columns = |p: &Path| {
+        let (batch, _) = common::read_table(p);
+        batch.schema().fields().iter().map(|f| f.name().clone()).collect::<Vec<_>>()
+    };
+    assert_eq!(columns(&traj).last().map(String::as_str), Some("info_is_success"));
+    assert!(ran(&run(&file, &["--until", "pretrain"])).is_empty());
+
+    // Another drop list: convert reruns (its key changed), and so does the step that reads β.
+    let file = write("drop = [\"meta\", \"names\", \"info_is_success\"]");
+    let second = run(&file, &["--until", "pretrain"]);
+    assert_eq!(ran(&second), ["convert", "pretrain"], "{second:?}");
+    assert_eq!(columns(&traj).last().map(String::as_str), Some("action"));
+}

@@ -68,7 +68,12 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
                 cfg.validate(&task).context("[expert]")?;
             }
             Action::Convert(o) if beta.is_none() => {
-                let plan = crate::convert::check(o).context("[data] pickles")?;
+                let plan = crate::convert::check(o).map_err(|e| {
+                    // The reader's advice names convert's flag; say where a pipeline takes it.
+                    let hint =
+                        if format!("{e:#}").contains("--drop") { " ([data] drop takes --drop's keys)" } else { "" };
+                    e.context(format!("[data] pickles{hint}"))
+                })?;
                 let sources = o.inputs.iter().cloned().zip(plan.episodes_taken.iter().copied()).collect();
                 let bytes = if plan.float_type == FloatType::Float32 { 4 } else { 8 };
                 beta = Some((plan.task, sources, bytes));

@@ -167,8 +167,8 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     let cmd = |step: &str| format!("pgser pipeline {} step {step}", p.name);
     let mut steps = Vec::new();
     let traj = out.join("traj.parquet");
-    let (pickles, episodes) = match &p.data {
-        Data::Pickles { inputs, episodes } => (inputs.clone(), episodes.clone()),
+    let (pickles, episodes, drop) = match &p.data {
+        Data::Pickles { inputs, episodes, drop } => (inputs.clone(), episodes.clone(), drop.clone()),
         Data::Collect { expert, random, seed, noise, checkpoint } => {
             // A trained expert: the given checkpoint, or when it is absent the one the `expert`
             // step trains (`pgser-train online` with `[expert]`'s settings).
@@ -216,7 +216,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                 });
                 files.push(file);
             }
-            (files, None)
+            (files, None, vec![])
         }
         Data::Oracle { episodes, seed, noise } => {
             // Named after the dataset, as OGBench's loader and `convert` expect; its -val file
@@ -242,14 +242,19 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                     checkpoint: None,
                 }),
             });
-            (vec![file], None)
+            (vec![file], None, vec![])
         }
     };
     // An OGBench file names its environment itself; a pickle takes the pipeline's task.
     let convert_task = (!matches!(p.data, Data::Oracle { .. })).then(|| p.task.clone());
+    let mut params = json!({"task": p.task, "episodes": episodes});
+    if !drop.is_empty() {
+        // In the key only when given: a pipeline without it keeps the key (and table) it had.
+        params["drop"] = json!(drop);
+    }
     steps.push(Step {
         name: "convert".into(),
-        params: json!({"task": p.task, "episodes": episodes}),
+        params,
         inputs: pickles.clone(),
         outputs: vec![traj.clone()],
         action: Action::Convert(convert::ConvertOptions {
@@ -263,7 +268,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             exact_length: false,
             row_group_rows: 65_536,
             full_goal: false,
-            drop: Vec::new(),
+            drop,
             command: cmd("convert"),
         }),
     });

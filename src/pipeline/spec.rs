@@ -80,8 +80,9 @@ pub struct Pipeline {
 #[derive(Debug, Clone)]
 pub enum Data {
     /// WGCSL pickles, converted in order taking the first `episodes[i]` of each (GoFAR's mix;
-    /// the expert file first, which is what the report takes as positives).
-    Pickles { inputs: Vec<PathBuf>, episodes: Option<Vec<usize>> },
+    /// the expert file first, which is what the report takes as positives), leaving out the keys
+    /// `drop` names (`convert --drop`: what a table cannot keep, such as a dict of settings).
+    Pickles { inputs: Vec<PathBuf>, episodes: Option<Vec<usize>>, drop: Vec<String> },
     /// Simulated: `expert` episodes of the expert (seeds seed…) and `random` of uniform actions
     /// (seeds seed + expert …), written as pickles and converted. The expert is the task's
     /// scripted one (Fetch), or with `checkpoint` a trained actor (the hand tasks, which have no
@@ -169,6 +170,8 @@ struct DataFile {
     seed: u64,
     noise: Option<f64>,
     expert_checkpoint: Option<String>,
+    #[serde(default)]
+    drop: Vec<String>,
 }
 
 /// The first entry of `list` that an earlier one equals.
@@ -201,6 +204,11 @@ impl Pipeline {
             bail!("name {:?}: use letters, digits, - and _ only", f.name);
         }
         let d = f.data;
+        if !d.drop.is_empty() && d.pickles.is_empty() {
+            bail!(
+                "[data] drop leaves keys of the given `pickles` out; the data a pipeline makes has none to leave out"
+            );
+        }
         let data = match (d.pickles.is_empty(), d.expert, d.random, d.oracle) {
             (false, None, None, None) => {
                 if let Some(e) = &d.episodes
@@ -208,7 +216,11 @@ impl Pipeline {
                 {
                     bail!("[data]: {} pickles but {} episode counts", d.pickles.len(), e.len());
                 }
-                Data::Pickles { inputs: d.pickles.iter().map(|p| resolve(p)).collect(), episodes: d.episodes }
+                Data::Pickles {
+                    inputs: d.pickles.iter().map(|p| resolve(p)).collect(),
+                    episodes: d.episodes,
+                    drop: d.drop,
+                }
             }
             (true, Some(expert), Some(random), None) if d.episodes.is_none() => {
                 if expert == 0 {
@@ -383,11 +395,24 @@ pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
                 None if obj.get(key).is_some_and(|v| !v.is_object()) => {
                     obj.insert(key.clone(), value);
                 }
+                // An agent setting its JSON leaves out at the default (`arithmetic`, `action_l2`).
+                None if agent_flag(key) => {
+                    obj["agent"].as_object_mut().expect("the agent's settings").insert(key.clone(), value);
+                }
                 None => bail!("unknown training setting {key:?} (use pgser-train's flag names in snake_case)"),
             }
         }
     }
     serde_json::from_value(json).map_err(|e| anyhow::anyhow!("a training setting has the wrong type: {e}"))
+}
+
+/// Whether `key` is one of the agent's flags: those whose JSON leaves them out at their default
+/// (so that runs from before they existed keep their bytes and keys) are found here.
+fn agent_flag(key: &str) -> bool {
+    use clap::Args;
+    crate::agent::AgentConfig::augment_args(clap::Command::new("agent"))
+        .get_arguments()
+        .any(|a| a.get_id().as_str() == key)
 }
 
 /// `pgser-train online`'s settings for `task`: its defaults (MRN's) with `table` applied. Keys
@@ -441,9 +466,10 @@ mod tests {
         let p = Pipeline::parse(MIN, Path::new("pipes/t.toml")).unwrap();
         assert_eq!(p.out, PathBuf::from("out/t"));
         match &p.data {
-            Data::Pickles { inputs, episodes } => {
+            Data::Pickles { inputs, episodes, drop } => {
                 assert_eq!(inputs, &[PathBuf::from("data/a.pkl"), PathBuf::from("pipes/b.pkl")]);
                 assert_eq!(episodes.as_deref(), Some(&[5, 10][..]));
+                assert!(drop.is_empty());
             }
             d => panic!("{d:?}"),
         }
@@ -515,6 +541,64 @@ mod tests {
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("2 pickles"));
         let bad = MIN.replace("seeds = [0, 1]", "seeds = [0, 1]\nvariants = [\"best\"]");
         assert!(format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err()).contains("variants"));
+    }
+
+    /// `arithmetic` reaches the pre-training and the agents and their steps' keys (so changing it
+    /// retrains them); without it the keys are what they were before the setting existed.
+    #[test]
+    fn arithmetic_reaches_training_and_its_keys() {
+        use crate::agent::Arithmetic;
+        let keys = |text: &str| {
+            let p = Pipeline::parse(text, Path::new("pipes/t.toml")).unwrap();
+            let steps = crate::pipeline::plan(&p).unwrap();
+            let train: Vec<_> =
+                steps.into_iter().filter(|s| s.name == "pretrain" || s.name.starts_with("agent ")).collect();
+            (p, train.into_iter().map(|s| s.params).collect::<Vec<_>>())
+        };
+        let (p, native) = keys(MIN);
+        assert_eq!(p.pretrain_config().unwrap().agent.arithmetic, Arithmetic::Native);
+        assert!(native.iter().all(|k| !k.to_string().contains("arithmetic")), "a native run's key names no arithmetic");
+        let (p, portable) = keys(&MIN.replace("lr = 0.001", "lr = 0.001\narithmetic = \"portable\""));
+        assert_eq!(p.pretrain_config().unwrap().agent.arithmetic, Arithmetic::Portable);
+        assert_eq!(
+            p.agent_config(Algo::Td3bc, &p.agents.variants[0], 0).unwrap().agent.arithmetic,
+            Arithmetic::Portable
+        );
+        assert_eq!(native.len(), portable.len());
+        assert!(native.iter().zip(&portable).all(|(a, b)| a != b), "every training step's key changes");
+        let bad = MIN.replace("lr = 0.001", "lr = 0.001\narithmetic = \"exact\"");
+        let e = format!("{:#}", Pipeline::parse(&bad, Path::new("t.toml")).unwrap_err());
+        assert!(e.contains("wrong type") && e.contains("exact"), "{e}");
+    }
+
+    /// `[data] drop` reaches convert and its step's key, so that changing it reruns convert; a
+    /// pipeline without it keeps the key it had. The data a pipeline makes has nothing to drop.
+    #[test]
+    fn drop_reaches_convert_and_its_key() {
+        let convert = |text: &str| {
+            let p = Pipeline::parse(text, Path::new("pipes/t.toml")).unwrap();
+            let steps = crate::pipeline::plan(&p).unwrap();
+            let step = steps.into_iter().find(|s| s.name == "convert").unwrap();
+            let crate::pipeline::Action::Convert(o) = step.action else { panic!("convert converts") };
+            (step.params, o.drop)
+        };
+        let (params, drop) = convert(MIN);
+        assert_eq!(params, serde_json::json!({"task": "FetchReach", "episodes": [5, 10]}));
+        assert!(drop.is_empty());
+        let (params, drop) =
+            convert(&MIN.replace("episodes = [5, 10]", "episodes = [5, 10]\ndrop = [\"meta\", \"1\"]"));
+        assert_eq!(drop, ["meta", "1"]);
+        assert_eq!(params, serde_json::json!({"task": "FetchReach", "episodes": [5, 10], "drop": ["meta", "1"]}));
+
+        let simulated =
+            MIN.replace("pickles = [\"../data/a.pkl\", \"b.pkl\"]", "expert = 2\nrandom = 2\ndrop = [\"meta\"]");
+        let e = format!("{:#}", Pipeline::parse(&simulated, Path::new("t.toml")).unwrap_err());
+        assert!(e.contains("[data] drop leaves keys of the given `pickles` out"), "{e}");
+        let e = format!(
+            "{:#}",
+            Pipeline::parse(&MIN.replace("episodes = [5, 10]", "drop = \"meta\""), Path::new("t.toml")).unwrap_err()
+        );
+        assert!(e.contains("drop"), "{e}");
     }
 
     /// The fuzzer's input (tests/fixtures/fuzz/pipeline/): a grid file with a seed listed twice, which
