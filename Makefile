@@ -287,7 +287,7 @@ $(JAX_PY):
 # it is committed under tests/fixtures/fuzz/TARGET/, which the tests read back. The seeds need the
 # release build (a tiny training run writes the checkpoint seeds); the first build of the targets
 # under ASan is about an hour on 2 cores.
-FUZZ_TARGETS ?= pickle table scored checkpoint resume metrics pipeline minari wgcsl
+FUZZ_TARGETS ?= pickle table scored checkpoint resume metrics pipeline minari wgcsl footer
 fuzz: build
 	cd fuzz && ./seeds.sh
 	cd fuzz && for t in $(FUZZ_TARGETS); do \

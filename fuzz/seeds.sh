@@ -5,7 +5,7 @@
 set -e
 cd "$(dirname "$0")"
 root=..
-for t in pickle table scored checkpoint resume metrics pipeline minari wgcsl; do mkdir -p corpus/$t; done
+for t in pickle table scored checkpoint resume metrics pipeline minari wgcsl footer; do mkdir -p corpus/$t; done
 cp $root/data/*.pkl corpus/pickle/
 cp $root/data/*.pkl corpus/wgcsl/
 cp $root/pipelines/*.toml corpus/pipeline/
@@ -21,6 +21,10 @@ scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
 $bin/pgser-etl convert $root/data/fetch_reach_expert_50.pkl -o "$scratch/t.parquet" > /dev/null
 cp "$scratch/t.parquet" corpus/table/
+# The footer of a table with a passthrough column, as the footer target's base table has it.
+$bin/pgser-etl convert $root/tests/fixtures/passthrough/wgcsl_info.pkl --task FetchReach -o "$scratch/p.parquet" > /dev/null
+$bin/pgser-etl inspect --json "$scratch/p.parquet" |
+  python3 -c 'import json, sys; print(json.dumps(json.load(sys.stdin)["footer"]))' > corpus/footer/passthrough.json
 $bin/pgser-train --data "$scratch/t.parquet" -o "$scratch/q.ckpt" --updates 20 --batch-size 16 \
   --hidden 16 --layers 2 --eval-episodes 0 --save-every 10 > /dev/null 2>&1
 cp "$scratch/q.ckpt" corpus/checkpoint/

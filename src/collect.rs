@@ -30,11 +30,12 @@ use indicatif::ProgressBar;
 use rayon::prelude::*;
 
 use self::policy::{EpisodePolicy, PolicyKind, PolicySpec};
+use crate::dtype::Dtype;
 use crate::env::{self, GoalEnv};
 use crate::output::AtomicFile;
 use crate::pickle::write::{ArrayOut, write_dict};
 use crate::task::Task;
-use crate::trajectory::{self, EpisodeArrays, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
+use crate::trajectory::{self, EpisodeArrays, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter, WriterOptions};
 
 #[derive(Debug, Clone)]
 pub struct CollectOptions {
@@ -118,7 +119,7 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
     let mut sink = if pickle {
         Sink::Pickle(PickleSink::create(&opts.output)?)
     } else {
-        Sink::Table(TrajectoryWriter::create(&opts.output, &task, float, opts.row_group_rows, false)?)
+        Sink::Table(TrajectoryWriter::create(&opts.output, &task, float, WriterOptions::new(opts.row_group_rows))?)
     };
     // Whole row groups per chunk keep the table's row groups where `convert` puts them.
     let per_group = trajectory::episodes_per_group(opts.row_group_rows, task.t);
@@ -321,7 +322,7 @@ impl PickleSink {
             .zip(dims)
             .map(|((f, key), (steps, dim))| ArrayOut {
                 key,
-                descr: "<f8".into(),
+                dtype: Dtype::F64,
                 shape: vec![episodes, steps, dim],
                 data: Box::new(move |w: &mut dyn Write| {
                     f.rewind()?;

@@ -112,7 +112,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
     let traj: Option<trajectory::Footer> = footer
         .as_ref()
         .filter(|f: &&serde_json::Value| f["kind"] == trajectory::KIND)
-        .map(|f| serde_json::from_value(f.clone()).with_context(|| format!("{at}: malformed trajectory footer")))
+        .map(|f| trajectory::Footer::from_json(&at.to_string(), f.clone()))
         .transpose()?;
     let schema = builder.schema().clone();
     let rows = meta.file_metadata().num_rows() as u64;

@@ -6,7 +6,8 @@
 //! writes and reads the trajectory table, [`collect`] simulates episodes in [`env`](mod@env) and writes
 //! them as either, [`inspect`] summarises any pgser table, [`query`] runs SQL over tables.
 //! [`table`] and [`output`] hold what every writer shares (parallel row-group encoding, the
-//! footer, atomic files); [`nprandom`] is numpy's generator, which every stage draws from.
+//! footer, atomic files); [`nprandom`] is numpy's generator, which every stage draws from;
+//! [`dtype`] is numpy's element types, which every format reader and writer converts to.
 //!
 //! Imports run down these layers, never up or across (`tests/layers.rs` checks it):
 //!
@@ -21,12 +22,13 @@
 //! | 3 | [`agent`], [`query`], [`trajectory`] |
 //! | 2 | [`env`](mod@env), [`table`] |
 //! | 1 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
-//! | 0 | [`install`] |
+//! | 0 | [`dtype`], [`install`] |
 
 pub mod agent;
 pub mod cli;
 pub mod collect;
 pub mod convert;
+pub mod dtype;
 pub mod env;
 pub mod eval;
 pub mod inspect;

@@ -38,7 +38,7 @@ impl Report {
     pub fn line(&self) -> String {
         let what =
             self.kind.as_deref().map(|k| format!("{} ({k})", self.format)).unwrap_or_else(|| self.format.clone());
-        let unit = if self.format == "table" { "column chunks" } else { "tensors" };
+        let unit = if self.format.starts_with("table") { "column chunks" } else { "tensors" };
         if self.verified {
             format!("ok {}: {what}, {} {unit} ({} bytes) match their checksums", self.path, self.parts, self.bytes)
         } else {
@@ -50,8 +50,11 @@ impl Report {
     }
 }
 
-/// Checks one file; an error names the file and the first corrupt part.
+/// Checks one file, or a table folder; an error names the file and the first corrupt part.
 pub fn verify(path: &Path) -> Result<Report> {
+    if path.is_dir() {
+        return folder(path);
+    }
     let at = path.display();
     let mut magic = [0u8; 4];
     crate::output::open_input(path)?
@@ -64,9 +67,13 @@ fn table(path: &Path) -> Result<Report> {
     let at = path.display();
     let (builder, verifier) = crate::table::open_checked(path, None)?;
     let footer = crate::table::footer_text(builder.metadata().file_metadata());
-    let kind = footer
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok())
-        .and_then(|f| f["kind"].as_str().map(str::to_string));
+    let footer = footer.and_then(|t| serde_json::from_str::<serde_json::Value>(t).ok());
+    let kind = footer.as_ref().and_then(|f| f["kind"].as_str().map(str::to_string));
+    // A trajectory footer must also say what its readers can act on (its passthrough columns'
+    // dtypes and shapes): one whose checksum holds can still say what none of them could read.
+    if let Some(f) = footer.filter(|_| kind.as_deref() == Some(crate::trajectory::KIND)) {
+        crate::trajectory::Footer::from_json(&at.to_string(), f)?;
+    }
     let groups = builder.metadata().num_row_groups();
     let rows = builder.metadata().file_metadata().num_rows();
     let mut read = 0i64;
@@ -79,6 +86,41 @@ fn table(path: &Path) -> Result<Report> {
     }
     let (parts, bytes) = verifier.extent();
     Ok(Report { path: at.to_string(), format: "table".into(), kind, verified: verifier.verifiable(), parts, bytes })
+}
+
+/// A table folder: its manifest against its shards (`TableFolder::open`), each shard's bytes
+/// against the manifest's SHA-256, then each shard as a table; the validation table too.
+fn folder(dir: &Path) -> Result<Report> {
+    let f = crate::trajectory::folder::TableFolder::open(dir)?;
+    let (mut parts, mut bytes, mut verified) = (0, 0, true);
+    for (s, path) in f.manifest.shards.iter().zip(f.shard_paths()) {
+        let sha256 = crate::output::sha256_file(&path)?;
+        if sha256 != s.sha256 {
+            bail!(
+                "{}: its SHA-256 is not the manifest's ({}): the shard changed or is corrupt",
+                path.display(),
+                dir.display()
+            );
+        }
+        let r = table(&path)?;
+        parts += r.parts;
+        bytes += r.bytes;
+        verified &= r.verified;
+    }
+    if let Some(v) = f.validation()? {
+        let r = folder(&v.dir)?;
+        parts += r.parts;
+        bytes += r.bytes;
+        verified &= r.verified;
+    }
+    Ok(Report {
+        path: dir.display().to_string(),
+        format: format!("table folder of {} shards", f.manifest.shards.len()),
+        kind: Some(crate::trajectory::KIND.into()),
+        verified,
+        parts,
+        bytes,
+    })
 }
 
 fn safetensors(path: &Path) -> Result<Report> {

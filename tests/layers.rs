@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 /// Bottom layer first. A module may import only modules of lower layers.
 const LAYERS: &[&[&str]] = &[
-    &["install"],
+    &["dtype", "install"],
     &["cli", "nprandom", "output", "pickle", "progress", "task"],
     &["env", "table"],
     &["agent", "query", "trajectory"],

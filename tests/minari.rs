@@ -181,7 +181,7 @@ fn hdf5_storage_without_the_feature_says_how_to_get_it() {
     let out = dir.path().join("t.parquet");
     fails(
         &["convert", s(&fixture("fetchreach-hdf5-v0")), "-o", s(&out)],
-        &["HDF5 storage", "--no-default-features", "libhdf5-dev", "Arrow storage"],
+        &["HDF5 storage", "--no-default-features", "make build", "Arrow storage"],
         dir.path(),
         0,
     );
@@ -458,4 +458,87 @@ fn datasets_the_fuzzer_found_fail_in_one_line() {
         n += 1;
     }
     assert!(n > 0, "no inputs in tests/fixtures/fuzz/minari");
+}
+
+/// `check_minari.py edit`: one episode of a copied fixture changed in place, in either storage.
+fn edit(dataset: &Path, episode: usize, column: &str, action: &str) {
+    py_ok("check_minari.py", &["edit", s(dataset), &episode.to_string(), column, action]);
+}
+
+/// convert fails in one line naming `needles` and suggesting a `--drop X`; convert with that
+/// very flag then succeeds and says it left X out. Returns X.
+fn the_suggested_drop_is_accepted(input: &Path, out_dir: &Path, needles: &[&str]) -> String {
+    let out = out_dir.join("t.parquet");
+    let before = std::fs::read_dir(out_dir).unwrap().count();
+    let err = fails(&["convert", s(input), "-o", s(&out)], needles, out_dir, before);
+    let at = err.find("--drop ").unwrap_or_else(|| panic!("no --drop suggested: {err}"));
+    let column: String = err[at + 7..].chars().take_while(|c| !c.is_whitespace() && !",;)".contains(*c)).collect();
+    let said = ok(&["convert", s(input), "-o", s(&out), "--drop", &column]);
+    assert!(said.contains("left out") && said.contains(&column), "{said}");
+    std::fs::remove_file(&out).unwrap();
+    column
+}
+
+/// Every episode holds the same infos keys, checked both ways (as WGCSL's inputs are): a key
+/// only a later episode holds was lost without a word before; one a later episode lacks is
+/// refused too. Each refusal names the episode and the key, and its `--drop` is accepted, though
+/// episode 0 lacks the key.
+#[test]
+fn an_infos_key_of_some_episodes_only_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let storages: &[&str] = if cfg!(feature = "hdf5") { &["arrow", "hdf5"] } else { &["arrow"] };
+    for storage in storages {
+        let name = format!("fetchreach-infos-{storage}-v0");
+        let late = copy_fixture(&name, &dir.path().join(format!("late-{storage}")));
+        edit(&late, 2, "infos/late", "add");
+        let col = the_suggested_drop_is_accepted(&late, &out, &["episode 2 has `infos/late`, which episode 0 lacks"]);
+        assert_eq!(col, "infos/late");
+        let gone = copy_fixture(&name, &dir.path().join(format!("gone-{storage}")));
+        edit(&gone, 1, "infos/distance", "remove");
+        let col = the_suggested_drop_is_accepted(&gone, &out, &["episode 1's `infos/distance` is missing"]);
+        assert_eq!(col, "infos/distance");
+        // A --drop no episode holds is refused, after every episode is read.
+        fails(
+            &["convert", s(&fixture(&name)), "-o", s(&out.join("t.parquet")), "--drop", "infos/late"],
+            &["--drop infos/late", "in the 3 episodes taken"],
+            &out,
+            0,
+        );
+    }
+}
+
+/// What no column can keep (a string `rewards`, a string infos key) is refused under the name
+/// `--drop` takes, and that `--drop` converts: before, an Arrow dataset's refusal named
+/// `infos.rewards` and suggested `--drop infos/rewards`, itself refused, and in both storages the
+/// refused column was read (and refused again) whatever `--drop` said. After a dropped last
+/// step, `--drop rewards` failed with "has no infos key".
+#[test]
+fn every_suggested_drop_is_one_convert_accepts() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let storages: &[&str] = if cfg!(feature = "hdf5") { &["arrow", "hdf5"] } else { &["arrow"] };
+    for storage in storages {
+        let rewards = copy_fixture(&format!("fetchreach-{storage}-v0"), &dir.path().join(format!("r-{storage}")));
+        edit(&rewards, 0, "rewards", "string");
+        let col = the_suggested_drop_is_accepted(&rewards, &out, &["rewards", "which a table column cannot keep"]);
+        assert_eq!(col, "rewards");
+        let info = copy_fixture(&format!("fetchreach-infos-{storage}-v0"), &dir.path().join(format!("i-{storage}")));
+        edit(&info, 0, "infos/distance", "string");
+        let col = the_suggested_drop_is_accepted(&info, &out, &["distance", "which a table column cannot keep"]);
+        assert_eq!(col, "infos/distance");
+    }
+    // The recorded outcomes of a dataset whose last step is dropped are left out anyway; a
+    // --drop of them is accepted all the same.
+    let said = ok(&[
+        "convert",
+        s(&fixture("fetchreach-default-arrow-v0")),
+        "-o",
+        s(&out.join("t.parquet")),
+        "--drop",
+        "rewards",
+    ]);
+    assert!(said.contains("dropped each episode's last step"), "{said}");
 }

@@ -8,6 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::*;
+use pgser::dtype::Dtype;
 
 fn fixture(rel: &str) -> PathBuf {
     repo().join("tests/fixtures/ogbench").join(rel)
@@ -162,7 +163,7 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
     std::fs::write(&cube, &bytes).unwrap();
     fails(&cube, &[], "cube-single-v0: observations have 2 values; a cube scene's have 19 + 9 per cube");
     // Episodes of two lengths, and a missing key: written with the npz writer.
-    let write = |path: &Path, keys: &[(&str, npz::Dtype, Vec<usize>, Vec<u8>)]| {
+    let write = |path: &Path, keys: &[(&str, Dtype, Vec<usize>, Vec<u8>)]| {
         let mut w = npz::NpzWriter::new(std::fs::File::create(path).unwrap(), true);
         for (k, dt, shape, data) in keys {
             w.start(k, *dt, shape).unwrap();
@@ -179,24 +180,21 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
     write(
         &uneven,
         &[
-            ("observations", npz::Dtype::F32, vec![7, 2], f32s(14)),
-            ("actions", npz::Dtype::F32, vec![7, 2], f32s(14)),
-            ("terminals", npz::Dtype::Bool, vec![7], term.clone()),
+            ("observations", Dtype::F32, vec![7, 2], f32s(14)),
+            ("actions", Dtype::F32, vec![7, 2], f32s(14)),
+            ("terminals", Dtype::BOOL, vec![7], term.clone()),
         ],
     );
     fails(&uneven, &[], "episode 1 has 4 rows where episode 0 has 3");
-    write(
-        &uneven,
-        &[("observations", npz::Dtype::F32, vec![7, 2], f32s(14)), ("terminals", npz::Dtype::Bool, vec![7], term)],
-    );
+    write(&uneven, &[("observations", Dtype::F32, vec![7, 2], f32s(14)), ("terminals", Dtype::BOOL, vec![7], term)]);
     fails(&uneven, &[], "no actions array");
     let open = vec![0u8; 6];
     write(
         &uneven,
         &[
-            ("observations", npz::Dtype::F32, vec![6, 2], f32s(12)),
-            ("actions", npz::Dtype::F32, vec![6, 2], f32s(12)),
-            ("terminals", npz::Dtype::Bool, vec![6], open),
+            ("observations", Dtype::F32, vec![6, 2], f32s(12)),
+            ("actions", Dtype::F32, vec![6, 2], f32s(12)),
+            ("terminals", Dtype::BOOL, vec![6], open),
         ],
     );
     fails(&uneven, &[], "the last row (5) ends no episode");
@@ -209,9 +207,9 @@ fn bad_files_fail_in_one_line_and_leave_nothing() {
     write(
         &uneven,
         &[
-            ("observations", npz::Dtype::F32, vec![6, 2], f32s(12)),
-            ("actions", npz::Dtype::F32, vec![6, 2], acts),
-            ("terminals", npz::Dtype::Bool, vec![6], term),
+            ("observations", Dtype::F32, vec![6, 2], f32s(12)),
+            ("actions", Dtype::F32, vec![6, 2], acts),
+            ("terminals", Dtype::BOOL, vec![6], term),
         ],
     );
     fails(&uneven, &[], "non-finite value NaN in key 'actions' at episode 1, step 1, index 1");
@@ -586,4 +584,101 @@ fn full_observation_goals_on_request() {
     };
     fails(&src, &["--full-goal"], "--full-goal: give --threshold");
     fails(&repo().join("data/fetch_reach_expert_50.pkl"), &["--full-goal"], "OGBench files only");
+}
+
+/// `convert` then `export --format ogbench`, in a folder of its own under `dir`; returns the
+/// exported file (named as the source) and convert's notes.
+fn through_a_table(src: &Path, dir: &Path, tag: &str) -> (PathBuf, String) {
+    let sub = dir.join(tag);
+    std::fs::create_dir_all(&sub).unwrap();
+    let table = sub.join("t.parquet");
+    let notes = convert_ok(src, &table, &[]);
+    let back = sub.join(src.file_name().unwrap());
+    let o = etl().arg("export").arg(&table).args(["--format", "ogbench", "-o"]).arg(&back).output().unwrap();
+    assert!(o.status.success(), "{tag}: {}", text(&o.stderr));
+    (back, notes)
+}
+
+/// The file as numpy sees it, against the source: every member in the zip's order, its .npy
+/// header (descr with its byte order, fortran_order, shape) and the bytes after it, and np.load's
+/// arrays (tests/py/check_ogbench.py whole).
+fn same_file(want: &Path, got: &Path) -> serde_json::Value {
+    let o = py_ok("check_ogbench.py", &["whole", want.to_str().unwrap(), got.to_str().unwrap()]);
+    last_json(&text(&o.stdout))
+}
+
+/// Written by OGBench's generator (terminals, qpos, qvel, oracle_reps) and by its loader
+/// (compact: valids; regular: next_observations): every member comes back in its place, with its
+/// header and its bytes, each episode's last action included.
+#[test]
+fn ogbench_files_of_every_layout_come_back_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    for rel in [
+        "pointmaze-medium-navigate-v0.npz",
+        "antmaze/antmaze-medium-navigate-v0.npz",
+        "cube/cube-double-play-v0.npz",
+        "compact/pointmaze-medium-navigate-v0.npz",
+        "regular/pointmaze-medium-navigate-v0.npz",
+    ] {
+        let src = fixture(rel);
+        let (back, _) = through_a_table(&src, dir.path(), &rel.replace('/', "_"));
+        let said = same_file(&src, &back);
+        assert!(said["members"].as_array().unwrap().len() >= 5, "{rel}: {said}");
+    }
+}
+
+/// A regular-layout file whose next_observations are not the observations shifted by a row (one
+/// row moved by 0.25; before, it came back as the following observation without a word): kept
+/// whole as a passthrough column, said in a note, and exported as it was.
+#[test]
+fn a_regular_files_own_next_observations_come_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("pointmaze-medium-navigate-v0.npz");
+    let regular = fixture("regular/pointmaze-medium-navigate-v0.npz");
+    py_ok(
+        "check_ogbench.py",
+        &["edit", regular.to_str().unwrap(), src.to_str().unwrap(), "next_observations[105]+=0.25"],
+    );
+    let (back, notes) = through_a_table(&src, dir.path(), "shifted");
+    assert!(notes.contains("next_observations are more than the observations shifted"), "{notes}");
+    assert!(notes.contains("episode 1's row 5 is not the observation after it"), "{notes}");
+    same_file(&src, &back);
+    let footer = pgser::table::read_footer(&dir.path().join("shifted/t.parquet")).unwrap();
+    let cols: Vec<&str> =
+        footer["passthrough"].as_array().unwrap().iter().map(|p| p["column"].as_str().unwrap()).collect();
+    assert_eq!(cols, ["terminals", "qpos", "qvel", "next_observations"]);
+    // The unedited file keeps none: its next observations are the observations.
+    through_a_table(&regular, dir.path(), "plain");
+    let footer = pgser::table::read_footer(&dir.path().join("plain/t.parquet")).unwrap();
+    assert!(!footer["passthrough"].to_string().contains("next_observations"), "{footer}");
+}
+
+/// Observations and actions of two float types (and a float64 qpos beside float32 observations)
+/// come back each in its own: before, both came back float64 where either was.
+#[test]
+fn each_array_comes_back_in_its_own_float_type() {
+    let dir = tempfile::tempdir().unwrap();
+    for (rel, changes) in [
+        ("pointmaze-medium-navigate-v0.npz", &["actions=float64"][..]),
+        ("pointmaze-medium-navigate-v0.npz", &["observations=float64"][..]),
+        ("pointmaze-medium-navigate-v0.npz", &["qpos=float64"][..]),
+        ("regular/pointmaze-medium-navigate-v0.npz", &["actions=float64"][..]),
+        ("regular/pointmaze-medium-navigate-v0.npz", &["observations=float64", "next_observations=float64"][..]),
+    ] {
+        let tag = format!("{}-{}", rel.replace('/', "_"), changes.join("-"));
+        let sub = dir.path().join(&tag);
+        std::fs::create_dir_all(&sub).unwrap();
+        let src = sub.join("pointmaze-medium-navigate-v0.npz");
+        let from = fixture(rel);
+        let mut args = vec!["edit", from.to_str().unwrap(), src.to_str().unwrap()];
+        args.extend(changes);
+        py_ok("check_ogbench.py", &args);
+        let (back, _) = through_a_table(&src, &sub, "out");
+        let said = same_file(&src, &back);
+        let footer = pgser::table::read_footer(&sub.join("out/t.parquet")).unwrap();
+        let float_bytes = &footer["sources"][0]["float_bytes"];
+        if changes == ["actions=float64"] {
+            assert_eq!(float_bytes, &serde_json::json!([4, 4, 4, 8]), "{tag}: {said}");
+        }
+    }
 }

@@ -7,17 +7,17 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::*;
-use pgser::nprandom::NpRandom;
+use pgser::dtype::Kind;
 use pgser::ogbench::npz;
 use pgser::pickle::write::{ArrayOut, write_dict};
-use pgser::pickle::{DTypeKind, Obj, Pickle};
+use pgser::pickle::{Obj, Pickle};
 
 /// One array of a pickled dict as pgser's reader sees it: dtype (kind, bytes, stored
 /// big-endian), shape and native little-endian C-order bytes.
 #[derive(Debug, PartialEq)]
 struct Array {
     key: String,
-    kind: DTypeKind,
+    kind: Kind,
     size: usize,
     big_endian: bool,
     shape: Vec<usize>,
@@ -37,7 +37,7 @@ fn arrays_of(path: &Path) -> Vec<Array> {
                 key,
                 kind: a.dtype.kind,
                 size: a.dtype.size,
-                big_endian: a.stored_big_endian,
+                big_endian: a.dtype.big_endian,
                 shape: a.shape.clone(),
                 data: a.data.into_owned(),
             }
@@ -81,90 +81,24 @@ fn wgcsl_buffers_written_by_numpy_come_back_whole() {
     }
 }
 
-/// A random dtype of those a column keeps, in a random byte order.
-fn random_dtype(rng: &mut NpRandom) -> String {
-    let types = ["f8", "f4", "b1", "i1", "i2", "i4", "i8", "u1", "u2", "u4", "u8"];
-    let t = types[(rng.random() * types.len() as f64) as usize];
-    let order = if t.ends_with('1') {
-        '|'
-    } else if rng.random() < 0.3 {
-        '>'
-    } else {
-        '<'
-    };
-    format!("{order}{t}")
-}
-
 #[test]
 fn random_extra_arrays_of_random_dtypes_and_shapes_round_trip() {
-    // 16 buffers, each with 1–4 extra arrays: per step, per transition or per episode, of 0–2
-    // more dimensions of 1–3, in any dtype a column keeps and either byte order, written by
-    // pgser's own pickle writer; convert then export gives every array back to the bit.
+    // 16 buffers written by numpy (make_random_pickles.py), each with 1–4 extra arrays: per step,
+    // per transition or per episode, of 0–2 more dimensions of 1–3, in any dtype a column keeps,
+    // either byte order and either memory order, pickled with protocol 2, 3, 4 or 5. convert
+    // then export gives numpy every array back: its dtype with the byte order, shape and bytes
+    // (check_same_arrays.py reads both files as stored, not as numpy's pickle.load does).
     let dir = tempfile::tempdir().unwrap();
+    py_ok("make_random_pickles.py", &[dir.path().to_str().unwrap(), "16"]);
     for seed in 0..16u64 {
-        let mut rng = NpRandom::new(seed);
-        let (n, t) = (1 + (rng.random() * 4.0) as usize, 3 + (rng.random() * 5.0) as usize);
-        let float = if rng.random() < 0.5 { "<f8" } else { "<f4" };
-        let mut arrays: Vec<(String, String, Vec<usize>)> = vec![
-            ("o".into(), float.into(), vec![n, t, 3]),
-            ("ag".into(), float.into(), vec![n, t, 2]),
-            ("u".into(), float.into(), vec![n, t - 1, 2]),
-            ("g".into(), float.into(), vec![n, t - 1, 2]),
-        ];
-        for k in 0..1 + (rng.random() * 4.0) as usize {
-            let mut shape = vec![n];
-            match (rng.random() * 3.0) as usize {
-                0 => shape.push(t),
-                1 => shape.push(t - 1),
-                _ => {}
-            }
-            for _ in 0..(rng.random() * 3.0) as usize {
-                shape.push(1 + (rng.random() * 3.0) as usize);
-            }
-            arrays.push((format!("extra_{k}"), random_dtype(&mut rng), shape));
-        }
-        let data: Vec<Vec<u8>> = arrays
-            .iter()
-            .map(|(key, descr, shape)| {
-                let size: usize = descr[2..].parse().unwrap();
-                let count: usize = shape.iter().product();
-                (0..count * size)
-                    .map(|i| {
-                        if descr.ends_with("b1") {
-                            (rng.random() < 0.5) as u8
-                        } else if key.len() <= 2 {
-                            // o, ag, u, g: finite floats (convert refuses NaN): small ones, stored in order.
-                            let v = rng.random() - 0.5;
-                            let b =
-                                if size == 8 { v.to_le_bytes().to_vec() } else { (v as f32).to_le_bytes().to_vec() };
-                            b[i % size]
-                        } else {
-                            (rng.random() * 256.0) as u8
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
         let src = dir.path().join(format!("r{seed}.pkl"));
-        let mut out: Vec<ArrayOut> = arrays
-            .iter()
-            .zip(&data)
-            .map(|((key, descr, shape), bytes)| {
-                let mut a = ArrayOut::from_bytes(key, shape.clone(), bytes);
-                a.descr = descr.clone();
-                a
-            })
-            .collect();
-        let mut file = std::fs::File::create(&src).unwrap();
-        write_dict(&mut file, &mut out).unwrap();
-        drop(file);
         let table = dir.path().join(format!("r{seed}.parquet"));
         let args: Vec<String> =
             ["--task", "Rand", "--threshold", "0.05", "--allow-nonfinite"].map(String::from).to_vec();
         convert_ok(&[&src], &table, &args);
         let back = dir.path().join(format!("r{seed}_back.pkl"));
         export_ok(&table, "wgcsl", &back, &[]);
-        assert_eq!(arrays_of(&back), arrays_of(&src), "seed {seed}: {arrays:?}");
+        py_ok("check_same_arrays.py", &[src.to_str().unwrap(), back.to_str().unwrap()]);
     }
 }
 
@@ -259,30 +193,6 @@ fn members_of(path: &Path) -> Vec<(String, String, Vec<usize>, Vec<u8>)> {
 
 fn ogbench_fixture(rel: &str) -> PathBuf {
     repo().join("tests/fixtures/ogbench").join(rel)
-}
-
-#[test]
-fn ogbench_files_of_every_layout_come_back_whole() {
-    // Written by OGBench's generator (terminals, qpos, qvel, oracle_reps) and by its loader
-    // (compact: valids; regular: next_observations): every member, its dtype, shape and values,
-    // each episode's last action included.
-    let dir = tempfile::tempdir().unwrap();
-    for rel in [
-        "pointmaze-medium-navigate-v0.npz",
-        "antmaze/antmaze-medium-navigate-v0.npz",
-        "cube/cube-double-play-v0.npz",
-        "compact/pointmaze-medium-navigate-v0.npz",
-        "regular/pointmaze-medium-navigate-v0.npz",
-    ] {
-        let src = ogbench_fixture(rel);
-        let sub = dir.path().join(rel.replace('/', "_"));
-        std::fs::create_dir_all(&sub).unwrap();
-        let table = sub.join("t.parquet");
-        convert_ok(&[&src], &table, &[]);
-        let back = sub.join(src.file_name().unwrap());
-        export_ok(&table, "ogbench", &back, &[]);
-        assert_eq!(members_of(&back), members_of(&src), "{rel}");
-    }
 }
 
 #[test]
@@ -395,4 +305,76 @@ fn convert_refuses_what_a_table_cannot_keep_and_drops_it_when_asked() {
     // --drop of a key no input has.
     write(&src, None);
     fails(&["--drop", "qpos"], "--drop qpos: no input has a key 'qpos'");
+}
+
+/// `table` rewritten to `out` with its `pgser` footer changed by `edit`, and checksummed again as
+/// pgser's writer does: a footer that holds its checksum but says what pgser never writes.
+fn with_footer(table: &Path, out: &Path, edit: impl Fn(&mut serde_json::Value)) {
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(table).unwrap()).unwrap();
+    let schema = builder.schema().clone();
+    let batches: Vec<_> = builder.build().unwrap().map(|b| b.unwrap()).collect();
+    let mut footer = pgser::table::read_footer(table).unwrap();
+    footer.as_object_mut().unwrap().remove(pgser::table::CHECKSUMS_KEY);
+    edit(&mut footer);
+    let mut w = pgser::table::TableWriter::create(out, schema).unwrap();
+    w.write_row_groups(&batches).unwrap();
+    w.finish(&footer).unwrap();
+}
+
+/// A footer whose checksum holds but whose passthrough column has a dtype no column holds
+/// (float16; a kind character of two bytes, which a reader cutting the descr by byte panicked
+/// on; none at all) is refused in one line naming the file and the column, by every reader:
+/// export in each format (which leaves nothing), inspect, verify and the training loader. So is
+/// each footer the fuzzer found to crash one (`fuzz/fuzz_targets/footer.rs`,
+/// tests/fixtures/fuzz/footer/), which is the whole footer of the same table.
+#[test]
+fn a_footer_with_a_dtype_no_column_holds_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let good = d.join("good.parquet");
+    let src = repo().join("tests/fixtures/passthrough/wgcsl_info.pkl");
+    convert_ok(&[&src], &good, &["--task".into(), "FetchReach".into()]);
+    let mut cases: Vec<(String, serde_json::Value)> = Vec::new();
+    for (i, dtype) in ["<f2", "<é4", "é", ""].into_iter().enumerate() {
+        let mut f = pgser::table::read_footer(&good).unwrap();
+        f["passthrough"][0]["dtype"] = dtype.into();
+        cases.push((format!("dtype{i}"), f));
+    }
+    let found = std::fs::read_dir(repo().join("tests/fixtures/fuzz/footer")).unwrap();
+    for entry in found {
+        let p = entry.unwrap().path();
+        let f = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
+        cases.push((p.file_stem().unwrap().to_string_lossy().into_owned(), f));
+    }
+    let n = cases.len();
+    for (name, footer) in cases {
+        let table = d.join(format!("{name}.parquet"));
+        with_footer(&good, &table, |f| *f = footer.clone());
+        let at = table.to_str().unwrap();
+        let says = |what: &str, e: &str| {
+            assert!(!e.contains("panicked"), "{name}: {what}: {e}");
+            assert_eq!(e.trim().lines().count(), 1, "{name}: {what}: {e}");
+            assert!(e.contains(at) && e.contains("info_is_success"), "{name}: {what}: {e}");
+        };
+        for (format, out) in [("wgcsl", "back.pkl"), ("minari", "back-v0"), ("ogbench", "back.npz")] {
+            let out = d.join(out);
+            let o = export(&table, format, &out, &[]);
+            assert!(!o.status.success(), "{name}: export {format} accepted the table");
+            says(&format!("export {format}"), &text(&o.stderr));
+            assert!(!out.exists(), "{name}: export {format} left {}", out.display());
+        }
+        for cmd in ["inspect", "verify"] {
+            let o = etl().arg(cmd).arg(&table).output().unwrap();
+            assert!(!o.status.success(), "{name}: {cmd} accepted the table");
+            // verify reports each file on stdout, and sums up on stderr.
+            let e = text(&o.stderr);
+            let said = if cmd == "verify" { text(&o.stdout) } else { e.clone() };
+            assert!(!e.contains("panicked"), "{name}: {cmd}: {e}");
+            says(cmd, &said);
+        }
+        let e = pgser::trajectory::Episodes::load(&table).err().expect("the loader accepted the table");
+        says("load", &format!("{e:#}"));
+    }
+    assert!(n > 4, "no inputs in tests/fixtures/fuzz/footer");
 }

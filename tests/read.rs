@@ -13,7 +13,9 @@ use parquet::arrow::ArrowWriter;
 use parquet::file::metadata::KeyValue;
 use pgser::table::FOOTER_KEY;
 use pgser::task::Task;
-use pgser::trajectory::{EpisodeArrays, Episodes, FloatArray, FloatType, Footer, TrajectoryWriter, vector_field};
+use pgser::trajectory::{
+    EpisodeArrays, Episodes, FloatArray, FloatType, Footer, TrajectoryWriter, WriterOptions, vector_field,
+};
 
 const T: usize = 4;
 
@@ -49,7 +51,8 @@ fn write(path: &Path, data: &[Vec<u8>; 4], size: usize, float: FloatType, nonfin
     let src =
         EpisodeArrays { origin: "test".into(), keys: pgser::trajectory::KEYS, arrays, episodes: n, extras: Vec::new() };
     // 7 episodes per row group: groups and the reader's 64-episode batches fall out of step.
-    let mut w = TrajectoryWriter::create(path, &task(), float, 7 * T, nonfinite).unwrap();
+    let options = WriterOptions { allow_nonfinite: nonfinite, ..WriterOptions::new(7 * T) };
+    let mut w = TrajectoryWriter::create(path, &task(), float, options).unwrap();
     w.append(&src, 0, n).unwrap();
     w.finish(&Footer::new(&task(), float, n, "test".into())).unwrap();
 }

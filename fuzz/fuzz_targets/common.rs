@@ -23,9 +23,16 @@ pub fn file(name: &str, data: &[u8]) -> PathBuf {
 #[allow(dead_code)] // only the targets that read through convert use it
 pub fn convert(input: PathBuf) {
     let out = scratch().join("converted.parquet");
-    let opts = pgser::trajectory::ConvertOptions {
+    let _ = pgser::convert::convert(&convert_options(input, out.clone()), &indicatif::ProgressBar::hidden());
+    let _ = std::fs::remove_file(&out);
+}
+
+/// `pgser-etl convert INPUT -o OUTPUT`'s settings, with every flag at its default.
+#[allow(dead_code)] // only the targets that read through convert use it
+pub fn convert_options(input: PathBuf, output: PathBuf) -> pgser::trajectory::ConvertOptions {
+    pgser::trajectory::ConvertOptions {
         inputs: vec![input],
-        output: out.clone(),
+        output,
         task: None,
         threshold: None,
         episodes: None,
@@ -36,7 +43,5 @@ pub fn convert(input: PathBuf) {
         full_goal: false,
         drop: Vec::new(),
         command: String::new(),
-    };
-    let _ = pgser::convert::convert(&opts, &indicatif::ProgressBar::hidden());
-    let _ = std::fs::remove_file(&out);
+    }
 }

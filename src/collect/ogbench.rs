@@ -36,17 +36,20 @@ use indicatif::ProgressBar;
 use rayon::prelude::*;
 
 use super::{CollectOptions, CollectSummary, Spools};
+use crate::dtype::Dtype;
 use crate::env::GoalEnv;
 use crate::env::pointmaze::{self, DatasetKind, PointMazeEnv, Recipe};
-use crate::ogbench::npz::{Dtype, NpzWriter};
+use crate::ogbench::npz::NpzWriter;
 use crate::task::Task;
-use crate::trajectory::{EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough, Per, TrajectoryWriter};
+use crate::trajectory::{
+    EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough, Per, TrajectoryWriter, WriterOptions,
+};
 
 /// The arrays of OGBench's dataset files, in the order the generator writes them.
 const MEMBERS: [(&str, Dtype); 5] = [
     ("observations", Dtype::F32),
     ("actions", Dtype::F32),
-    ("terminals", Dtype::Bool),
+    ("terminals", Dtype::BOOL),
     ("qpos", Dtype::F32),
     ("qvel", Dtype::F32),
 ];
@@ -213,19 +216,13 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
         let specs = MEMBERS[2..]
             .iter()
             .map(|&(key, dtype)| {
-                let (descr, shape) = if dtype == Dtype::Bool { ("|b1", vec![]) } else { ("<f4", vec![2]) };
-                Passthrough::new(&origin, key, descr, Per::Step, shape)
+                let shape = if dtype == Dtype::BOOL { vec![] } else { vec![2] };
+                Passthrough::new(&origin, key, dtype, Per::Step, shape)
             })
             .collect::<Result<Vec<_>>>()?;
-        let mut w = TrajectoryWriter::create_with(
-            &opts.output,
-            &task,
-            FloatType::Float32,
-            opts.row_group_rows,
-            false,
-            specs.clone(),
-            true,
-        )?;
+        let options =
+            WriterOptions { extras: specs.clone(), last_action: true, ..WriterOptions::new(opts.row_group_rows) };
+        let mut w = TrajectoryWriter::create(&opts.output, &task, FloatType::Float32, options)?;
         for start in (0..opts.episodes).step_by(CHUNK) {
             let chunk = simulate(opts, &r, noise, start..(start + CHUNK).min(opts.episodes), bar)?;
             tally(&chunk);
@@ -313,7 +310,7 @@ impl NpzSpool {
         let mut w = NpzWriter::new(BufWriter::with_capacity(8 << 20, out.handle()?), true);
         let mut buf = vec![0u8; 1 << 20];
         for ((key, dtype), f) in MEMBERS.iter().zip(&mut files) {
-            let shape: &[usize] = if *dtype == Dtype::Bool { &[rows] } else { &[rows, 2] };
+            let shape: &[usize] = if *dtype == Dtype::BOOL { &[rows] } else { &[rows, 2] };
             w.start(key, *dtype, shape).with_context(fail)?;
             f.rewind().with_context(fail)?;
             loop {

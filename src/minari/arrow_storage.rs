@@ -21,6 +21,7 @@ use arrow_schema::{DataType, Field, Fields, Schema};
 
 use super::infos::{self, Info};
 use super::{BoxSpace, Episode, Metadata, OBS_KEYS, Spaces};
+use crate::dtype::Dtype;
 
 pub struct Reader {
     data: PathBuf,
@@ -28,12 +29,20 @@ pub struct Reader {
     total: usize,
     /// The Dict observation's other keys.
     extra_obs: Vec<String>,
+    /// The columns `--drop` names, never read ([`infos::from_arrow`]).
+    drop: Vec<String>,
 }
 
 impl Reader {
-    pub fn new(meta: &Metadata) -> Reader {
+    pub fn new(meta: &Metadata, drop: &[String]) -> Reader {
         let extra_obs = meta.extra_obs.iter().map(|(k, _)| k.clone()).collect();
-        Reader { data: meta.data.clone(), spaces: meta.spaces.clone(), total: meta.total_episodes, extra_obs }
+        Reader {
+            data: meta.data.clone(),
+            spaces: meta.spaces.clone(),
+            total: meta.total_episodes,
+            extra_obs,
+            drop: drop.to_vec(),
+        }
     }
 
     /// Episode i's observations (n + 1 rows) and actions (n rows).
@@ -54,6 +63,7 @@ impl Reader {
         let mut infos: Vec<Info> = Vec::new();
         let mut outcomes: Vec<Info> = Vec::new();
         let mut obs_extras: Vec<Info> = Vec::new();
+        let mut present: Vec<String> = Vec::new();
         let mut rows = 0;
         for path in &files {
             let at = format!("{} (episode {i})", path.display());
@@ -80,31 +90,28 @@ impl Reader {
                         columns.push(obs.column(i).clone());
                     }
                     let s = StructArray::try_new(Fields::from(fields), columns, None)?;
-                    let more = infos::from_arrow(&at, &s).map_err(|e| {
-                        anyhow::anyhow!(
-                            "{}",
-                            e.to_string().replace("infos.", "observations.").replace("infos/", "observations/")
-                        )
-                    })?;
-                    infos::extend(&at, &mut obs_extras, more)?;
+                    note(&mut present, &s, Some("observations"));
+                    infos::extend(&at, &mut obs_extras, infos::from_arrow(&at, &s, Some("observations"), &self.drop)?)?;
                 }
                 let actions = batch.column_by_name("actions").with_context(|| format!("{at}: no `actions` column"))?;
                 append(&at, "actions", actions, &self.spaces.action, rows, &mut arrays[3])?;
                 if let Some(col) = batch.column_by_name("infos").and_then(|c| c.as_struct_opt()) {
-                    infos::extend(&at, &mut infos, infos::from_arrow(&at, col)?)?;
+                    note(&mut present, col, Some("infos"));
+                    infos::extend(&at, &mut infos, infos::from_arrow(&at, col, Some("infos"), &self.drop)?)?;
                 }
                 // Rewards, terminations, truncations: scalar columns, read as infos are.
-                let present: Vec<(Arc<Field>, ArrayRef)> = super::OUTCOMES
+                let recorded: Vec<(Arc<Field>, ArrayRef)> = super::OUTCOMES
                     .iter()
                     .filter_map(|k| {
                         let c = batch.column_by_name(k)?;
                         Some((Arc::new(Field::new(*k, c.data_type().clone(), true)), c.clone()))
                     })
                     .collect();
-                if !present.is_empty() {
-                    let (fields, columns): (Vec<_>, Vec<_>) = present.into_iter().unzip();
+                if !recorded.is_empty() {
+                    let (fields, columns): (Vec<_>, Vec<_>) = recorded.into_iter().unzip();
                     let s = StructArray::try_new(Fields::from(fields), columns, None)?;
-                    infos::extend(&at, &mut outcomes, infos::from_arrow(&at, &s)?)?;
+                    note(&mut present, &s, None);
+                    infos::extend(&at, &mut outcomes, infos::from_arrow(&at, &s, None, &self.drop)?)?;
                 }
                 rows += batch.num_rows();
             }
@@ -121,7 +128,17 @@ impl Reader {
             o.rows -= 1;
             o.bytes.truncate(o.rows * row);
         }
-        Ok(Episode { steps: rows - 1, arrays, infos, outcomes, obs_extras })
+        Ok(Episode { steps: rows - 1, arrays, infos, outcomes, obs_extras, present })
+    }
+}
+
+/// Adds the columns struct `s`'s fields become (of `group`) to `present`, once each.
+fn note(present: &mut Vec<String>, s: &StructArray, group: Option<&str>) {
+    for f in s.fields() {
+        let column = infos::column_name(group, f.name());
+        if !present.contains(&column) {
+            present.push(column);
+        }
     }
 }
 
@@ -265,12 +282,12 @@ pub struct EpisodeOut {
     /// T − 1 rewards.
     pub rewards: Vec<f32>,
     /// The episode's infos, T rows each: (key, numpy dtype, shape of a row's value, bytes).
-    pub infos: Vec<(String, String, Vec<usize>, Vec<u8>)>,
+    pub infos: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
     /// Rewards, terminations or truncations as the source recorded them, T − 1 rows each (name,
     /// numpy dtype, bytes): written instead of the recomputed rewards and the time-limit ending.
-    pub outcomes: Vec<(String, String, Vec<u8>)>,
+    pub outcomes: Vec<(String, Dtype, Vec<u8>)>,
     /// The Dict observation's other keys, T rows each: (key, numpy dtype, a value's shape, bytes).
-    pub obs_extras: Vec<(String, String, Vec<usize>, Vec<u8>)>,
+    pub obs_extras: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
 }
 
 /// The schema of an exported episode file, as Minari's Arrow storage writes it.

@@ -18,6 +18,7 @@ use serde_json::json;
 
 use super::arrow_storage::{self, EpisodeOut};
 use super::{BoxSpace, Spaces};
+use crate::dtype::Dtype;
 use crate::output::AtomicFile;
 use crate::pickle::write::{ArrayOut, write_dict};
 use crate::task::{GoalMetric, Task};
@@ -80,8 +81,7 @@ pub fn export(opts: &ExportOptions) -> Result<ExportSummary> {
         }
     };
     let footer = crate::table::read_footer(&opts.table)?;
-    let footer: Footer =
-        serde_json::from_value(footer).with_context(|| format!("{}: not a trajectory table", opts.table.display()))?;
+    let footer = Footer::from_json(&opts.table.display().to_string(), footer)?;
     // WGCSL keeps any array whose first dimension is the episodes; a Minari dataset keeps what
     // has a row per observation, in each episode's `infos`.
     let (extras, _) = match dataset_id {
@@ -188,7 +188,7 @@ fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
             let values = &table.arrays[k];
             ArrayOut {
                 key,
-                descr: if f32s { "<f4" } else { "<f8" }.into(),
+                dtype: if f32s { Dtype::F32 } else { Dtype::F64 },
                 shape: vec![n, steps, dim],
                 data: Box::new(move |w: &mut dyn std::io::Write| {
                     for chunk in values.chunks(1 << 16) {
@@ -210,12 +210,7 @@ fn write_wgcsl(table: &Table, out: &Path) -> Result<()> {
             shape.push(p.per.rows(t));
         }
         shape.extend(&p.shape);
-        arrays.push(ArrayOut {
-            key: &p.column,
-            descr: p.dtype.clone(),
-            shape,
-            data: Box::new(move |w| w.write_all(bytes)),
-        });
+        arrays.push(ArrayOut { key: &p.column, dtype: p.dtype, shape, data: Box::new(move |w| w.write_all(bytes)) });
     }
     let fail = || format!("{}: write failed", out.display());
     write_dict(&mut w, &mut arrays).with_context(fail)?;

@@ -2,11 +2,11 @@
 //! episode, with datasets `observations/{key}` (n + 1 rows for a Dict observation), `actions`,
 //! `rewards`, `terminations`, `truncations` (n rows) and an `infos` group.
 //!
-//! Read through the HDF5 C library (hdf5-metno, linking the system's libhdf5): HDF5 is a large
-//! format (B-trees, chunking, filters, several object header versions) that h5py writes in
-//! whatever form its library version picks, and only the reference library reads all of them.
-//! Compiled with the cargo feature `hdf5` only (on by default), so a build with
-//! `--no-default-features` needs no C library (docs/minari.md).
+//! Read through the HDF5 C library (hdf5-metno, compiled from the source hdf5-metno-src carries
+//! into pgser itself): HDF5 is a large format (B-trees, chunking, filters, several object header
+//! versions) that h5py writes in whatever form its library version picks, and only the reference
+//! library reads all of them. Compiled with the cargo feature `hdf5` only (on by default), so a
+//! build with `--no-default-features` needs no CMake and no C compiler (docs/minari.md).
 
 use std::path::PathBuf;
 
@@ -16,6 +16,7 @@ use hdf5_metno as hdf5;
 
 use super::infos::Info;
 use super::{BoxSpace, Episode, Metadata, OBS_KEYS, Spaces};
+use crate::dtype::Dtype;
 
 pub struct Reader {
     path: PathBuf,
@@ -24,6 +25,8 @@ pub struct Reader {
     total: usize,
     /// The Dict observation's other keys.
     extra_obs: Vec<String>,
+    /// The columns `--drop` names, never read: `--drop` is the way past one no column can keep.
+    drop: Vec<String>,
 }
 
 /// An HDF5 error as one line (the library's messages may hold line breaks).
@@ -32,7 +35,7 @@ fn one_line(e: hdf5::Error) -> String {
 }
 
 impl Reader {
-    pub fn open(meta: &Metadata) -> Result<Reader> {
+    pub fn open(meta: &Metadata, drop: &[String]) -> Result<Reader> {
         let path = meta.data.join("main_data.hdf5");
         if !path.is_file() {
             bail!("{}: no main_data.hdf5, though metadata.json says data_format 'hdf5'", meta.data.display());
@@ -40,7 +43,14 @@ impl Reader {
         let file = hdf5::File::open(&path)
             .map_err(|e| anyhow!("{}: not a readable HDF5 file ({})", path.display(), one_line(e)))?;
         let extra_obs = meta.extra_obs.iter().map(|(k, _)| k.clone()).collect();
-        Ok(Reader { path, file, spaces: meta.spaces.clone(), total: meta.total_episodes, extra_obs })
+        Ok(Reader {
+            path,
+            file,
+            spaces: meta.spaces.clone(),
+            total: meta.total_episodes,
+            extra_obs,
+            drop: drop.to_vec(),
+        })
     }
 
     /// Episode i's observations (n + 1 rows) and actions (n rows).
@@ -67,20 +77,25 @@ impl Reader {
                 rows[3]
             );
         }
+        let mut present = Vec::new();
         let infos = match group.group("infos") {
-            Ok(g) => read_infos(&at, &name, &g)?,
+            Ok(g) => read_infos(&at, &name, &g, &self.drop, &mut present)?,
             Err(_) => Vec::new(),
         };
         // Rewards, terminations and truncations: a row per step, kept as they were recorded.
-        let outcomes = super::OUTCOMES
+        let recorded: Vec<&str> = super::OUTCOMES.iter().copied().filter(|k| group.link_exists(k)).collect();
+        present.extend(recorded.iter().map(|k| k.to_string()));
+        let outcomes = recorded
             .iter()
-            .filter(|k| group.link_exists(k))
+            .filter(|k| !self.drop.iter().any(|d| d == *k))
             .map(|k| read_any(&at, &name, &group, k, k))
             .collect::<Result<Vec<_>>>()?;
         // The Dict observation's other keys, as metadata.json lists them.
+        present.extend(self.extra_obs.iter().map(|k| format!("observations/{k}")));
         let obs_extras = self
             .extra_obs
             .iter()
+            .filter(|k| !self.drop.contains(&format!("observations/{k}")))
             .map(|k| {
                 let mut info =
                     read_any(&at, &name, &group, &format!("observations/{k}"), &format!("observations/{k}"))?;
@@ -88,15 +103,27 @@ impl Reader {
                 Ok(info)
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(Episode { steps: rows[3], arrays, infos, outcomes, obs_extras })
+        Ok(Episode { steps: rows[3], arrays, infos, outcomes, obs_extras, present })
     }
 }
 
-/// The datasets of an episode's `infos` group, in name order, each as its rows' bytes.
-fn read_infos(at: &str, episode: &str, group: &hdf5::Group) -> Result<Vec<Info>> {
+/// The datasets of an episode's `infos` group, in name order, each as its rows' bytes, but those
+/// `drop` names (`infos/KEY`), which are never read; every key's column goes into `present`.
+fn read_infos(
+    at: &str,
+    episode: &str,
+    group: &hdf5::Group,
+    drop: &[String],
+    present: &mut Vec<String>,
+) -> Result<Vec<Info>> {
     let mut names = group.member_names().map_err(|e| anyhow!("{at}: {episode}/infos: {}", one_line(e)))?;
     names.sort();
-    names.iter().map(|key| read_any(at, &format!("{episode}/infos"), group, key, &format!("infos/{key}"))).collect()
+    present.extend(names.iter().map(|key| format!("infos/{key}")));
+    names
+        .iter()
+        .filter(|key| !drop.contains(&format!("infos/{key}")))
+        .map(|key| read_any(at, &format!("{episode}/infos"), group, key, &format!("infos/{key}")))
+        .collect()
 }
 
 /// Dataset `key` of `group` (any shape, any bool, int, uint or float type) as its rows' bytes;
@@ -118,23 +145,23 @@ pub(super) fn read_any(at: &str, within: &str, group: &hdf5::Group, key: &str, c
             ds.read_raw::<$t>().map_err(failed)?.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>()
         };
     }
-    let (descr, bytes) = match d {
+    let (dtype, bytes) = match d {
         TypeDescriptor::Boolean => {
-            ("|b1", ds.read_raw::<bool>().map_err(failed)?.iter().map(|&b| u8::from(b)).collect())
+            (Dtype::BOOL, ds.read_raw::<bool>().map_err(failed)?.iter().map(|&b| u8::from(b)).collect())
         }
-        TypeDescriptor::Integer(IntSize::U1) => ("|i1", raw!(i8)),
-        TypeDescriptor::Integer(IntSize::U2) => ("<i2", raw!(i16)),
-        TypeDescriptor::Integer(IntSize::U4) => ("<i4", raw!(i32)),
-        TypeDescriptor::Integer(IntSize::U8) => ("<i8", raw!(i64)),
-        TypeDescriptor::Unsigned(IntSize::U1) => ("|u1", raw!(u8)),
-        TypeDescriptor::Unsigned(IntSize::U2) => ("<u2", raw!(u16)),
-        TypeDescriptor::Unsigned(IntSize::U4) => ("<u4", raw!(u32)),
-        TypeDescriptor::Unsigned(IntSize::U8) => ("<u8", raw!(u64)),
-        TypeDescriptor::Float(FloatSize::U4) => ("<f4", raw!(f32)),
-        TypeDescriptor::Float(FloatSize::U8) => ("<f8", raw!(f64)),
+        TypeDescriptor::Integer(IntSize::U1) => (Dtype::I8, raw!(i8)),
+        TypeDescriptor::Integer(IntSize::U2) => (Dtype::I16, raw!(i16)),
+        TypeDescriptor::Integer(IntSize::U4) => (Dtype::I32, raw!(i32)),
+        TypeDescriptor::Integer(IntSize::U8) => (Dtype::I64, raw!(i64)),
+        TypeDescriptor::Unsigned(IntSize::U1) => (Dtype::U8, raw!(u8)),
+        TypeDescriptor::Unsigned(IntSize::U2) => (Dtype::U16, raw!(u16)),
+        TypeDescriptor::Unsigned(IntSize::U4) => (Dtype::U32, raw!(u32)),
+        TypeDescriptor::Unsigned(IntSize::U8) => (Dtype::U64, raw!(u64)),
+        TypeDescriptor::Float(FloatSize::U4) => (Dtype::F32, raw!(f32)),
+        TypeDescriptor::Float(FloatSize::U8) => (Dtype::F64, raw!(f64)),
         other => return Err(cannot(format!("of {other} values"))),
     };
-    Ok(Info { key: key.to_string(), descr: descr.into(), shape: shape[1..].to_vec(), rows: shape[0], bytes })
+    Ok(Info { key: key.to_string(), dtype, shape: shape[1..].to_vec(), rows: shape[0], bytes })
 }
 
 /// One dataset of an episode group as little-endian bytes: its rows, checked to be

@@ -17,36 +17,17 @@ use arrow_buffer::{BooleanBuffer, Buffer};
 use arrow_data::ArrayData;
 use arrow_schema::{DataType, Field, Fields};
 
-use crate::trajectory::extra::Elem;
+use crate::dtype::Dtype;
 
 /// One key of an episode's infos: its numpy dtype, the shape of one row's value, its rows and
 /// their bytes (little-endian, C order).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Info {
     pub key: String,
-    pub descr: String,
+    pub dtype: Dtype,
     pub shape: Vec<usize>,
     pub rows: usize,
     pub bytes: Vec<u8>,
-}
-
-/// The numpy element type of an Arrow value type a column of infos may hold.
-fn elem_of(t: &DataType) -> Option<Elem> {
-    let (kind, size) = match t {
-        DataType::Boolean => ('b', 1),
-        DataType::Int8 => ('i', 1),
-        DataType::Int16 => ('i', 2),
-        DataType::Int32 => ('i', 4),
-        DataType::Int64 => ('i', 8),
-        DataType::UInt8 => ('u', 1),
-        DataType::UInt16 => ('u', 2),
-        DataType::UInt32 => ('u', 4),
-        DataType::UInt64 => ('u', 8),
-        DataType::Float32 => ('f', 4),
-        DataType::Float64 => ('f', 8),
-        _ => return None,
-    };
-    Some(Elem { kind, size, big_endian: false })
 }
 
 /// `values[start..start + len]` of a primitive or boolean array as little-endian bytes (bools as
@@ -64,16 +45,28 @@ fn value_bytes(values: &ArrayRef, start: usize, len: usize) -> Option<Vec<u8>> {
     Some(data.buffers()[0].as_slice()[at..at + len * size].to_vec())
 }
 
-/// The `infos` struct of one record batch of an Arrow episode: every field, its rows' bytes.
-/// `at` names the file in errors.
-pub fn from_arrow(at: &str, infos: &StructArray) -> Result<Vec<Info>> {
+/// The passthrough column a field of struct `group` (`infos`, `observations`; None for a
+/// top-level column such as `rewards`) becomes: the name `--drop` takes.
+pub fn column_name(group: Option<&str>, key: &str) -> String {
+    group.map_or_else(|| key.to_string(), |g| format!("{g}/{key}"))
+}
+
+/// A struct of one record batch of an Arrow episode (its `infos`, the Dict observation's other
+/// keys, or the rewards, terminations and truncations gathered as one): every field but those
+/// `drop` names ([`column_name`] of `group`), its rows' bytes. A field left out is never looked
+/// at, so `--drop` is the way past one no column can keep. `at` names the file in errors.
+pub fn from_arrow(at: &str, infos: &StructArray, group: Option<&str>, drop: &[String]) -> Result<Vec<Info>> {
     let mut out = Vec::new();
     for (field, col) in infos.fields().iter().zip(infos.columns()) {
         let key = field.name();
+        let column = column_name(group, key);
+        if drop.contains(&column) {
+            continue;
+        }
+        let shown = group.map_or_else(|| key.to_string(), |g| format!("{g}.{key}"));
         let cannot = |what: &str| {
             anyhow::anyhow!(
-                "{at}: `infos.{key}` is {what}, which a table column cannot keep; pass --drop infos/{key} to convert \
-                 without it"
+                "{at}: `{shown}` is {what}, which a table column cannot keep; pass --drop {column} to convert without it"
             )
         };
         let (values, start, width, shape) = match col.data_type() {
@@ -90,7 +83,7 @@ pub fn from_arrow(at: &str, infos: &StructArray) -> Result<Vec<Info>> {
                     None => vec![size],
                 };
                 if shape.iter().product::<usize>() != size {
-                    bail!("{at}: `infos.{key}` holds lists of {size} values but its shape metadata says {shape:?}");
+                    bail!("{at}: `{shown}` holds lists of {size} values but its shape metadata says {shape:?}");
                 }
                 if (0..list.len()).any(|r| list.is_null(r)) {
                     return Err(cannot("null in a row"));
@@ -99,9 +92,9 @@ pub fn from_arrow(at: &str, infos: &StructArray) -> Result<Vec<Info>> {
             }
             _ => (col.clone(), 0, 1, vec![]),
         };
-        let elem = elem_of(values.data_type()).ok_or_else(|| cannot(&values.data_type().to_string()))?;
+        let dtype = Dtype::from_arrow(values.data_type()).ok_or_else(|| cannot(&values.data_type().to_string()))?;
         let bytes = value_bytes(&values, start, col.len() * width).ok_or_else(|| cannot("null in a row"))?;
-        out.push(Info { key: key.clone(), descr: elem.descr(), shape, rows: col.len(), bytes });
+        out.push(Info { key: key.clone(), dtype, shape, rows: col.len(), bytes });
     }
     Ok(out)
 }
@@ -116,7 +109,7 @@ pub fn extend(at: &str, infos: &mut Vec<Info>, more: Vec<Info>) -> Result<()> {
         bail!("{at}: the record batches of an episode have different infos keys");
     }
     for (a, b) in infos.iter_mut().zip(more) {
-        if (a.key.as_str(), &a.descr, &a.shape) != (b.key.as_str(), &b.descr, &b.shape) {
+        if (a.key.as_str(), a.dtype, &a.shape) != (b.key.as_str(), b.dtype, &b.shape) {
             bail!("{at}: `infos.{}` differs between the record batches of an episode", a.key);
         }
         a.rows += b.rows;
@@ -127,19 +120,16 @@ pub fn extend(at: &str, infos: &mut Vec<Info>, more: Vec<Info>) -> Result<()> {
 
 /// The `infos` struct column of an exported episode: each `(key, dtype, shape, bytes of `rows`
 /// rows)`, a scalar field or a fixed-size list with Minari's `shape` metadata.
-pub fn to_arrow(infos: &[(String, String, Vec<usize>, Vec<u8>)], rows: usize) -> Result<(Field, ArrayRef)> {
+pub fn to_arrow(infos: &[(String, Dtype, Vec<usize>, Vec<u8>)], rows: usize) -> Result<(Field, ArrayRef)> {
     let mut fields = Vec::new();
     let mut columns: Vec<ArrayRef> = Vec::new();
-    for (key, descr, shape, bytes) in infos {
-        let elem = Elem::parse(descr).expect("a passthrough dtype");
-        let value_type = elem.arrow().expect("a passthrough dtype");
+    for (key, dtype, shape, bytes) in infos {
+        let value_type = dtype.arrow().expect("a passthrough dtype");
         let width: usize = shape.iter().product();
         let n = rows * width.max(1);
         // Arrow holds values little-endian: a big-endian source's bytes are turned around.
         let mut le = bytes.clone();
-        if elem.big_endian {
-            le.chunks_exact_mut(elem.size).for_each(<[u8]>::reverse);
-        }
+        dtype.reorder(&mut le);
         let values: ArrayRef = match value_type {
             DataType::Boolean => Arc::new(BooleanArray::new(BooleanBuffer::collect_bool(n, |i| le[i] != 0), None)),
             ref t => make_array(ArrayData::builder(t.clone()).len(n).add_buffer(Buffer::from_vec(le)).build()?),

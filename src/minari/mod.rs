@@ -24,20 +24,22 @@ mod export;
 #[cfg(feature = "hdf5")]
 mod hdf5_storage;
 mod infos;
+mod metadata;
 mod space;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use indicatif::ProgressBar;
 
 pub use export::{ExportFormat, ExportOptions, ExportSummary, export};
+pub use metadata::{Metadata, Storage, data_folder, read_metadata, sha256_folder};
 pub use space::{BoxSpace, Spaces};
 
-use crate::task::{GoalMetric, Task};
+use crate::task::Task;
 use crate::trajectory::{
     ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough,
-    Per, SourceFile, TrajectoryWriter,
+    Per, SourceFile, TrajectoryWriter, WriterOptions,
 };
 
 /// The Dict observation's keys pgser needs, in the order [`Episode::arrays`] holds them (after
@@ -47,40 +49,6 @@ pub const OBS_KEYS: [&str; 3] = ["observation", "achieved_goal", "desired_goal"]
 /// Minari's names of the arrays pgser reads as o, ag, u and g, as error messages give them.
 pub const ARRAY_KEYS: [&str; 4] =
     ["observations/observation", "observations/achieved_goal", "actions", "observations/desired_goal"];
-
-/// The two storages Minari writes and pgser reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Storage {
-    Hdf5,
-    Arrow,
-}
-
-impl Storage {
-    /// The name in a footer's `sources[].format`.
-    pub fn format_name(self) -> &'static str {
-        match self {
-            Storage::Hdf5 => "minari-hdf5",
-            Storage::Arrow => "minari-arrow",
-        }
-    }
-}
-
-/// What pgser uses of a dataset's `metadata.json`.
-#[derive(Debug, Clone)]
-pub struct Metadata {
-    /// The `data/` folder holding `metadata.json`.
-    pub data: PathBuf,
-    pub storage: Storage,
-    pub total_episodes: usize,
-    pub spaces: Spaces,
-    /// The Dict observation's other keys (an image beside the goals), each with its subspace as
-    /// metadata.json's text has it: kept as passthrough columns `observations/KEY`.
-    pub extra_obs: Vec<(String, String)>,
-    /// The Gymnasium id of `env_spec` (`FetchReach-v4`), when the dataset names one.
-    pub env_id: Option<String>,
-    /// What pgser's own export recorded about the task (`pgser` key): name, threshold, metric.
-    pub pgser_task: Option<(String, f64, GoalMetric)>,
-}
 
 /// One episode of n steps as read from storage: observation, achieved_goal and desired_goal
 /// (n + 1 rows each) and actions (n rows), as little-endian bytes of the spaces' float types.
@@ -94,6 +62,10 @@ pub(crate) struct Episode {
     /// The Dict observation's other keys ([`Metadata::extra_obs`], in that order), a row per
     /// observation.
     pub obs_extras: Vec<infos::Info>,
+    /// Every passthrough column the episode holds (`infos/KEY`, `observations/KEY`, `rewards`, …),
+    /// those `--drop` names too, which the readers leave unread: what checks that every episode
+    /// has the same columns.
+    pub present: Vec<String>,
 }
 
 /// Where a passthrough column of a Minari dataset comes from.
@@ -109,55 +81,6 @@ enum Kind {
 /// than recomputed.
 pub const OUTCOMES: [&str; 3] = ["rewards", "terminations", "truncations"];
 
-/// The `data/` folder of a dataset given as `ID/` (as under MINARI_DATASETS_PATH) or as `ID/data/`.
-pub fn data_folder(dir: &Path) -> Result<PathBuf> {
-    for d in [dir.join("data"), dir.to_path_buf()] {
-        if d.join("metadata.json").is_file() {
-            return Ok(d);
-        }
-    }
-    bail!(
-        "{}: a folder, but not a Minari dataset: neither data/metadata.json nor metadata.json is in it \
-         (convert reads WGCSL pickles and Minari dataset folders)",
-        dir.display()
-    )
-}
-
-/// Read and check `metadata.json`: the storage, the episode count and a goal-conditioned Dict
-/// observation with float Box spaces.
-pub fn read_metadata(dir: &Path) -> Result<Metadata> {
-    let data = data_folder(dir)?;
-    let path = data.join("metadata.json");
-    let at = path.display().to_string();
-    let text = crate::output::read_input_text(&path)?;
-    let json: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{at}: not valid JSON ({e})"))?;
-    let string = |key: &str| json.get(key).and_then(|v| v.as_str());
-    let storage = match string("data_format") {
-        Some("hdf5") => Storage::Hdf5,
-        Some("arrow") => Storage::Arrow,
-        Some(other) => bail!("{at}: data_format '{other}'; pgser reads Minari's 'hdf5' and 'arrow' storages"),
-        None => bail!("{at}: no data_format (a Minari dataset names its storage, 'hdf5' or 'arrow')"),
-    };
-    let total_episodes =
-        json.get("total_episodes").and_then(|v| v.as_u64()).with_context(|| format!("{at}: no total_episodes count"))?
-            as usize;
-    let obs = string("observation_space").with_context(|| format!("{at}: no observation_space"))?;
-    let act = string("action_space").with_context(|| format!("{at}: no action_space"))?;
-    let (spaces, extra_obs) = Spaces::parse(&at, obs, act)?;
-    // env_spec is Gymnasium's EnvSpec as a JSON string; only its id matters here.
-    let env_id = string("env_spec")
-        .and_then(|s| serde_json::from_str::<serde_json::Value>(s).ok())
-        .and_then(|v| v.get("id").and_then(|id| id.as_str()).map(str::to_string));
-    let pgser_task = json.get("pgser").and_then(|p| {
-        let name = p.get("task")?.as_str()?.to_string();
-        let threshold = p.get("success_threshold")?.as_f64()?;
-        let metric = serde_json::from_value(p.get("goal_metric")?.clone()).ok()?;
-        Some((name, threshold, metric))
-    });
-    Ok(Metadata { data, storage, total_episodes, spaces, extra_obs, env_id, pgser_task })
-}
-
 /// Reads the episodes of one storage; both check every array against the spaces, naming the
 /// episode and key of a fault.
 enum Reader {
@@ -167,16 +90,17 @@ enum Reader {
 }
 
 impl Reader {
-    fn open(meta: &Metadata) -> Result<Reader> {
+    /// A reader that leaves the columns `drop` names unread.
+    fn open(meta: &Metadata, drop: &[String]) -> Result<Reader> {
         match meta.storage {
-            Storage::Arrow => Ok(Reader::Arrow(arrow_storage::Reader::new(meta))),
+            Storage::Arrow => Ok(Reader::Arrow(arrow_storage::Reader::new(meta, drop))),
             #[cfg(feature = "hdf5")]
-            Storage::Hdf5 => Ok(Reader::Hdf5(hdf5_storage::Reader::open(meta)?)),
+            Storage::Hdf5 => Ok(Reader::Hdf5(hdf5_storage::Reader::open(meta, drop)?)),
             #[cfg(not(feature = "hdf5"))]
             Storage::Hdf5 => bail!(
                 "{}: a Minari dataset in HDF5 storage, and this pgser was built without HDF5 support \
-                 (--no-default-features): build it with the default feature `hdf5` (needs libhdf5-dev, which \
-                 `make deps` installs), or save the dataset with Minari's Arrow storage",
+                 (--no-default-features): build it with the default features (`make build`, which compiles \
+                 HDF5 from source), or save the dataset with Minari's Arrow storage",
                 meta.data.display()
             ),
         }
@@ -209,8 +133,11 @@ struct Source {
     goal_changed_last: usize,
     /// The infos keys kept as passthrough columns (`infos/KEY`), the rewards, terminations and
     /// truncations, and the Dict observation's other keys (`observations/KEY`): where it comes
-    /// from, its index there and its record ([`Source::keep_infos`]).
-    infos: Vec<(Kind, usize, Passthrough)>,
+    /// from and its record ([`Source::keep_infos`]).
+    infos: Vec<(Kind, Passthrough)>,
+    /// The columns `--drop` names and whether an episode read so far holds each: one no episode
+    /// taken holds is refused once all are read.
+    drops: Vec<(String, bool)>,
 }
 
 /// One window of episodes as the four WGCSL arrays: o, ag, u, g: `[N, T, obs]`, `[N, T, goal]`,
@@ -224,8 +151,9 @@ struct Window {
 }
 
 impl Source {
-    /// Reads the metadata and episode 0 (for T); checks the count to take.
-    fn open(dir: &Path, take: Option<usize>) -> Result<Source> {
+    /// Reads the metadata and episode 0 (for T); checks the count to take. The columns `drop`
+    /// names are left unread.
+    fn open(dir: &Path, take: Option<usize>, drop: &[String]) -> Result<Source> {
         let meta = read_metadata(dir)?;
         let at = meta.data.display().to_string();
         if meta.total_episodes == 0 {
@@ -241,7 +169,7 @@ impl Source {
         };
         let s = &meta.spaces;
         let sizes = [s.obs[0].size, s.obs[1].size, s.action.size, s.obs[2].size];
-        let mut reader = Reader::open(&meta)?;
+        let mut reader = Reader::open(&meta, drop)?;
         let first = reader.episode(0)?;
         if first.steps == 0 {
             bail!("{at}: episode 0 has no steps; a pgser episode needs at least one action");
@@ -257,29 +185,26 @@ impl Source {
             dropped: 0,
             goal_changed_last: 0,
             infos: Vec::new(),
+            drops: drop.iter().map(|d| (d.clone(), false)).collect(),
         })
     }
 
     /// Which of episode 0's infos keys become passthrough columns, once T is known: all but those
-    /// `drop` names (`infos/KEY`), each a row per observation (per step) or per action (per
-    /// transition); what a column cannot keep is refused by name. Returns the keys dropped.
-    fn keep_infos(&mut self, drop: &[String]) -> Result<Vec<String>> {
+    /// `--drop` names (`infos/KEY`, left unread), each a row per observation (per step) or per
+    /// action (per transition); what a column cannot keep is refused by name. Every other episode
+    /// must hold the same columns ([`Source::read`]).
+    fn keep_infos(&mut self) -> Result<()> {
         let at = self.meta.data.display().to_string();
         let first = self.first.as_ref().expect("before the first window");
-        let (mut kept, mut dropped) = (Vec::new(), Vec::new());
-        let all = first.infos.iter().enumerate().map(|(i, info)| (Kind::Info, i, info, format!("infos/{}", info.key)));
-        let outcomes = first.outcomes.iter().enumerate().map(|(i, o)| (Kind::Outcome, i, o, o.key.clone()));
-        let obs =
-            first.obs_extras.iter().enumerate().map(|(i, o)| (Kind::Obs, i, o, format!("observations/{}", o.key)));
-        for (kind, i, info, column) in obs.chain(all).chain(outcomes) {
+        let mut kept = Vec::new();
+        let all = first.infos.iter().map(|info| (Kind::Info, info, format!("infos/{}", info.key)));
+        let outcomes = first.outcomes.iter().map(|o| (Kind::Outcome, o, o.key.clone()));
+        let obs = first.obs_extras.iter().map(|o| (Kind::Obs, o, format!("observations/{}", o.key)));
+        for (kind, info, column) in obs.chain(all).chain(outcomes) {
             // With its last step dropped (a time limit's extra step), an episode no longer ends
             // where its recorded terminations and truncations say: those, and the rewards with
             // them, are made anew by an export, as for any table.
             if kind == Kind::Outcome && self.dropped > 0 {
-                continue;
-            }
-            if drop.contains(&column) {
-                dropped.push(column);
                 continue;
             }
             let per = if info.rows == first.steps + 1 {
@@ -294,7 +219,7 @@ impl Source {
                     first.steps
                 );
             };
-            let mut p = Passthrough::new(&at, &column, &info.descr, per, info.shape.clone())?;
+            let mut p = Passthrough::new(&at, &column, info.dtype, per, info.shape.clone())?;
             if kind == Kind::Obs {
                 if per != Per::Step {
                     bail!(
@@ -303,20 +228,40 @@ impl Source {
                         first.steps
                     );
                 }
-                let space = self.meta.extra_obs[i].1.clone();
+                let space =
+                    self.meta.extra_obs.iter().find(|o| o.0 == info.key).map(|o| o.1.clone()).unwrap_or_default();
                 // Arrow storage flattens a Box's values: its shape is the space's.
                 if let Some(shape) = space::box_shape(&space).filter(|s| s.iter().product::<usize>() == p.len()) {
                     p.shape = shape;
                 }
                 p.space = Some(space);
             }
-            kept.push((kind, i, p));
+            kept.push((kind, p));
         }
-        if let Some(d) = drop.iter().find(|d| !dropped.contains(d)) {
-            bail!("--drop {d}: {at} has no infos key or observation key {d:?} to leave out");
-        }
+        let present = first.present.clone();
         self.infos = kept;
-        Ok(dropped)
+        self.note_drops(&present);
+        Ok(())
+    }
+
+    /// Marks the `--drop` columns an episode holds.
+    fn note_drops(&mut self, present: &[String]) {
+        for (d, seen) in &mut self.drops {
+            *seen |= present.contains(d);
+        }
+    }
+
+    /// The columns left out by `--drop`, once every episode taken is read; a `--drop` of a column
+    /// no episode holds is refused (a misspelt key would otherwise pass unnoticed).
+    fn dropped(&self) -> Result<Vec<String>> {
+        if let Some((d, _)) = self.drops.iter().find(|(_, seen)| !seen) {
+            bail!(
+                "--drop {d}: {} has no infos key, observation key or recorded outcome {d:?} in the {} episodes taken",
+                self.meta.data.display(),
+                self.episodes
+            );
+        }
+        Ok(self.drops.iter().map(|(d, _)| d.clone()).collect())
     }
 
     /// Reads episodes `range` into `w` (replacing what it held), checking each has T − 1 steps
@@ -345,21 +290,35 @@ impl Source {
                     self.t
                 );
             }
-            for ((kind, k, p), out) in self.infos.iter().zip(&mut w.extras) {
+            // A column episode 0 lacks has no place in the table: refused by name, as one it has
+            // and this episode lacks is below (the outcomes of a dropped last step are left out
+            // whole).
+            let skip = |c: &String| OUTCOMES.contains(&c.as_str()) && self.dropped > 0;
+            if let Some(c) = ep.present.iter().find(|c| {
+                !skip(c) && !self.infos.iter().any(|(_, p)| &p.column == *c) && !self.drops.iter().any(|d| &d.0 == *c)
+            }) {
+                bail!(
+                    "{at}: episode {i} has `{c}`, which episode 0 lacks: a table's episodes all have the same columns; \
+                     pass --drop {c} to convert without it"
+                );
+            }
+            self.note_drops(&ep.present);
+            for ((kind, p), out) in self.infos.iter().zip(&mut w.extras) {
                 let info = match kind {
-                    Kind::Outcome => ep.outcomes.get(*k).filter(|i| i.key == p.column),
-                    Kind::Info => ep.infos.get(*k).filter(|i| format!("infos/{}", i.key) == p.column),
-                    Kind::Obs => ep.obs_extras.get(*k).filter(|i| format!("observations/{}", i.key) == p.column),
+                    Kind::Outcome => ep.outcomes.iter().find(|i| i.key == p.column),
+                    Kind::Info => ep.infos.iter().find(|i| format!("infos/{}", i.key) == p.column),
+                    Kind::Obs => ep.obs_extras.iter().find(|i| format!("observations/{}", i.key) == p.column),
                 };
                 let want_rows = if p.per == Per::Step { ep.steps + 1 } else { ep.steps };
                 let Some(info) = info.filter(|i| {
-                    i.descr == p.dtype
+                    i.dtype == p.dtype
                         && (i.shape == p.shape || (*kind == Kind::Obs && i.shape.iter().product::<usize>() == p.len()))
                         && i.rows == want_rows
                 }) else {
+                    let what = if info.is_none() { "is missing" } else { "is not episode 0's" };
                     bail!(
-                        "{at}: episode {i}'s `{}` is not episode 0's ({} of shape {:?}, {want_rows} rows): a table's episodes \
-                         all have the same columns; pass --drop {} to convert without it",
+                        "{at}: episode {i}'s `{}` {what} ({} of shape {:?}, {want_rows} rows): a table's episodes all have \
+                         the same columns; pass --drop {} to convert without it",
                         p.column,
                         p.dtype,
                         p.shape,
@@ -394,7 +353,7 @@ impl Source {
             .infos
             .iter()
             .zip(&w.extras)
-            .map(|((_, _, p), data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
+            .map(|((_, p), data)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&data[..]) })
             .collect();
         EpisodeArrays {
             origin: self.meta.data.display().to_string(),
@@ -450,9 +409,9 @@ impl Source {
 /// there leaves no output either).
 pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
     let take = take_option(opts)?;
-    let mut source = Source::open(dir, take)?;
+    let mut source = Source::open(dir, take, &opts.drop)?;
     let task = source.task(opts.task.as_deref(), opts.threshold, opts.exact_length)?;
-    source.keep_infos(&opts.drop)?;
+    source.keep_infos()?;
     Ok(ConvertPlan {
         task,
         float_type: source.float_type(opts.float32),
@@ -474,23 +433,20 @@ fn take_option(opts: &ConvertOptions) -> Result<Option<usize>> {
 pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
     let take = take_option(opts)?;
-    let mut source = Source::open(dir, take)?;
+    let mut source = Source::open(dir, take, &opts.drop)?;
     let task = source.task(opts.task.as_deref(), opts.threshold, opts.exact_length)?;
     let float_type = source.float_type(opts.float32);
     // Hashed before the table's temporary file exists, which may be in the dataset's folder.
     let sha256 = sha256_folder(&source.meta.data)?;
-    let dropped_infos = source.keep_infos(&opts.drop)?;
-    let specs: Vec<Passthrough> = source.infos.iter().map(|(_, _, p)| p.clone()).collect();
+    source.keep_infos()?;
+    let specs: Vec<Passthrough> = source.infos.iter().map(|(_, p)| p.clone()).collect();
     let kept = specs.iter().map(crate::trajectory::describe).collect();
-    let mut writer = TrajectoryWriter::create_with(
-        &opts.output,
-        &task,
-        float_type,
-        opts.row_group_rows,
-        opts.allow_nonfinite,
-        specs,
-        false,
-    )?;
+    let options = WriterOptions {
+        allow_nonfinite: opts.allow_nonfinite,
+        extras: specs,
+        ..WriterOptions::new(opts.row_group_rows)
+    };
+    let mut writer = TrajectoryWriter::create(&opts.output, &task, float_type, options)?;
     let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
     bar.set_length(source.episodes as u64);
     let mut w = Window::default();
@@ -500,6 +456,7 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         writer.append(&source.view(&w), 0, w.episodes)?;
         crate::progress::advance(bar, w.episodes as u64)?;
     }
+    let dropped_infos = source.dropped()?;
     let mut footer = Footer::new(&task, float_type, source.episodes, opts.command.clone());
     footer.sources = vec![SourceFile {
         path: dir.display().to_string(),
@@ -547,34 +504,4 @@ pub fn convert(opts: &ConvertOptions, dir: &Path, bar: &ProgressBar) -> Result<C
         kept,
         notes,
     })
-}
-
-/// The sha256 recorded for a dataset folder: over its files in sorted path order, each as its
-/// path relative to the folder, a NUL byte, its length (u64 little-endian) and its bytes. A
-/// folder has no bytes of its own; this changes when any file is added, removed or edited.
-pub fn sha256_folder(dir: &Path) -> Result<String> {
-    use sha2::{Digest, Sha256};
-    let mut files = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for entry in std::fs::read_dir(&d).with_context(|| format!("{}: cannot list", d.display()))? {
-            let path = entry.with_context(|| format!("{}: cannot list", d.display()))?.path();
-            if path.is_dir() { stack.push(path) } else { files.push(path) }
-        }
-    }
-    files.sort();
-    let mut h = Sha256::new();
-    for f in &files {
-        let cannot = || format!("{}: cannot read", f.display());
-        let file = std::fs::File::open(f).with_context(cannot)?;
-        let len = file.metadata().with_context(cannot)?.len();
-        h.update(f.strip_prefix(dir).unwrap_or(f).to_string_lossy().as_bytes());
-        h.update([0]);
-        h.update(len.to_le_bytes());
-        let read = crate::output::feed_file(&mut h, file, f)?;
-        if read != len {
-            bail!("{}: changed while it was read ({len} bytes, then {read})", f.display());
-        }
-    }
-    Ok(crate::output::hex(&h.finalize()))
 }

@@ -7,9 +7,11 @@
 //! columns and written back in their dtype. An episode's last action is the one the source had
 //! where the table kept it (a table converted from an OGBench file), else zeros, which OGBench's
 //! loader drops. A table converted from a file of OGBench's regular layout (`load_dataset()`'s
-//! arrays saved: a row per transition, `next_observations`) is written back in that layout.
-//! Observations and actions are float32, OGBench's type, unless the table came from an OGBench
-//! file of float64. The table is read once per array, a batch at a time, so memory does not grow
+//! arrays saved: a row per transition, `next_observations`) is written back in that layout, its
+//! `next_observations` the observations shifted by a row unless the table kept the source's own
+//! (a passthrough column of that name). Observations and actions are float32, OGBench's type,
+//! unless the table came from an OGBench file: then each is written in the source's own float
+//! type (the footer's `float_bytes`, else the table's). The table is read once per array, a batch at a time, so memory does not grow
 //! with it, and the file appears whole or not at all.
 
 use std::path::Path;
@@ -20,7 +22,8 @@ use arrow_array::cast::AsArray;
 use arrow_array::types::{Float32Type, Float64Type};
 use arrow_schema::DataType;
 
-use super::npz::{Dtype, NpzWriter};
+use super::npz::NpzWriter;
+use crate::dtype::Dtype;
 use crate::output::AtomicFile;
 use crate::trajectory::extra::{append_source_bytes, kept_for};
 use crate::trajectory::read::{check_all_read, check_keys, open_checked};
@@ -45,10 +48,15 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     let (extras, last_action) = kept_for(&footer, table, layout, drop, |p| p.per == per, !regular)?;
     let (n, t) = (footer.episodes, footer.t);
     let rows = if regular { n * (t - 1) } else { n * t };
-    let (dtype, size) = match (source, footer.float_type) {
-        (Some(_), FloatType::Float64) => (Dtype::F64, 8),
-        _ => (Dtype::F32, 4),
+    // Each array in its source's float type: observations (and with them the goals) and actions
+    // may differ (float32 observations beside float64 actions); the table holds the wider.
+    let table_size = if footer.float_type == FloatType::Float64 { 8 } else { 4 };
+    let [obs_size, act_size] = match (source, footer.sources.first()) {
+        (Some(_), Some(s)) if s.float_bytes.len() == 4 => [s.float_bytes[0], s.float_bytes[3]],
+        (Some(_), _) => [table_size; 2],
+        _ => [4; 2],
     };
+    let float = |size: usize| if size == 8 { Dtype::F64 } else { Dtype::F32 };
     let file = AtomicFile::create(out)?;
     let mut w = NpzWriter::new(std::io::BufWriter::new(file.handle()?), true);
     let fail = |key: &str| format!("{}: {key}", out.display());
@@ -56,13 +64,13 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     let all = |_: usize| true;
     let but_last = |s: usize| s < t - 1;
     let but_first = |s: usize| s > 0;
-    w.start("observations", dtype, &[rows, footer.obs_dim])?;
+    w.start("observations", float(obs_size), &[rows, footer.obs_dim])?;
     let obs_steps: &dyn Fn(usize) -> bool = if regular { &but_last } else { &all };
-    stream_floats(table, "obs", size, obs_steps, |_, v| w.write(v)).with_context(|| fail("observations"))?;
-    w.start("actions", dtype, &[rows, footer.act_dim])?;
-    let zeros = vec![0u8; footer.act_dim * size];
+    stream_floats(table, "obs", obs_size, obs_steps, |_, v| w.write(v)).with_context(|| fail("observations"))?;
+    w.start("actions", float(act_size), &[rows, footer.act_dim])?;
+    let zeros = vec![0u8; footer.act_dim * act_size];
     let act_steps: &dyn Fn(usize) -> bool = if last_action { &all } else { &but_last };
-    stream_floats(table, "action", size, act_steps, |step, v| {
+    stream_floats(table, "action", act_size, act_steps, |step, v| {
         w.write(v)?;
         // Without the source's last actions, OGBench's last row of an episode gets zeros.
         if !regular && !last_action && step == t - 2 {
@@ -72,19 +80,21 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     })
     .with_context(|| fail("actions"))?;
     if !regular && !extras.iter().any(|p| p.column == "terminals") {
-        w.start("terminals", Dtype::Bool, &[rows])?;
+        w.start("terminals", Dtype::BOOL, &[rows])?;
         let terminals: Vec<u8> = (0..rows).map(|r| u8::from(r % t == t - 1)).collect();
         w.write(&terminals)?;
     }
     for p in &extras {
         let mut shape = vec![rows];
         shape.extend(&p.shape);
-        w.start_descr(&p.column, &p.dtype, p.elem().size, &shape)?;
+        w.start(&p.column, p.dtype, &shape)?;
         stream_passthrough(table, p, |bytes| w.write(bytes)).with_context(|| fail(&p.column))?;
     }
-    if regular {
-        w.start("next_observations", dtype, &[rows, footer.obs_dim])?;
-        stream_floats(table, "obs", size, &but_first, |_, v| w.write(v)).with_context(|| fail("next_observations"))?;
+    // The source's own next observations, where the table kept them, were written above.
+    if regular && !extras.iter().any(|p| p.column == "next_observations") {
+        w.start("next_observations", float(obs_size), &[rows, footer.obs_dim])?;
+        stream_floats(table, "obs", obs_size, &but_first, |_, v| w.write(v))
+            .with_context(|| fail("next_observations"))?;
     }
     use std::io::Write;
     w.finish()?.flush().with_context(|| format!("{}: write failed", out.display()))?;

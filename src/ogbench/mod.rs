@@ -3,15 +3,23 @@
 //! An OGBench dataset is one `.npz` file (`np.savez_compressed`) named after the dataset,
 //! `pointmaze-medium-navigate-v0.npz`, with a `-val.npz` beside it: `observations` and `actions`
 //! (float32, one row per step), `terminals` (bool, true on each episode's last row), and `qpos`,
-//! `qvel` (and `button_states` for the manipulation scenes), which pgser leaves out. Episodes are
-//! contiguous and of one length M; there are no rewards and no goals. Each episode's last row has
-//! an action but no next state: OGBench's own loader drops it, and so does pgser. So an episode of
-//! M rows is a pgser episode of T = M observations and T − 1 actions, exactly a WGCSL episode.
+//! `qvel` (and `button_states` for the manipulation scenes). Episodes are contiguous and of one
+//! length M; there are no rewards and no goals. An episode of M rows is a pgser episode of T = M
+//! observations and T − 1 transitions, exactly a WGCSL episode. Each episode's last row has an
+//! action but no next state: OGBench's own loader drops it; pgser keeps it on the episode's last
+//! step (`last_action`), where no sampler reads it, so that `export` gives it back. Every other
+//! member (terminals, qpos, qvel, …) is kept beside the table as a passthrough column in its own
+//! dtype ([`crate::trajectory::extra`]), and `export` writes it back; `--drop KEY` leaves one out.
+//! Observations and actions keep their own float types too: a table holds the wider, and the
+//! footer's source entry records each one's (`float_bytes`) for `export`.
 //!
 //! Files saved from what `ogbench.load_dataset` returns are read too: compact
 //! (`compact_dataset=True`: every row kept, `valids` 0 on each episode's last row) and regular
 //! (each episode's last row dropped, its observation kept as the last row's
-//! `next_observations`). All three layouts of one dataset give one table.
+//! `next_observations`). All three layouts of one dataset give one table. A regular file whose
+//! `next_observations` are not, bit for bit, the observation after each row in its episode (a
+//! user's own array) keeps them whole as a passthrough column, which `export` writes back instead
+//! of the table's observations.
 //!
 //! The goal is the agent's position, as OGBench's success test uses it: `achieved_goal` is the
 //! observation's first two values (x, y) in the locomotion mazes (pointmaze, antmaze,
@@ -24,6 +32,7 @@
 mod export;
 pub mod goal;
 pub mod npz;
+mod window;
 
 use std::io::Read;
 use std::path::Path;
@@ -33,12 +42,14 @@ use indicatif::ProgressBar;
 
 pub use export::export_npz;
 pub use goal::{GoalMap, goal_map};
-use npz::{Dtype, Member};
+use npz::Member;
+use window::Window;
 
+use crate::dtype::Dtype;
 use crate::task::Task;
 use crate::trajectory::{
-    ConvertOptions, ConvertPlan, ConvertSummary, EpisodeArrays, ExtraArray, FloatArray, FloatType, Footer, Passthrough,
-    Per, SourceFile, TrajectoryWriter,
+    ConvertOptions, ConvertPlan, ConvertSummary, FloatType, Footer, Passthrough, Per, SourceFile, TrajectoryWriter,
+    WriterOptions,
 };
 
 /// OGBench's names of the arrays pgser reads as o, ag, u and g, as error messages give them: the
@@ -81,6 +92,9 @@ pub struct Dataset {
     pub episodes: usize,
     /// The other members (terminals, qpos, qvel, …), kept as passthrough columns, in file order.
     pub extras: Vec<(Member, Passthrough)>,
+    /// The regular layout's `next_observations`, and where among `extras` it goes (file order)
+    /// when [`Dataset::keep_next_observations`] finds it is more than the observations shifted.
+    pub next_observations: Option<(Member, usize)>,
     /// The members `--drop` leaves out.
     pub dropped: Vec<String>,
     /// Which observation values are the goal, and when it is reached ([`goal`]).
@@ -106,7 +120,14 @@ impl Dataset {
     pub fn open(path: &Path, task: Option<&str>, full_goal: bool, drop: &[String]) -> Result<Dataset> {
         let at = path.display();
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-        let name = stem.strip_suffix("-val").unwrap_or(stem).to_string();
+        // A validation file and a shard of a dataset in Horizon Reduction's layout (`NAME-val`,
+        // `NAME-17`) name their dataset without their suffix.
+        let name = match stem.rsplit_once('-') {
+            Some((name, "val")) => name,
+            Some((name, i)) if !i.is_empty() && i.bytes().all(|b| b.is_ascii_digit()) => name,
+            _ => stem,
+        }
+        .to_string();
         let env = match (task, env_name(&name)) {
             (Some(t), _) => t.to_string(),
             (None, Some(env)) => env,
@@ -123,7 +144,12 @@ impl Dataset {
         let actions = need("actions")?;
         for m in [&observations, &actions] {
             if m.shape.len() != 2 || !matches!(m.dtype, Dtype::F32 | Dtype::F64) {
-                bail!("{at}: {}: a {:?} array of shape {:?}; pgser reads float rows [N, dim]", m.key, m.dtype, m.shape);
+                bail!(
+                    "{at}: {}: {} values of shape {:?}; pgser reads float rows [N, dim]",
+                    m.key,
+                    m.dtype.name(),
+                    m.shape
+                );
             }
         }
         let goal = if full_goal {
@@ -143,9 +169,16 @@ impl Dataset {
             }
         }
         if let Some(next) = get("next_observations")
-            && next.shape != observations.shape
+            && (next.shape != observations.shape || next.dtype != observations.dtype)
         {
-            bail!("{at}: next_observations {:?} and observations {:?} differ in shape", next.shape, observations.shape);
+            bail!(
+                "{at}: next_observations ({:?} {:?}) and observations ({:?} {:?}) differ in shape or dtype: pgser reads \
+                 the one as the other shifted by a row",
+                next.dtype,
+                next.shape,
+                observations.dtype,
+                observations.shape
+            );
         }
         let ends = episode_ends(path, layout, n)?;
         let rows_per_episode = ends[0] + 1;
@@ -163,8 +196,12 @@ impl Dataset {
         // observation, or per transition in the regular layout (whose rows are transitions).
         let per = if layout == Layout::Regular { Per::Transition } else { Per::Step };
         let (mut extras, mut dropped) = (Vec::new(), Vec::new());
-        for m in members.iter().filter(|m| !["observations", "actions", "next_observations"].contains(&m.key.as_str()))
-        {
+        let mut next_observations = None;
+        for m in members.iter().filter(|m| !["observations", "actions"].contains(&m.key.as_str())) {
+            if m.key == "next_observations" {
+                next_observations = Some((m.clone(), extras.len()));
+                continue;
+            }
             if drop.contains(&m.key) {
                 dropped.push(m.key.clone());
                 continue;
@@ -178,7 +215,7 @@ impl Dataset {
                     m.key
                 );
             }
-            let spec = Passthrough::new(&at.to_string(), &m.key, &m.stored_descr(), per, m.shape[1..].to_vec())?;
+            let spec = Passthrough::new(&at.to_string(), &m.key, m.stored_dtype(), per, m.shape[1..].to_vec())?;
             extras.push((m.clone(), spec));
         }
         if let Some(k) = drop.iter().find(|k| !dropped.contains(k)) {
@@ -200,9 +237,59 @@ impl Dataset {
             rows_per_episode,
             episodes: ends.len(),
             extras,
+            next_observations,
             dropped,
             goal,
         })
+    }
+
+    /// For the regular layout: whether any row's `next_observations` is not, bit for bit, the
+    /// observation after it in its episode (or is stored in another byte order); if so, keeps the
+    /// whole array as a passthrough column (per transition, in file order), so that `export`
+    /// gives it back rather than the observations shifted, and returns why (the first such row,
+    /// by episode and row within it). The table's last observation of an episode is its last
+    /// row's next observation either way. Reads both arrays once, a window of episodes at a time.
+    pub fn keep_next_observations(&mut self) -> Result<Option<String>> {
+        let Some((next, at_extra)) = self.next_observations.clone() else { return Ok(None) };
+        let at = self.path.display().to_string();
+        let rows = self.rows_per_episode;
+        let row = self.observations.row_len() * self.observations.dtype.size;
+        let per_window = ((64 << 20) / (rows * row).max(1)).max(1);
+        let mut first = None;
+        let keys = ["observations".to_string(), "next_observations".to_string()];
+        npz::with_members(&self.path, &keys, &mut Vec::new(), &mut |readers| {
+            let [obs, nxt] = readers else { unreachable!("two readers") };
+            let (mut o, mut n) = (Vec::new(), Vec::new());
+            for start in (0..self.episodes).step_by(per_window) {
+                let k = per_window.min(self.episodes - start);
+                o.resize(k * rows * row, 0);
+                n.resize(k * rows * row, 0);
+                obs.read_exact(&mut o).with_context(|| format!("{at}: observations are cut short"))?;
+                nxt.read_exact(&mut n).with_context(|| format!("{at}: next_observations are cut short"))?;
+                for e in 0..k {
+                    let base = e * rows * row;
+                    let shifted = (0..rows - 1).find(|i| {
+                        let r = base + i * row;
+                        n[r..r + row] != o[r + row..r + 2 * row]
+                    });
+                    if let Some(i) = shifted {
+                        first = Some((start + e, i));
+                        return Ok(());
+                    }
+                }
+            }
+            Ok(())
+        })?;
+        let why = match first {
+            Some((e, i)) => format!("episode {e}'s row {i} is not the observation after it"),
+            None if next.stored_big_endian != self.observations.stored_big_endian => {
+                "they are stored in another byte order than observations".to_string()
+            }
+            None => return Ok(None),
+        };
+        let spec = Passthrough::new(&at, &next.key, next.stored_dtype(), Per::Transition, next.shape[1..].to_vec())?;
+        self.extras.insert(at_extra, (next, spec));
+        Ok(Some(why))
     }
 
     /// Observations per episode in the table (T).
@@ -249,7 +336,7 @@ fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
         if m.rows() != n || m.row_len() != 1 {
             bail!("{at}: {key} has shape {:?}; one value per observation ({n}) expected", m.shape);
         }
-        let size = m.dtype.size();
+        let size = m.dtype.size;
         let mut ends = Vec::new();
         let mut buf = vec![0u8; 65_536 * size];
         let mut row = 0;
@@ -258,7 +345,7 @@ fn episode_ends(path: &Path, layout: Layout, n: usize) -> Result<Vec<usize>> {
             r.read_exact(&mut buf[..k * size]).with_context(|| format!("{at}: {key} is cut short at row {row}"))?;
             for (i, v) in buf[..k * size].chunks_exact(size).enumerate() {
                 let flag = match m.dtype {
-                    Dtype::Bool => v[0] != 0,
+                    Dtype::BOOL => v[0] != 0,
                     Dtype::F32 => f32::from_le_bytes(v.try_into().expect("4 bytes")) != 0.0,
                     Dtype::F64 => f64::from_le_bytes(v.try_into().expect("8 bytes")) != 0.0,
                     _ => v.iter().any(|&b| b != 0),
@@ -319,9 +406,10 @@ fn float_type(d: &Dataset, float32: bool) -> FloatType {
 /// window, not the dataset.
 pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
-    let d = Dataset::open(path, opts.task.as_deref(), opts.full_goal, &opts.drop)?;
+    let mut d = Dataset::open(path, opts.task.as_deref(), opts.full_goal, &opts.drop)?;
     let episodes = take(opts, &d)?;
     let task = d.task(opts.threshold)?;
+    let next_kept = d.keep_next_observations()?;
     let float = float_type(&d, opts.float32);
     let sha256 = crate::output::sha256_file(path)?;
     let specs: Vec<Passthrough> = d.extras.iter().map(|(_, p)| p.clone()).collect();
@@ -329,15 +417,13 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
     // The distributed files' rows are observations, each with an action: an episode's last one
     // is kept on its last step (the regular layout's rows are transitions, and have none).
     let last_action = d.layout != Layout::Regular;
-    let mut writer = TrajectoryWriter::create_with(
-        &opts.output,
-        &task,
-        float,
-        opts.row_group_rows,
-        opts.allow_nonfinite,
-        specs,
+    let options = WriterOptions {
+        allow_nonfinite: opts.allow_nonfinite,
+        extras: specs,
         last_action,
-    )?;
+        ..WriterOptions::new(opts.row_group_rows)
+    };
+    let mut writer = TrajectoryWriter::create(&opts.output, &task, float, options)?;
     let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
     bar.set_length(episodes as u64);
     let at = path.display().to_string();
@@ -348,6 +434,8 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         keys.push("next_observations".into());
     }
     let core = keys.len();
+    // next_observations, kept as a passthrough column too, streams twice: once for each
+    // episode's last observation, once as itself.
     keys.extend(d.extras.iter().map(|(m, _)| m.key.clone()));
     let mut run = |readers: &mut [&mut dyn Read]| -> Result<()> {
         let (core_readers, extra_readers) = readers.split_at_mut(core);
@@ -372,7 +460,12 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         episodes_in_file: d.episodes,
         episodes_taken: episodes,
         steps_dropped: 0,
-        float_bytes: Vec::new(),
+        float_bytes: {
+            // o, ag, g, u as the footer orders them: the goals are parts of the observations.
+            let (o, u) = (d.observations.dtype.size, d.actions.dtype.size);
+            let table = if float == FloatType::Float32 { 4 } else { 8 };
+            if o == table && u == table { Vec::new() } else { vec![o, o, o, u] }
+        },
     }];
     let bytes = writer.finish(&footer)?;
     let mut notes = vec![format!(
@@ -384,6 +477,12 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         task.threshold,
         if d.goal.metric == crate::task::GoalMetric::EachObject { " for every cube" } else { "" }
     )];
+    if let Some(why) = next_kept {
+        notes.push(format!(
+            "{at}: next_observations are more than the observations shifted by a row ({why}): kept whole as a \
+             passthrough column, which export writes back"
+        ));
+    }
     if last_action {
         notes.push(format!(
             "{at}: each episode's last action has no next state: kept on its last step for export, never trained on, \
@@ -400,107 +499,6 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         kept,
         notes,
     })
-}
-
-/// One window of episodes as the four WGCSL arrays, in the file's float types (u with each
-/// episode's last action where the file has one), and the passthrough members' rows.
-struct Window {
-    t: usize,
-    goal: GoalMap,
-    layout: Layout,
-    obs: (usize, usize),
-    act: (usize, usize),
-    arrays: [Vec<u8>; 4],
-    raw_obs: Vec<u8>,
-    raw_act: Vec<u8>,
-    raw_next: Vec<u8>,
-    /// Each passthrough member's spec and bytes per file row, and the window's rows of it.
-    extras: Vec<(Passthrough, usize, Vec<u8>)>,
-}
-
-impl Window {
-    fn new(d: &Dataset) -> Window {
-        Window {
-            t: d.t(),
-            goal: d.goal.clone(),
-            layout: d.layout,
-            obs: (d.observations.row_len(), d.observations.dtype.size()),
-            act: (d.actions.row_len(), d.actions.dtype.size()),
-            arrays: Default::default(),
-            raw_obs: Vec::new(),
-            raw_act: Vec::new(),
-            raw_next: Vec::new(),
-            extras: d.extras.iter().map(|(m, p)| (p.clone(), m.row_len() * m.dtype.size(), Vec::new())).collect(),
-        }
-    }
-
-    /// Reads the next `k` episodes from the streams.
-    fn read(
-        &mut self,
-        obs: &mut dyn Read,
-        act: &mut dyn Read,
-        next: &mut Option<&mut dyn Read>,
-        extras: &mut [&mut dyn Read],
-        k: usize,
-    ) -> Result<()> {
-        let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
-        let file_rows = if self.layout == Layout::Regular { t - 1 } else { t };
-        self.raw_obs.resize(k * file_rows * od * os, 0);
-        self.raw_act.resize(k * file_rows * ad * asz, 0);
-        obs.read_exact(&mut self.raw_obs).context("observations are cut short")?;
-        act.read_exact(&mut self.raw_act).context("actions are cut short")?;
-        if let Some(n) = next.as_mut() {
-            self.raw_next.resize(self.raw_obs.len(), 0);
-            n.read_exact(&mut self.raw_next).context("next_observations are cut short")?;
-        }
-        for ((p, row_bytes, buf), r) in self.extras.iter_mut().zip(extras.iter_mut()) {
-            buf.resize(k * file_rows * *row_bytes, 0);
-            r.read_exact(buf).with_context(|| format!("{} is cut short", p.column))?;
-        }
-        let (orow, arow, grow) = (od * os, ad * asz, self.goal.goal_dim() * os);
-        self.arrays.iter_mut().for_each(Vec::clear);
-        for e in 0..k {
-            let o = &self.raw_obs[e * file_rows * orow..(e + 1) * file_rows * orow];
-            let a = &self.raw_act[e * file_rows * arow..(e + 1) * file_rows * arow];
-            let start = self.arrays[0].len();
-            self.arrays[0].extend_from_slice(o);
-            if self.layout == Layout::Regular {
-                // The episode's last observation is its last row's next observation.
-                let n = &self.raw_next[e * file_rows * orow..(e + 1) * file_rows * orow];
-                self.arrays[0].extend_from_slice(&n[(file_rows - 1) * orow..]);
-            }
-            let mut ag = Vec::with_capacity(t * grow);
-            self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag);
-            let last = ag[(t - 1) * grow..].to_vec();
-            self.arrays[1].extend_from_slice(&ag);
-            // Every row's action: T of them where rows are observations (the last one kept on the
-            // last step), T − 1 where rows are transitions.
-            self.arrays[2].extend_from_slice(a);
-            for _ in 0..t - 1 {
-                self.arrays[3].extend_from_slice(&last);
-            }
-        }
-        Ok(())
-    }
-
-    fn view<'a>(&'a self, at: &str, k: usize) -> EpisodeArrays<'a> {
-        let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
-        let g = self.goal.goal_dim();
-        let act_steps = if self.layout == Layout::Regular { t - 1 } else { t };
-        let spec = [(t, od, os), (t, g, os), (act_steps, ad, asz), (t - 1, g, os)];
-        let arrays = std::array::from_fn(|i| FloatArray {
-            data: &self.arrays[i],
-            size: spec[i].2,
-            steps: spec[i].0,
-            dim: spec[i].1,
-        });
-        let extras = self
-            .extras
-            .iter()
-            .map(|(p, _, buf)| ExtraArray { spec: p.clone(), data: std::borrow::Cow::Borrowed(&buf[..]) })
-            .collect();
-        EpisodeArrays { origin: at.to_string(), keys: ARRAY_KEYS, arrays, episodes: k, extras }
-    }
 }
 
 #[cfg(test)]

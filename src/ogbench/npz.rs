@@ -7,8 +7,9 @@
 //! `.byteswap()`ed or `np.asfortranarray` array is not, and the pickle reader takes both too). The
 //! header is parsed as data, never evaluated. Members are streamed: a reader gets the bytes after
 //! the header as they decompress, little-endian and in C order, so a dataset of gigabytes is read
-//! a window at a time, and two members (observations and actions) are read side by side through
-//! two opens of the archive. A big-endian member is byte-swapped as it streams; a Fortran-order
+//! a window at a time, and several members (observations, actions and every member kept beside
+//! them) are read side by side, each through an open of the archive of its own
+//! ([`with_members`]). A big-endian member is byte-swapped as it streams; a Fortran-order
 //! one is read whole and transposed, as `np.load` does: its rows' values lie a column apart, so no
 //! window of the stream holds a row.
 
@@ -18,73 +19,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-/// The element types pgser reads and writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Dtype {
-    Bool,
-    F32,
-    F64,
-    I8,
-    I16,
-    I32,
-    I64,
-    U8,
-    U16,
-    U32,
-    U64,
-}
-
-impl Dtype {
-    pub fn size(self) -> usize {
-        match self {
-            Dtype::Bool | Dtype::I8 | Dtype::U8 => 1,
-            Dtype::I16 | Dtype::U16 => 2,
-            Dtype::F32 | Dtype::I32 | Dtype::U32 => 4,
-            Dtype::F64 | Dtype::I64 | Dtype::U64 => 8,
-        }
-    }
-
-    /// numpy's kind letter.
-    fn kind(self) -> char {
-        match self {
-            Dtype::Bool => 'b',
-            Dtype::F32 | Dtype::F64 => 'f',
-            Dtype::I8 | Dtype::I16 | Dtype::I32 | Dtype::I64 => 'i',
-            _ => 'u',
-        }
-    }
-
-    /// numpy's `descr`, little-endian: `<f4`, `|b1`.
-    fn descr(self) -> String {
-        let order = if self.size() == 1 { '|' } else { '<' };
-        format!("{order}{}{}", self.kind(), self.size())
-    }
-
-    /// The dtype of a `descr` and whether its numbers are big-endian (`>f4`; `=` and `|` are
-    /// this machine's order, little-endian).
-    fn parse(descr: &str) -> Option<(Dtype, bool)> {
-        let (order, code) = match descr.as_bytes().first()? {
-            b'<' | b'=' | b'|' => (false, &descr[1..]),
-            b'>' => (true, &descr[1..]),
-            _ => (false, descr),
-        };
-        let dtype = match code {
-            "b1" | "?" => Dtype::Bool,
-            "f4" => Dtype::F32,
-            "f8" => Dtype::F64,
-            "i1" => Dtype::I8,
-            "i2" => Dtype::I16,
-            "i4" => Dtype::I32,
-            "i8" => Dtype::I64,
-            "u1" => Dtype::U8,
-            "u2" => Dtype::U16,
-            "u4" => Dtype::U32,
-            "u8" => Dtype::U64,
-            _ => return None,
-        };
-        Some((dtype, order && dtype.size() > 1))
-    }
-}
+use crate::dtype::Dtype;
 
 /// How a member's bytes lie in the file, where not as readers get them (little-endian, C order).
 #[derive(Debug, Clone, Copy, Default)]
@@ -107,8 +42,12 @@ pub struct Member {
 impl Member {
     /// numpy's `descr` as the file stores it (`<f4`, `>f8`, `|b1`): what an export writes back.
     pub fn stored_descr(&self) -> String {
-        let d = self.dtype.descr();
-        if self.stored_big_endian { d.replacen('<', ">", 1) } else { d }
+        self.stored_dtype().descr()
+    }
+
+    /// The dtype as the file stores it, byte order included.
+    pub fn stored_dtype(&self) -> Dtype {
+        self.dtype.with_big_endian(self.stored_big_endian)
     }
 
     /// Rows (the first dimension; 1 for a 0-d array) and values per row.
@@ -121,7 +60,7 @@ impl Member {
     }
 
     pub fn bytes(&self) -> u64 {
-        self.shape.iter().map(|&d| d as u64).product::<u64>() * self.dtype.size() as u64
+        self.shape.iter().map(|&d| d as u64).product::<u64>() * self.dtype.size as u64
     }
 }
 
@@ -146,10 +85,10 @@ pub fn members(path: &Path) -> Result<Vec<Member>> {
         // The member's size is its header and its data; a shorter one was cut short.
         if have < want {
             bail!(
-                "{}: {key}: {have} bytes, less than the {want} bytes of its {:?} {:?} array",
+                "{}: {key}: {have} bytes, less than the {want} bytes of its {:?} {} array",
                 path.display(),
                 m.shape,
-                m.dtype
+                m.dtype.name()
             );
         }
         out.push(m);
@@ -165,7 +104,7 @@ pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Mem
         .by_name(&format!("{key}.npy"))
         .with_context(|| format!("{}: no array {key:?} in the archive", path.display()))?;
     let (m, storage) = header(&mut file, key).with_context(|| format!("{}: {key}", path.display()))?;
-    let size = m.dtype.size();
+    let size = m.dtype.size;
     // A Fortran array with one dimension above 1 has C order's bytes already.
     if storage.fortran && m.shape.iter().filter(|&&d| d > 1).count() > 1 {
         let mut raw = Vec::new();
@@ -281,8 +220,10 @@ fn header(r: &mut dyn Read, key: &str) -> Result<(Member, Storage)> {
     };
     let descr = field("descr")?;
     let descr = descr.strip_prefix('\'').and_then(|d| d.split('\'').next()).context("'descr' is not a string")?;
-    let (dtype, big_endian) = Dtype::parse(descr)
+    let stored = Dtype::parse(descr)
+        .filter(|d| d.arrow().is_some())
         .with_context(|| format!("dtype {descr:?}: pgser reads bool, int, uint and float32/64 arrays"))?;
+    let (dtype, big_endian) = (stored.little_endian(), stored.big_endian);
     let fortran = field("fortran_order")?.starts_with("True");
     let shape = field("shape")?;
     let inner = shape.strip_prefix('(').and_then(|s| s.split(')').next()).context("'shape' is not a tuple")?;
@@ -309,14 +250,10 @@ impl<W: Write + std::io::Seek> NpzWriter<W> {
         NpzWriter { zip: zip::ZipWriter::new(w), compressed, open: None }
     }
 
-    /// Starts array `key` of `dtype` and `shape`; its bytes follow through [`NpzWriter::write`].
+    /// Starts array `key` of `dtype` and `shape`; its bytes follow through [`NpzWriter::write`],
+    /// in `dtype`'s byte order (`>f8` for an array given back as its source stored it).
     pub fn start(&mut self, key: &str, dtype: Dtype, shape: &[usize]) -> Result<()> {
-        self.start_descr(key, &dtype.descr(), dtype.size(), shape)
-    }
-
-    /// [`start`](Self::start) with numpy's `descr` as given (`>f8`: the bytes that follow are
-    /// big-endian), for an array given back as its source stored it.
-    pub fn start_descr(&mut self, key: &str, descr: &str, size: usize, shape: &[usize]) -> Result<()> {
+        let (descr, size) = (dtype.descr(), dtype.size);
         self.check_closed()?;
         let method = if self.compressed { zip::CompressionMethod::Deflated } else { zip::CompressionMethod::Stored };
         let bytes = shape.iter().map(|&d| d as u64).product::<u64>() * size as u64;
@@ -380,14 +317,14 @@ mod tests {
             w.start("observations", Dtype::F32, &[4, 3]).unwrap();
             w.write(&x[..20]).unwrap();
             w.write(&x[20..]).unwrap();
-            w.start("terminals", Dtype::Bool, &[4]).unwrap();
+            w.start("terminals", Dtype::BOOL, &[4]).unwrap();
             w.write(&[0, 1, 0, 1]).unwrap();
             w.finish().unwrap();
             let m = members(&path).unwrap();
             let want =
                 Member { key: "observations".into(), dtype: Dtype::F32, shape: vec![4, 3], stored_big_endian: false };
             assert_eq!(m[0], want);
-            assert_eq!((m[1].key.as_str(), m[1].dtype, m[1].rows(), m[1].row_len()), ("terminals", Dtype::Bool, 4, 1));
+            assert_eq!((m[1].key.as_str(), m[1].dtype, m[1].rows(), m[1].row_len()), ("terminals", Dtype::BOOL, 4, 1));
             let got = with_member(&path, "observations", |r, _| {
                 let mut b = Vec::new();
                 r.read_to_end(&mut b)?;
@@ -450,7 +387,9 @@ mod tests {
             ("f_be_i8", raw_npy(">i8", true, "(3, 4)", &ints_f)),
             ("f_row", raw_npy("<f4", true, "(1, 12)", &le)),
             ("be_big", raw_npy(">f8", false, "(20000,)", &big_be)),
-            ("flags", raw_npy("|b1", true, "(2, 2)", &[1, 0, 0, 1])),
+            // [[T, F, F], [T, T, F]] stored column-major: neither square nor symmetric, so an
+            // array read without its transpose differs.
+            ("flags", raw_npy("|b1", true, "(2, 3)", &[1, 1, 0, 1, 0, 0])),
         ];
         let mut z = zip::ZipWriter::new(File::create(&path).unwrap());
         for (k, bytes) in &arrays {
@@ -472,9 +411,9 @@ mod tests {
         assert_eq!(got, ints.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<_>>());
         let (got, _) = read_all(&path, "be_big");
         assert_eq!(got, big.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<_>>());
-        // Booleans have no byte order; a Fortran (2, 2) is transposed: [[1, 0], [0, 1]] either way,
-        // so check [[T, F], [F, T]] stored column-major as 1, 0, 0, 1.
-        assert_eq!(read_all(&path, "flags").0, vec![1, 0, 0, 1]);
+        // Booleans have no byte order; a Fortran-order array is transposed all the same.
+        let (flags, m) = read_all(&path, "flags");
+        assert_eq!((flags, m.shape), (vec![1, 0, 0, 1, 1, 0], vec![2, 3]));
         assert_eq!(members(&path).unwrap().len(), arrays.len());
     }
 

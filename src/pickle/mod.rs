@@ -16,6 +16,7 @@
 mod numpy;
 mod op;
 mod reduce;
+pub mod repr;
 mod text;
 mod vm;
 pub mod write;
@@ -26,7 +27,7 @@ use std::path::Path;
 
 /// numpy's Fortran → C reorder, which the `.npz` reader shares.
 pub(crate) use numpy::fortran_to_c;
-pub use numpy::{DType, DTypeKind, NdArray, shape_text};
+pub use numpy::{NdArray, PickledDtype, shape_text};
 
 /// Index of an object in a [`Pickle`]'s arena.
 pub type Id = usize;
@@ -58,10 +59,15 @@ pub enum Obj<'a> {
     Dict(Vec<(Id, Id)>),
     /// An allow-listed global, only usable as the callable of REDUCE or an argument.
     Global(numpy::Global),
-    DType(DType),
+    DType(PickledDtype),
     Array(NdArray<'a>),
     /// `_reconstruct(ndarray, (0,), b'b')` before its BUILD supplies shape, dtype and bytes.
     PendingArray,
+    /// A numpy array of a dtype pgser does not read (strings, objects, complex, datetimes),
+    /// named by its dtype ("unicode string (<U6)"). Kept in place of the array rather than
+    /// refused while parsing, so that a reader can name the key that holds it, and `--drop`
+    /// that key: a buffer's metadata often is such an array.
+    Unreadable(String),
 }
 
 impl Obj<'_> {
@@ -80,7 +86,7 @@ impl Obj<'_> {
             Obj::Dict(_) => "dict",
             Obj::Global(_) => "global",
             Obj::DType(_) => "numpy dtype",
-            Obj::Array(_) | Obj::PendingArray => "numpy array",
+            Obj::Array(_) | Obj::PendingArray | Obj::Unreadable(_) => "numpy array",
         }
     }
 }

@@ -11,6 +11,8 @@
 
 use std::borrow::Cow;
 
+use crate::dtype::Dtype;
+
 /// Every global the machine will resolve. Anything else is refused by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Global {
@@ -47,72 +49,46 @@ impl Global {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DTypeKind {
-    Float,
-    Int,
-    UInt,
-    Bool,
-}
-
-/// A numeric dtype. `big_endian` is only meaningful while assembling; arrays handed out are
-/// always native (little-endian) order.
+/// A dtype as a pickle rebuilds it: a numeric one ([`Dtype`]), or another of numpy's (object,
+/// unicode, void, complex, datetime), kept by its type string so that an array of it is refused
+/// by name when it is assembled, not where the dtype appears.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct DType {
-    pub kind: DTypeKind,
-    pub size: usize,
-    pub big_endian: bool,
-    /// numpy's type string as pickled (e.g. "f8", "O8", "U5"); set when `kind` is unusable.
-    unsupported: Option<String>,
+pub enum PickledDtype {
+    Numeric(Dtype),
+    Other(String),
 }
 
-impl DType {
-    pub fn float(size: usize) -> Self {
-        DType { kind: DTypeKind::Float, size, big_endian: false, unsupported: None }
-    }
-
-    /// Parse numpy's type string (`f8`, `<i4`, `b1`, …). Kinds numpy has but we don't read
-    /// (object, unicode, void, complex, datetime) parse into an unsupported dtype so that the
-    /// error can name the array's dtype when the array is assembled.
+impl PickledDtype {
+    /// numpy's type string as `dtype(...)` takes it (`f8`, `<i4`, `b1`, `U5`). A string with no
+    /// kind character, or no size after it, is malformed.
     pub fn from_typestr(s: &str) -> Result<Self, String> {
-        let (big_endian, rest) = match s.as_bytes().first() {
-            Some(b'>') => (true, &s[1..]),
-            Some(b'<' | b'=' | b'|') => (false, &s[1..]),
-            _ => (false, s),
-        };
+        let rest = s.strip_prefix(['<', '>', '=', '|']).unwrap_or(s);
         let mut chars = rest.chars();
-        let kind_char = chars.next().ok_or_else(|| format!("empty dtype string {s:?}"))?;
-        let size: usize = chars.as_str().parse().map_err(|_| format!("bad dtype string {s:?}"))?;
-        let kind = match (kind_char, size) {
-            ('f', 2 | 4 | 8) => Some(DTypeKind::Float),
-            ('i', 1 | 2 | 4 | 8) => Some(DTypeKind::Int),
-            ('u', 1 | 2 | 4 | 8) => Some(DTypeKind::UInt),
-            ('b', 1) => Some(DTypeKind::Bool),
-            _ => None,
-        };
-        Ok(DType {
-            kind: kind.unwrap_or(DTypeKind::Bool),
-            size,
-            big_endian,
-            unsupported: kind.is_none().then(|| s.to_string()),
+        if chars.next().is_none() {
+            return Err(format!("empty dtype string {s:?}"));
+        }
+        if chars.as_str().parse::<usize>().is_err() {
+            return Err(format!("bad dtype string {s:?}"));
+        }
+        Ok(match Dtype::parse(s) {
+            Some(d) => PickledDtype::Numeric(d),
+            None => PickledDtype::Other(s.to_string()),
         })
     }
 
-    /// Human name, numpy style: float64, int32, uint8, bool.
-    pub fn name(&self) -> String {
-        if let Some(s) = &self.unsupported {
-            return describe_unsupported(s);
-        }
-        match self.kind {
-            DTypeKind::Float => format!("float{}", self.size * 8),
-            DTypeKind::Int => format!("int{}", self.size * 8),
-            DTypeKind::UInt => format!("uint{}", self.size * 8),
-            DTypeKind::Bool => "bool".to_string(),
+    /// The byte order a dtype's BUILD state gives it (`>` big-endian; `<`, `=`, `|` not).
+    pub fn set_big_endian(&mut self, big_endian: bool) {
+        if let PickledDtype::Numeric(d) = self {
+            *d = d.with_big_endian(big_endian);
         }
     }
 
-    pub fn is_supported(&self) -> bool {
-        self.unsupported.is_none()
+    /// Human name, numpy style: float64, int32, uint8, bool; `unicode string (U5)`.
+    pub fn name(&self) -> String {
+        match self {
+            PickledDtype::Numeric(d) => d.name(),
+            PickledDtype::Other(s) => describe_unsupported(s),
+        }
     }
 }
 
@@ -129,28 +105,35 @@ fn describe_unsupported(s: &str) -> String {
     format!("{kind} ({s})")
 }
 
-/// A numeric array in native byte order and C (row-major) layout.
+/// A numeric array in native (little-endian) byte order and C (row-major) layout.
 #[derive(Debug, Clone)]
 pub struct NdArray<'a> {
-    pub dtype: DType,
+    /// The dtype as the pickle stored it, byte order included (`data` is little-endian all the
+    /// same): what a passthrough column records, so that an export gives the array back as it was.
+    pub dtype: Dtype,
     pub shape: Vec<usize>,
-    /// Native-endian, C-order element bytes; borrowed from the file when no conversion was
+    /// Little-endian, C-order element bytes; borrowed from the file when no conversion was
     /// needed (and therefore not necessarily aligned: read with `from_le_bytes`).
     pub data: Cow<'a, [u8]>,
-    /// Whether the pickle stored the values big-endian (`data` is native all the same): what a
-    /// passthrough column records, so that an export gives the array back with its dtype.
-    pub stored_big_endian: bool,
 }
 
 impl<'a> NdArray<'a> {
     /// Check sizes and convert to native C order. `data` is in memory order as pickled.
-    pub fn assemble(dtype: DType, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> Result<Self, String> {
-        if !dtype.is_supported() {
-            return Err(format!(
-                "array dtype {} is not supported: only float, int, uint and bool arrays are read",
-                dtype.name()
-            ));
-        }
+    pub fn assemble(
+        dtype: PickledDtype,
+        shape: Vec<usize>,
+        fortran: bool,
+        data: Cow<'a, [u8]>,
+    ) -> Result<Self, String> {
+        let dtype = match dtype {
+            PickledDtype::Numeric(d) => d,
+            other => {
+                return Err(format!(
+                    "array dtype {} is not supported: only float, int, uint and bool arrays are read",
+                    other.name()
+                ));
+            }
+        };
         let count = shape
             .iter()
             .try_fold(1usize, |acc, &d| acc.checked_mul(d))
@@ -163,19 +146,15 @@ impl<'a> NdArray<'a> {
                 data.len()
             ));
         }
-        let needs_swap = dtype.big_endian && dtype.size > 1 && cfg!(target_endian = "little");
         let needs_transpose = fortran && shape.iter().filter(|&&d| d > 1).count() > 1;
-        let data = if needs_swap || needs_transpose {
+        let data = if dtype.big_endian || needs_transpose {
             let mut owned = if needs_transpose { fortran_to_c(&data, &shape, dtype.size) } else { data.into_owned() };
-            if needs_swap {
-                owned.chunks_exact_mut(dtype.size).for_each(|e| e.reverse());
-            }
+            dtype.reorder(&mut owned);
             Cow::Owned(owned)
         } else {
             data
         };
-        let stored_big_endian = dtype.big_endian && dtype.size > 1;
-        Ok(NdArray { dtype: DType { big_endian: false, ..dtype }, shape, data, stored_big_endian })
+        Ok(NdArray { dtype, shape, data })
     }
 
     pub fn len(&self) -> usize {
@@ -252,17 +231,27 @@ mod tests {
 
     #[test]
     fn typestr_parsing() {
-        assert_eq!(DType::from_typestr("f8").unwrap(), DType::float(8));
-        let be = DType::from_typestr(">i4").unwrap();
-        assert!(be.big_endian && be.kind == DTypeKind::Int && be.size == 4);
-        assert!(!DType::from_typestr("O8").unwrap().is_supported());
-        assert_eq!(DType::from_typestr("U5").unwrap().name(), "unicode string (U5)");
-        assert!(DType::from_typestr("f").is_err());
+        assert_eq!(PickledDtype::from_typestr("f8").unwrap(), PickledDtype::Numeric(Dtype::F64));
+        let be = PickledDtype::from_typestr(">i4").unwrap();
+        assert_eq!(be, PickledDtype::Numeric(Dtype::I32.with_big_endian(true)));
+        assert_eq!(PickledDtype::from_typestr("O8").unwrap(), PickledDtype::Other("O8".into()));
+        assert_eq!(PickledDtype::from_typestr("U5").unwrap().name(), "unicode string (U5)");
+        assert!(PickledDtype::from_typestr("f").is_err());
+        assert!(PickledDtype::from_typestr("é").is_err());
+        assert_eq!(PickledDtype::from_typestr("é4").unwrap().name(), "unknown (é4)");
+    }
+
+    /// A big-endian array comes out little-endian, its dtype still saying how it was stored.
+    #[test]
+    fn a_big_endian_array_is_turned_around() {
+        let be = PickledDtype::Numeric(Dtype::I16.with_big_endian(true));
+        let a = NdArray::assemble(be, vec![2], false, Cow::Owned(vec![0, 1, 0, 2])).unwrap();
+        assert_eq!((a.dtype.big_endian, &a.data[..]), (true, &[1, 0, 2, 0][..]));
     }
 
     #[test]
     fn size_mismatch_is_an_error() {
-        let e = NdArray::assemble(DType::float(8), vec![2, 3], false, Cow::Owned(vec![0; 40]));
+        let e = NdArray::assemble(PickledDtype::Numeric(Dtype::F64), vec![2, 3], false, Cow::Owned(vec![0; 40]));
         assert!(e.unwrap_err().contains("needs 48 bytes"));
     }
 }

@@ -3,7 +3,7 @@
 
 use std::borrow::Cow;
 
-use super::numpy::{DType, Global, NdArray};
+use super::numpy::{Global, NdArray, PickledDtype};
 use super::text::latin1;
 use super::vm::Machine;
 use super::{Id, Obj};
@@ -21,7 +21,7 @@ impl<'a> Machine<'a> {
             Global::DTypeCtor => match args.first().map(|&a| &self.objs[a]) {
                 Some(Obj::Str(s)) => {
                     let s = s.to_string();
-                    DType::from_typestr(&s).map(Obj::DType).or_else(|e| self.malformed(&e))
+                    PickledDtype::from_typestr(&s).map(Obj::DType).or_else(|e| self.malformed(&e))
                 }
                 _ => bad(self, "dtype needs a type string"),
             },
@@ -93,10 +93,9 @@ impl<'a> Machine<'a> {
                     _ => return self.malformed("array is_fortran flag is not a bool"),
                 };
                 if let Obj::List(_) = self.objs[st[3]] {
-                    return self.err(format!(
-                        "array dtype {} is not supported: object arrays hold Python objects",
-                        dtype.name()
-                    ));
+                    // An object array: its elements are Python objects, never a column's values.
+                    self.objs[target] = Obj::Unreadable(dtype.name());
+                    return Ok(());
                 }
                 let data = self.bytes_of(st[3])?;
                 self.objs[target] = self.array(dtype, shape, fortran, data)?;
@@ -111,7 +110,7 @@ impl<'a> Machine<'a> {
                     _ => return self.malformed("dtype state is not a tuple"),
                 };
                 let Obj::DType(d) = &mut self.objs[target] else { unreachable!() };
-                d.big_endian = endian == ">";
+                d.set_big_endian(endian == ">");
                 Ok(())
             }
             other => {
@@ -121,7 +120,10 @@ impl<'a> Machine<'a> {
         }
     }
 
-    fn array(&self, dtype: DType, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> R<Obj<'a>> {
+    fn array(&self, dtype: PickledDtype, shape: Vec<usize>, fortran: bool, data: Cow<'a, [u8]>) -> R<Obj<'a>> {
+        if let PickledDtype::Other(_) = dtype {
+            return Ok(Obj::Unreadable(dtype.name()));
+        }
         NdArray::assemble(dtype, shape, fortran, data).map(Obj::Array).or_else(|e| self.err(e))
     }
 
@@ -134,7 +136,7 @@ impl<'a> Machine<'a> {
         }
     }
 
-    fn dtype_of(&self, id: Id) -> R<DType> {
+    fn dtype_of(&self, id: Id) -> R<PickledDtype> {
         match &self.objs[id] {
             Obj::DType(d) => Ok(d.clone()),
             o => self.malformed(&format!("expected a numpy dtype, found a {}", o.type_name())),

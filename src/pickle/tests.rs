@@ -133,7 +133,7 @@ fn writer_output_reads_back_and_small_arrays_use_short_bytes() {
         .iter()
         .map(|&(_, v)| match p.take(v) {
             Obj::Array(a) => {
-                assert_eq!(a.dtype, DType::float(8));
+                assert_eq!(a.dtype, crate::dtype::Dtype::F64);
                 a.shape
             }
             o => panic!("{}", o.type_name()),

@@ -14,16 +14,17 @@
 use std::io::{self, Write};
 
 use super::op;
+use crate::dtype::Dtype;
 
 /// Writes an array's little-endian C-order values into the pickle when called.
 pub type ArraySource<'a> = Box<dyn FnMut(&mut dyn Write) -> io::Result<()> + 'a>;
 
-/// One array of the dict: its key, numpy dtype (`<f8`, `>f4`, `|b1`: the bytes the source gives
-/// are in that order), shape, and the source of its values (exactly `shape.product() × size`
-/// bytes, which is checked).
+/// One array of the dict: its key, numpy dtype (the bytes the source gives are in its byte
+/// order), shape, and the source of its values (exactly `shape.product() × size` bytes, which is
+/// checked).
 pub struct ArrayOut<'a> {
     pub key: &'a str,
-    pub descr: String,
+    pub dtype: Dtype,
     pub shape: Vec<usize>,
     pub data: ArraySource<'a>,
 }
@@ -31,15 +32,7 @@ pub struct ArrayOut<'a> {
 impl<'a> ArrayOut<'a> {
     /// A float64 array whose bytes are in memory.
     pub fn from_bytes(key: &'a str, shape: Vec<usize>, bytes: &'a [u8]) -> Self {
-        ArrayOut { key, descr: "<f8".into(), shape, data: Box::new(move |w| w.write_all(bytes)) }
-    }
-
-    /// Bytes per element, from the dtype.
-    fn size(&self) -> io::Result<u64> {
-        self.descr
-            .get(2..)
-            .and_then(|s| s.parse().ok())
-            .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("dtype {:?}", self.descr)))
+        ArrayOut { key, dtype: Dtype::F64, shape, data: Box::new(move |w| w.write_all(bytes)) }
     }
 }
 
@@ -129,13 +122,13 @@ impl Pickler<'_> {
 }
 
 /// The memo indices numpy's first array leaves behind and later arrays refer back to: the
-/// globals, `b'b'`, each dtype written (by its descr), the `numpy.dtype` class and the byte-order
+/// globals, `b'b'`, each dtype written, the `numpy.dtype` class and the byte-order
 /// strings (single characters, which Python shares, so pickle memoizes them).
 struct Shared {
     reconstruct: u32,
     ndarray: u32,
     b: u32,
-    dtypes: Vec<(String, u32)>,
+    dtypes: Vec<(Dtype, u32)>,
     dtype_class: Option<u32>,
     orders: Vec<(char, u32)>,
 }
@@ -170,7 +163,7 @@ fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -
     let len = a
         .shape
         .iter()
-        .try_fold(a.size()?, |n, &d| n.checked_mul(d as u64))
+        .try_fold(a.dtype.size as u64, |n, &d| n.checked_mul(d as u64))
         .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "array size overflows"))?;
     let Ok(len32) = u32::try_from(len) else {
         return Err(io::Error::new(
@@ -206,11 +199,11 @@ fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -
         *shared = Some(Shared { reconstruct, ndarray, b, dtypes: Vec::new(), dtype_class: None, orders: Vec::new() });
     }
     let s = shared.as_mut().expect("set by the first array");
-    match s.dtypes.iter().find(|(d, _)| *d == a.descr) {
+    match s.dtypes.iter().find(|(d, _)| *d == a.dtype) {
         Some(&(_, id)) => p.get(id)?,
         None => {
-            let id = write_dtype(p, &a.descr, s)?;
-            s.dtypes.push((a.descr.clone(), id));
+            let id = write_dtype(p, a.dtype, s)?;
+            s.dtypes.push((a.dtype, id));
         }
     }
     p.raw(&[op::NEWFALSE])?;
@@ -237,12 +230,10 @@ fn write_array(p: &mut Pickler, a: &mut ArrayOut, shared: &mut Option<Shared>) -
 /// `dtype('f8', False, True)` then BUILD with `(3, '<', None, None, None, -1, -1, 0)`: numpy's
 /// reduction of a dtype, its type string without the byte order, which the state carries
 /// (`|` for one-byte types).
-fn write_dtype(p: &mut Pickler, descr: &str, s: &mut Shared) -> io::Result<u32> {
-    let mut chars = descr.chars();
-    let order = chars.next().filter(|c| matches!(c, '<' | '>' | '|'));
-    let (Some(order), typestr) = (order, chars.as_str()) else {
-        return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("dtype {descr:?}: no byte order")));
-    };
+fn write_dtype(p: &mut Pickler, dtype: Dtype, s: &mut Shared) -> io::Result<u32> {
+    let descr = dtype.descr();
+    let (order, typestr) = descr.split_at(1);
+    let order = order.chars().next().expect("a descr starts with its byte order");
     match s.dtype_class {
         Some(id) => p.get(id)?,
         None => s.dtype_class = Some(p.global("numpy", "dtype")?),

@@ -215,9 +215,6 @@ pub struct HistSeries<'a> {
     pub color: RGBColor,
 }
 
-/// The densities of `values` in `bins` equal bins over `[lo, hi]`. Values outside the range
-/// count in the end bins: Q is clipped to [−1/(1−γ), 0] only in the targets, so a critic may
-/// overshoot a little, and dropping those rows would bias the picture.
 /// The axis a histogram of `series` is drawn over: their finite values' span, widened by 2 % on
 /// each side so the extreme bins show, and not past `bound` where the data stop short of it. A
 /// Q histogram drawn over Q's whole range [−1/(1−γ), 0] puts data that lie in [−4, 0] into two
@@ -235,6 +232,9 @@ pub fn fitted_range(series: &[&[f64]], bound: (f64, f64)) -> (f64, f64) {
     (lo, hi)
 }
 
+/// The densities of `values` in `bins` equal bins over `[lo, hi]`. Values outside the range
+/// count in the end bins: Q is clipped to [−1/(1−γ), 0] only in the targets, so a critic may
+/// overshoot a little, and dropping those rows would bias the picture.
 pub fn densities(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<f64> {
     let width = (hi - lo) / bins as f64;
     let mut counts = vec![0usize; bins];

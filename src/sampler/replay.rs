@@ -21,7 +21,9 @@ use crate::agent::Batch;
 use crate::nprandom::NpRandom;
 use crate::output::AtomicFile;
 use crate::task::Task;
-use crate::trajectory::{EpisodeArrays, Episodes, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter};
+use crate::trajectory::{
+    EpisodeArrays, Episodes, FloatArray, FloatType, Footer, KEYS, TrajectoryWriter, WriterOptions,
+};
 
 /// Rows per row group of a saved buffer (whole episodes), as `convert` and `collect` default to.
 const ROW_GROUP_ROWS: usize = 65_536;
@@ -103,7 +105,7 @@ impl Replay {
     /// `load` checks, so a buffer is never continued with a checkpoint it does not belong to.
     pub fn stage(&self, path: &Path, note: &str, command: &str) -> Result<AtomicFile> {
         let d = &self.data;
-        let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, ROW_GROUP_ROWS, false)?;
+        let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, WriterOptions::new(ROW_GROUP_ROWS))?;
         // A few row groups at a time, so the byte copy beside the buffer stays small; cuts fall
         // on row-group boundaries, so the file does not depend on them.
         let chunk = w.episodes_per_group() * 4;

@@ -66,6 +66,28 @@ pub fn episodes_per_group(row_group_rows: usize, t: usize) -> usize {
     (row_group_rows / t).max(1)
 }
 
+/// How a [`TrajectoryWriter`] writes a table: what its caller (`convert` of each format,
+/// `collect`, the online trainer's buffer) decides beyond the task and the float type.
+#[derive(Debug, Clone)]
+pub struct WriterOptions {
+    /// Target rows per row group: each gets `row_group_rows / T` whole episodes (at least one).
+    pub row_group_rows: usize,
+    /// Keep NaN and ±Inf values instead of refusing them.
+    pub allow_nonfinite: bool,
+    /// The source's passthrough arrays, in the order each [`EpisodeArrays::extras`] gives them.
+    pub extras: Vec<Passthrough>,
+    /// An action on every episode's last step (`u` of T steps, not T − 1), as OGBench's files
+    /// have one, kept on step T − 1.
+    pub last_action: bool,
+}
+
+impl WriterOptions {
+    /// Row groups of `row_group_rows`; finite values only, no passthrough columns, no last actions.
+    pub fn new(row_group_rows: usize) -> WriterOptions {
+        WriterOptions { row_group_rows, allow_nonfinite: false, extras: Vec::new(), last_action: false }
+    }
+}
+
 /// Streams episodes into a trajectory table file (written atomically on `finish`).
 pub struct TrajectoryWriter {
     table: TableWriter,
@@ -82,29 +104,9 @@ pub struct TrajectoryWriter {
 }
 
 impl TrajectoryWriter {
-    /// Row groups get `row_group_rows / T` whole episodes (at least one).
-    pub fn create(
-        dest: &Path,
-        task: &Task,
-        float: FloatType,
-        row_group_rows: usize,
-        allow_nonfinite: bool,
-    ) -> Result<Self> {
-        Self::create_with(dest, task, float, row_group_rows, allow_nonfinite, Vec::new(), false)
-    }
-
-    /// [`create`](Self::create) for a source with passthrough arrays (`extras`, in the order
-    /// each [`EpisodeArrays::extras`] gives them) and, with `last_action`, an action on every
-    /// episode's last step (`u` of T steps, not T − 1).
-    pub fn create_with(
-        dest: &Path,
-        task: &Task,
-        float: FloatType,
-        row_group_rows: usize,
-        allow_nonfinite: bool,
-        extras: Vec<Passthrough>,
-        last_action: bool,
-    ) -> Result<Self> {
+    /// A table of `task`'s episodes in `float` at `dest`, written as `options` say.
+    pub fn create(dest: &Path, task: &Task, float: FloatType, options: WriterOptions) -> Result<Self> {
+        let WriterOptions { row_group_rows, allow_nonfinite, extras, last_action } = options;
         let mut fields: Vec<arrow_schema::FieldRef> = schema(float, task).fields().iter().cloned().collect();
         fields.extend(extras.iter().map(|p| Arc::new(p.field())));
         let schema = Arc::new(arrow_schema::Schema::new(fields));
@@ -158,11 +160,11 @@ impl TrajectoryWriter {
         let t = &self.task;
         let act_steps = if self.last_action { t.t } else { t.t - 1 };
         let want = [(t.t, t.obs_dim), (t.t, t.goal_dim), (act_steps, t.act_dim), (t.t - 1, t.goal_dim)];
-        for ((key, a), (steps, dim)) in KEYS.iter().zip(&src.arrays).zip(want) {
+        for ((name, a), (steps, dim)) in src.keys.iter().zip(&src.arrays).zip(want) {
             let bytes = src.episodes * steps * dim * a.size;
             if (a.steps, a.dim) != (steps, dim) || !matches!(a.size, 4 | 8) || a.data.len() != bytes {
                 bail!(
-                    "{}: key '{key}' is {} episodes × {} × {} of {} bytes in {} bytes; {} needs {steps} × {dim}",
+                    "{}: `{name}` is {} episodes × {} × {} values of {} bytes in {} bytes; {} needs {steps} × {dim}",
                     src.origin,
                     src.episodes,
                     a.steps,
@@ -186,7 +188,7 @@ impl TrajectoryWriter {
             let want = src.episodes * e.spec.episode_bytes(t.t);
             if e.data.len() != want {
                 bail!(
-                    "{}: key '{}' has {} bytes; {} episodes of it need {want}",
+                    "{}: `{}` has {} bytes; {} episodes of it need {want}",
                     src.origin,
                     e.spec.column,
                     e.data.len(),
@@ -376,7 +378,7 @@ mod tests {
         let (task, data) = arrays();
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("t.parquet");
-        let mut w = TrajectoryWriter::create(&path, &task, FloatType::Float32, 6, false).unwrap();
+        let mut w = TrajectoryWriter::create(&path, &task, FloatType::Float32, WriterOptions::new(6)).unwrap();
         assert_eq!(w.episodes_per_group(), 2);
         w.append(&view(&data, &task), 3, 5).unwrap();
         w.append(&view(&data, &task), 0, 3).unwrap();
@@ -401,14 +403,20 @@ mod tests {
         assert_eq!(first_obs, [300.0, 400.0, 0.0, 100.0, 200.0]);
     }
 
+    /// What `ogbench::ARRAY_KEYS` calls o, ag, u and g.
+    const OGBENCH: [&str; 4] = ["observations", "observations", "actions", "observations"];
+
     #[test]
     fn arrays_of_the_wrong_shape_are_refused_by_name() {
         let (task, mut data) = arrays();
         data[2].truncate(8);
         let dir = tempfile::tempdir().unwrap();
-        let mut w =
-            TrajectoryWriter::create(&dir.path().join("t.parquet"), &task, FloatType::Float64, 64, false).unwrap();
+        let path = dir.path().join("t.parquet");
+        let mut w = TrajectoryWriter::create(&path, &task, FloatType::Float64, WriterOptions::new(64)).unwrap();
         let e = w.append(&view(&data, &task), 0, 5).unwrap_err().to_string();
-        assert!(e.contains("tiny.pkl") && e.contains("key 'u'"), "{e}");
+        assert!(e.starts_with("tiny.pkl: `u` is 5 episodes × 2 × 1 values of 8 bytes in 8 bytes"), "{e}");
+        // In the source's own words: OGBench's files call the actions `actions`.
+        let e = w.append(&EpisodeArrays { keys: OGBENCH, ..view(&data, &task) }, 0, 5).unwrap_err().to_string();
+        assert!(e.contains("`actions` is 5 episodes"), "{e}");
     }
 }

@@ -13,11 +13,13 @@ use anyhow::{Context, Result, bail};
 use indicatif::ProgressBar;
 use sha2::{Digest, Sha256};
 
-use super::batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter};
+use super::batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, WriterOptions};
 use super::extra::{self, ExtraArray, Passthrough, Per};
 use super::{FloatType, Footer, SourceFile};
+use crate::dtype::Kind;
 use crate::output::hex;
-use crate::pickle::{DTypeKind, MappedFile, NdArray, Obj, Pickle};
+use crate::pickle::repr::shell_word;
+use crate::pickle::{MappedFile, NdArray, Obj, Pickle};
 use crate::task::Task;
 
 /// `pgser-etl convert`'s settings (its flags: the CLI parses them into this), and
@@ -25,10 +27,12 @@ use crate::task::Task;
 #[derive(Debug, Clone, clap::Args)]
 pub struct ConvertOptions {
     /// Input pickles (dicts with o [N,T,obs], ag [N,T,goal], u [N,T-1,act], g [N,T-1,goal]), or one
-    /// Minari dataset folder (ID/ or ID/data/), or one OGBench dataset file (NAME.npz).
+    /// Minari dataset folder (ID/ or ID/data/), or one OGBench dataset file (NAME.npz), or OGBench
+    /// shards (a folder of NAME-i.npz, or several .npz files), which make a table folder.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Output Parquet file (written atomically).
+    /// Output Parquet file (written atomically); for shards, the table folder (one Parquet file per
+    /// shard, each written atomically, and manifest.json; a convert run again keeps finished shards).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Task name (FetchReach, FetchPush, …); inferred from dimensions when unambiguous.
@@ -61,7 +65,9 @@ pub struct ConvertOptions {
     pub full_goal: bool,
     /// Leave the source's array KEY out of the table (repeat for several). Every array that is not
     /// one of pgser's four is otherwise kept as a column of its own, so that export gives the
-    /// source back whole; one that a table cannot hold is refused by name.
+    /// source back whole; one that a table cannot hold is refused by name. A pickle's key that is
+    /// not a string is named as Python's repr writes it: --drop 1, --drop '(1, 2)', --drop
+    /// "b'\\xff'" (bytes that are UTF-8 are the text they spell, as Python 2 wrote str keys).
     #[arg(long = "drop", value_name = "KEY")]
     pub drop: Vec<String>,
     /// The command line, recorded in the footer (set by the caller, not a flag).
@@ -133,7 +139,7 @@ pub struct ConvertPlan {
 
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     let maps = open_inputs(opts)?;
-    let (sources, _, float_type, task, _) = read_sources(opts, &maps)?;
+    let Sources { sources, float_type, task, .. } = read_sources(opts, &maps)?;
     Ok(ConvertPlan {
         task,
         float_type,
@@ -155,11 +161,25 @@ fn open_inputs(opts: &ConvertOptions) -> Result<Vec<MappedFile>> {
     opts.inputs.iter().map(|p| MappedFile::open(p).with_context(|| format!("{}: cannot open", p.display()))).collect()
 }
 
-/// The validated sources, the keys skipped, the output's float type, the task, and the
-/// passthrough columns (each source's extras in their order).
-type Sources<'a> = (Vec<Source<'a>>, Vec<String>, FloatType, Task, Vec<Passthrough>);
+/// What the inputs make, validated: everything `convert` writes, found before any output exists.
+struct Sources<'a> {
+    sources: Vec<Source<'a>>,
+    /// "file: key" for each key `--drop` left out.
+    skipped_keys: Vec<String>,
+    float_type: FloatType,
+    task: Task,
+    /// The passthrough columns, in the first source's order (each source's extras sorted to it).
+    extras: Vec<Passthrough>,
+}
 
 fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<Sources<'a>> {
+    // A table is made of these four: there is no table without one of them.
+    if let Some(k) = opts.drop.iter().find(|k| KEYS.contains(&k.as_str())) {
+        bail!(
+            "--drop {k}: '{k}' is one of the four arrays a trajectory table is made of (o, ag, u, g); only the \
+             others can be left out"
+        );
+    }
     let mut skipped_keys = Vec::new();
     let mut sources = Vec::with_capacity(maps.len());
     for (i, (path, map)) in opts.inputs.iter().zip(maps).enumerate() {
@@ -179,7 +199,13 @@ fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<
     if total == 0 {
         bail!("{}: no episodes to write (every input was empty or took 0)", opts.inputs[0].display());
     }
-    if let Some(k) = opts.drop.iter().find(|k| !skipped_keys.iter().any(|s| s.ends_with(&format!("key '{k}'")))) {
+    // A key is left out by its name ("file: key 'name'") or, not being a string, by its repr
+    // ("file: key 1"), which never starts with a quote.
+    let dropped = |k: &str| {
+        let by_repr = !k.starts_with(['\'', '"']) && skipped_keys.iter().any(|s| s.ends_with(&format!(": key {k}")));
+        by_repr || skipped_keys.iter().any(|s| s.ends_with(&format!(": key '{k}'")))
+    };
+    if let Some(k) = opts.drop.iter().find(|k| !dropped(k)) {
         bail!("--drop {k}: no input has a key '{k}' to leave out");
     }
     // Every source's passthrough arrays, in the first source's order.
@@ -191,7 +217,7 @@ fn read_sources<'a>(opts: &'a ConvertOptions, maps: &'a [MappedFile]) -> Result<
     for s in &mut sources {
         s.extras.sort_by_key(|e| extras.iter().position(|p| p.column == e.spec.column));
     }
-    Ok((sources, skipped_keys, float_type, task, extras))
+    Ok(Sources { sources, skipped_keys, float_type, task, extras })
 }
 
 pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummary> {
@@ -200,20 +226,17 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
     std::thread::scope(|scope| {
         let hashing = scope.spawn(|| maps.iter().map(sha256_releasing).collect::<Vec<_>>());
         let written = (|| {
-            let (sources, skipped_keys, float_type, task, extras) = read_sources(opts, &maps)?;
+            let Sources { sources, skipped_keys, float_type, task, extras } = read_sources(opts, &maps)?;
             let total: usize = sources.iter().map(|s| s.take).sum();
             let kept = extras.iter().map(describe).collect();
 
             bar.set_length((total * task.t) as u64);
-            let mut writer = TrajectoryWriter::create_with(
-                &opts.output,
-                &task,
-                float_type,
-                opts.row_group_rows,
-                opts.allow_nonfinite,
+            let options = WriterOptions {
+                allow_nonfinite: opts.allow_nonfinite,
                 extras,
-                false,
-            )?;
+                ..WriterOptions::new(opts.row_group_rows)
+            };
+            let mut writer = TrajectoryWriter::create(&opts.output, &task, float_type, options)?;
             // A window of row groups per call keeps every thread busy; whole groups per window
             // keep the row groups where they would be in one call.
             let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
@@ -300,25 +323,60 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(S
     let mut found: [Option<NdArray<'a>>; 4] = [None, None, None, None];
     let mut skipped = Vec::new();
     let mut others: Vec<(String, NdArray<'a>)> = Vec::new();
+    let mut names: Vec<String> = Vec::new();
     for (k, v) in entries {
-        let Some(name) = pickle.as_text(k).map(|s| s.into_owned()) else {
+        // A str key names its column; so do bytes that are UTF-8, as Python 2 wrote str keys (a
+        // pickle does not tell the two apart). Any other key is named as Python's repr writes it
+        // (`1`, `b'\xff'`, `(1, 2)`), which is what --drop takes to leave it out.
+        let name = match pickle.get(k) {
+            Obj::Str(s) => Some(s.to_string()),
+            Obj::Bytes(b) => std::str::from_utf8(b).ok().map(str::to_string),
+            _ => None,
+        };
+        let Some(name) = name else {
+            let repr = pickle.repr(k);
+            if drop.contains(&repr) {
+                skipped.push(format!("key {repr}"));
+                continue;
+            }
+            let what = match pickle.get(k) {
+                Obj::Bytes(_) => "bytes, not UTF-8 text".to_string(),
+                other => format!("{}, not a string", other.type_name()),
+            };
             bail!(
-                "{at}: a key of type {} (not a string): a table column needs a name; write the buffer without it",
-                pickle.get(k).type_name()
+                "{at}: key {repr} ({what}): a table column needs a text name; pass --drop {} to convert without it",
+                shell_word(&repr)
             );
         };
         if drop.contains(&name) && !KEYS.contains(&name.as_str()) {
             skipped.push(format!("key '{name}'"));
             continue;
         }
+        if names.contains(&name) {
+            let leave = match KEYS.contains(&name.as_str()) {
+                true => String::new(),
+                false => format!("; pass --drop {} to convert without both", shell_word(&name)),
+            };
+            bail!("{at}: key '{name}' is there twice, as a str and as bytes: a table has one column of a name{leave}");
+        }
+        names.push(name.clone());
         let slot = KEYS.iter().position(|&key| key == name);
         match (pickle.take(v), slot) {
             (Obj::Array(a), Some(slot)) => found[slot] = Some(a),
             (Obj::Array(a), None) => others.push((name, a)),
+            (Obj::Unreadable(d), Some(_)) => {
+                bail!("{at}: key '{name}' holds values of dtype {d}; WGCSL arrays must be float32 or float64")
+            }
+            (Obj::Unreadable(d), None) => bail!(
+                "{at}: key '{name}' holds values of dtype {d}, which a table column cannot keep (bool, int, uint, float32 \
+                 and float64 can); pass --drop {} to convert without it",
+                shell_word(&name)
+            ),
             (other, Some(_)) => bail!("{at}: key '{name}' is a {}, not a numpy array", other.type_name()),
             (other, None) => bail!(
-                "{at}: key '{name}' is a {}, not a numpy array: a table keeps arrays; pass --drop {name} to convert without it",
-                other.type_name()
+                "{at}: key '{name}' is a {}, not a numpy array: a table keeps arrays; pass --drop {} to convert without it",
+                other.type_name(),
+                shell_word(&name)
             ),
         }
     }
@@ -328,7 +386,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(S
     }
     let arrays = found.map(|a| a.expect("checked above"));
     for (key, a) in KEYS.iter().zip(&arrays) {
-        if a.dtype.kind != DTypeKind::Float || a.dtype.size < 4 {
+        if a.dtype.kind != Kind::Float || a.dtype.size < 4 {
             bail!("{at}: key '{key}' holds {} values; WGCSL arrays must be float32 or float64", a.dtype.name());
         }
         if a.shape.len() != 3 {
@@ -375,14 +433,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(S
         }
         let per = Per::of(a.shape.get(1).copied(), t);
         let shape = a.shape[if per == Per::Episode { 1 } else { 2 }..].to_vec();
-        let kind = match a.dtype.kind {
-            DTypeKind::Float => 'f',
-            DTypeKind::Int => 'i',
-            DTypeKind::UInt => 'u',
-            DTypeKind::Bool => 'b',
-        };
-        let order = if a.stored_big_endian { '>' } else { '<' };
-        let spec = Passthrough::new(&at.to_string(), &name, &format!("{order}{kind}{}", a.dtype.size), per, shape)?;
+        let spec = Passthrough::new(&at.to_string(), &name, a.dtype, per, shape)?;
         extras.push(ExtraArray { spec, data: a.data });
     }
     Ok((Source { path, arrays, extras, episodes, take: episodes }, skipped))
@@ -493,4 +544,46 @@ pub(crate) fn task_for(
         task.threshold = th;
     }
     Ok(task)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pickle::write::{ArrayOut, write_dict};
+
+    /// `--drop` of one of the four arrays says that those cannot be left out, not that the input
+    /// lacks them.
+    #[test]
+    fn dropping_one_of_the_four_arrays_is_refused_as_such() {
+        let dir = tempfile::tempdir().unwrap();
+        let src = dir.path().join("buf.pkl");
+        let (n, t) = (2, 3);
+        let f8 = |count: usize| vec![0u8; count * 8];
+        let (o, ag, u, g) = (f8(n * t * 2), f8(n * t), f8(n * (t - 1)), f8(n * (t - 1)));
+        let mut arrays = vec![
+            ArrayOut::from_bytes("o", vec![n, t, 2], &o),
+            ArrayOut::from_bytes("ag", vec![n, t, 1], &ag),
+            ArrayOut::from_bytes("u", vec![n, t - 1, 1], &u),
+            ArrayOut::from_bytes("g", vec![n, t - 1, 1], &g),
+        ];
+        write_dict(&mut std::fs::File::create(&src).unwrap(), &mut arrays).unwrap();
+        for key in KEYS {
+            let opts = ConvertOptions {
+                inputs: vec![src.clone()],
+                output: dir.path().join("t.parquet"),
+                task: Some("Tiny".into()),
+                threshold: Some(0.1),
+                episodes: None,
+                float32: false,
+                allow_nonfinite: false,
+                exact_length: false,
+                row_group_rows: 64,
+                full_goal: false,
+                drop: vec![key.to_string()],
+                command: String::new(),
+            };
+            let e = check(&opts).unwrap_err().to_string();
+            assert!(e.starts_with(&format!("--drop {key}: '{key}' is one of the four arrays")), "{e}");
+        }
+    }
 }

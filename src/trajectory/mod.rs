@@ -1,21 +1,24 @@
 //! The trajectory table (docs/tables.md): one row per observation, episodes contiguous and ordered
-//! by (episode, step). `desired_goal` and `action` are null on the last step, where WGCSL's
-//! `g` and `u` (T − 1 entries per episode) have nothing. [`Episodes`] loads a table for training.
+//! by (episode, step). `desired_goal` is null on the last step, where WGCSL's `g` (T − 1 entries
+//! per episode) has nothing, and so is `action`, unless the source had an action there (OGBench's
+//! files: the footer's `last_action`). [`Episodes`] loads a table for training.
 
 mod batch;
 mod convert;
 pub mod extra;
+pub mod folder;
 pub mod read;
 
 use std::sync::Arc;
 
+use anyhow::{Result, anyhow, bail};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use serde::{Deserialize, Serialize};
 
-use crate::table::SCHEMA_VERSION;
+use crate::table::{FOOTER_KEY, SCHEMA_VERSION};
 use crate::task::{GoalMetric, Task};
 
-pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, episodes_per_group};
+pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, WriterOptions, episodes_per_group};
 pub use convert::{ConvertOptions, ConvertPlan, ConvertSummary, check as check_convert, convert};
 pub(crate) use convert::{describe, task_for};
 pub use extra::{ExtraArray, Passthrough, Per};
@@ -149,6 +152,29 @@ impl Footer {
             command,
             pgser_version: env!("CARGO_PKG_VERSION").to_string(),
         }
+    }
+
+    /// A trajectory footer read back from the file `at` (the `pgser` key's JSON). Every reader
+    /// of a table's footer comes through here: a footer whose checksum holds can still say what
+    /// pgser never writes (another tool's edit, a newer pgser), and what it says of the
+    /// passthrough columns is checked here (each record as it deserializes: [`Passthrough`]),
+    /// before any reader maps a column by it. A fault names the file and the column; a footer
+    /// of another kind of table is refused as that.
+    pub fn from_json(at: &str, json: serde_json::Value) -> Result<Footer> {
+        match json.get("kind").and_then(|k| k.as_str()) {
+            Some(KIND) => {}
+            Some(kind) => bail!("{at}: a {kind} table, not a trajectory table"),
+            None => bail!("{at}: the `{FOOTER_KEY}` footer names no table kind"),
+        }
+        let f: Footer =
+            serde_json::from_value(json).map_err(|e| anyhow!("{at}: the trajectory footer is corrupt: {e}"))?;
+        let columns = &f.passthrough;
+        if let Some((_, p)) =
+            columns.iter().enumerate().find(|(i, p)| columns[..*i].iter().any(|q| q.column == p.column))
+        {
+            bail!("{at}: the trajectory footer is corrupt: it lists the passthrough column `{}` twice", p.column);
+        }
+        Ok(f)
     }
 
     /// The task this table was written for, with the threshold recorded in the file.

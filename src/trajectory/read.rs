@@ -30,7 +30,9 @@ const BATCH_EPISODES: usize = 64;
 /// against the Parquet metadata, but both can lie, so beyond this the Vecs grow as data arrives.
 const MAX_RESERVE: usize = 1 << 26;
 /// The vector columns in the order `Episodes` holds them; the last two have T − 1 rows per
-/// episode (null on step T − 1).
+/// episode that training reads. Step T − 1's row is null, or, in a table whose footer says
+/// `last_action`, holds the action the source had there (OGBench's files), which a transition
+/// never uses: it is read past, and kept for `export`.
 const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "action"];
 const EXPECTED: &str = "a trajectory table from `pgser-etl convert` or `pgser-etl collect` is expected";
 
@@ -205,7 +207,7 @@ fn trajectory_footer(at: &str, text: Option<&str>) -> Result<Footer> {
         Some(kind) => bail!("{at}: a {kind} table, not a trajectory table; {EXPECTED}"),
         None => bail!("{at}: the `{FOOTER_KEY}` footer names no table kind; {EXPECTED}"),
     }
-    let f: Footer = serde_json::from_value(json).with_context(|| format!("{at}: malformed trajectory footer"))?;
+    let f = Footer::from_json(at, json)?;
     if f.schema_version != SCHEMA_VERSION {
         bail!("{at}: table schema version {}; this pgser reads version {SCHEMA_VERSION}", f.schema_version);
     }

@@ -16,6 +16,12 @@
         where the table keeps a Minari dataset's recorded rewards, terminations or truncations
         (passthrough columns of those names), those.
 
+    check_minari.py edit DATASET_DIR EPISODE COLUMN add|remove|string
+        Changes one episode of a dataset in place, in either storage (pyarrow or h5py), as
+        another tool might have written it: `add` gives it a float32 column COLUMN (`infos/KEY`)
+        of zeros, a row per observation, `remove` takes COLUMN away, `string` turns it into
+        strings (`rewards`, `infos/KEY`), which no table column keeps.
+
 Prints one JSON line of what was compared; exits non-zero with the first difference.
 """
 
@@ -115,10 +121,64 @@ def cmd_table(table, dataset_dir, threshold):
     print(json.dumps({"episodes": n, "T": T, "env_id": env_id, "obs_dtype": str(ep.observations["observation"].dtype)}))
 
 
+def cmd_edit(dataset_dir, episode, column, action):
+    data = os.path.join(dataset_dir, "data")
+    with open(os.path.join(data, "metadata.json")) as f:
+        storage = json.load(f)["data_format"]
+    group, _, key = column.rpartition("/")
+    if storage == "hdf5":
+        import h5py
+
+        with h5py.File(os.path.join(data, "main_data.hdf5"), "r+") as f:
+            ep = f[f"episode_{episode}"]
+            where = ep.require_group(group) if group else ep
+            rows = ep["actions"].shape[0] + (1 if group == "infos" else 0)
+            if action == "add":
+                where.create_dataset(key, data=np.zeros(rows, np.float32))
+            elif action == "remove":
+                del where[key]
+            else:
+                values = [str(v).encode() for v in where[key][()]]
+                del where[key]
+                where.create_dataset(key, data=np.array(values, dtype="S16"))
+    else:
+        import pyarrow as pa
+        import pyarrow.ipc as ipc
+
+        path = os.path.join(data, str(episode), "part-0.arrow")
+        with ipc.open_file(path) as r:
+            t = r.read_all()
+        if group:
+            s = t.column(group).combine_chunks()
+            fields, arrays = list(s.type), [s.field(i) for i in range(s.type.num_fields)]
+            names = [f.name for f in fields]
+            if action == "add":
+                fields.append(pa.field(key, pa.float32()))
+                arrays.append(pa.array(np.zeros(len(s), np.float32)))
+            else:
+                i = names.index(key)
+                if action == "remove":
+                    del fields[i], arrays[i]
+                else:
+                    fields[i] = pa.field(key, pa.string())
+                    arrays[i] = pa.array([str(v) for v in arrays[i].to_pylist()])
+            new = pa.StructArray.from_arrays(arrays, fields=fields)
+            t = t.set_column(t.schema.get_field_index(group), pa.field(group, new.type), new)
+        else:
+            i = t.schema.get_field_index(key)
+            assert action == "string", action
+            t = t.set_column(i, pa.field(key, pa.string()), pa.array([str(v) for v in t.column(key).to_pylist()]))
+        with ipc.new_file(path, t.schema) as w:
+            w.write_table(t)
+    print(json.dumps({"edited": [dataset_dir, episode, column, action, storage]}))
+
+
 if __name__ == "__main__":
     if len(sys.argv) == 4 and sys.argv[1] == "same":
         cmd_same(sys.argv[2], sys.argv[3])
     elif len(sys.argv) == 5 and sys.argv[1] == "table":
         cmd_table(sys.argv[2], sys.argv[3], float(sys.argv[4]))
+    elif len(sys.argv) == 6 and sys.argv[1] == "edit":
+        cmd_edit(sys.argv[2], int(sys.argv[3]), sys.argv[4], sys.argv[5])
     else:
         sys.exit(__doc__)

@@ -5,18 +5,20 @@ Usage:
   check_roundtrip.py --parquet OUT.parquet [--episodes k1,k2,...] [--float32]
                      [--task NAME] IN.pkl [IN2.pkl ...]
 
-Loads each (trusted!) pickle with pickle.load, takes the first k_i episodes
-of input i (all when --episodes is absent), concatenates them, and checks
-that the Parquet file has
+Loads each (trusted!) pickle as stored (stored_pickle.py: each dtype keeps
+its byte order; values checked against numpy's pickle.load), takes the
+first k_i episodes of input i (all when --episodes is absent), concatenates
+them, and checks that the Parquet file has
 
   * columns exactly: episode int64, step int32, obs, achieved_goal,
     desired_goal, action -- the last four FixedSizeList<float64> (or
     float32 with --float32, or when the sources are float32) of the right
     width -- then one passthrough column per other array of the first input
     (its key, in the pickle's order), listed in the footer's `passthrough`
-    with its dtype, shape and layout, and holding the source's values on
-    exactly the rows that layout gives (per step: every row; per
-    transition: all but step T-1; per episode: step 0), equal bit for bit;
+    with its dtype (the source's, byte order included: `>f4`), shape and
+    layout, and holding the source's values on exactly the rows that layout
+    gives (per step: every row; per transition: all but step T-1; per
+    episode: step 0), equal bit for bit;
   * one row per (episode, step), episode-major: episodes 0..E-1 dense and
     contiguous, steps 0..T-1 in order;
   * obs <- o, achieved_goal <- ag, desired_goal <- g, action <- u, equal
@@ -35,13 +37,13 @@ Needs numpy and pyarrow.
 """
 import argparse
 import json
-import pickle
 import sys
-import warnings
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+import stored_pickle
 
 COLUMNS = ["episode", "step", "obs", "achieved_goal", "desired_goal", "action"]
 SOURCE_KEY = {"obs": "o", "achieved_goal": "ag", "desired_goal": "g", "action": "u"}
@@ -63,10 +65,9 @@ def native(a):
 def load_inputs(paths, counts):
     parts = []
     for i, path in enumerate(paths):
-        with open(path, "rb") as f, warnings.catch_warnings():
-            # numpy 2 warns when loading numpy-1 pickles (numpy.core.* names)
-            warnings.simplefilter("ignore", DeprecationWarning)
-            d = pickle.load(f)  # trusted test inputs only
+        # As stored, byte order included (numpy's pickle.load gives a big-endian array back as
+        # a native one); stored_pickle checks the values against numpy's own reading too.
+        d = stored_pickle.load(path)  # trusted test inputs only
         if not isinstance(d, dict):
             die(f"{path}: top level is {type(d).__name__}, not a dict")
         arrs, extras = {}, {}
@@ -100,10 +101,6 @@ def layout(a, t):
     if a.ndim >= 2 and a.shape[1] == t - 1:
         return "transition", list(a.shape[2:])
     return "episode", list(a.shape[1:])
-
-
-def descr(dt):
-    return ("|" if dt.itemsize == 1 else (">" if dt.byteorder == ">" else "<")) + dt.kind + str(dt.itemsize)
 
 
 def bits(a):
@@ -297,11 +294,10 @@ def main():
         src = np.concatenate([e[key] for e in extras_of], axis=0)
         per, shape = layout(src, T)
         p = listed.get(key, {})
-        # numpy loads a pickled big-endian array as a native one, so the byte order the file
-        # stored (which pgser records, `>f4`) is not seen here: kind and size are compared.
-        want_meta = {"per": per, "shape": shape, "dtype": descr(extras_of[0][key].dtype)[1:]}
+        # The dtype as the file stored it, byte order included (`>f4`, `|u1`): the one export
+        # writes back.
+        want_meta = {"per": per, "shape": shape, "dtype": extras_of[0][key].dtype.str}
         got_meta = {k: p.get(k) for k in want_meta}
-        got_meta["dtype"] = (got_meta["dtype"] or "")[1:]
         if got_meta != want_meta:
             problems.append(f"footer: passthrough {key} is {got_meta}, want {want_meta}")
         has = {"step": np.ones(T, bool), "transition": np.arange(T) < T - 1, "episode": np.arange(T) == 0}[per]

@@ -8,17 +8,16 @@ dtype (byte order included), shape and values bit for bit. What a WGCSL buffer m
 Prints "OK <n> arrays" and exits 0, or each difference and exits 1. Trusted test files only.
 """
 import argparse
-import pickle
 import sys
-import warnings
 
 import numpy as np
 
+import stored_pickle
+
 
 def load(path):
-    with open(path, "rb") as f, warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        return pickle.load(f)
+    # As stored: numpy's pickle.load gives a big-endian array back as a native one.
+    return stored_pickle.load(path)
 
 
 def main():
