@@ -19,6 +19,8 @@ use indicatif::ProgressBar;
 pub use crate::trajectory::{ConvertOptions, ConvertPlan, ConvertSummary};
 use crate::{minari, ogbench, trajectory};
 
+mod shards;
+
 /// What `convert` would write, read and validated as `convert` does, without writing anything.
 pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     match input(opts)? {
@@ -27,6 +29,7 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
         }
         Input::Minari(dir) => minari::check(opts, dir),
         Input::Ogbench(file) => ogbench::check(opts, file),
+        Input::Shards(files) => shards::check(opts, &files),
         Input::Pickles => trajectory::check_convert(opts),
     }
 }
@@ -39,6 +42,7 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
         }
         Input::Minari(dir) => minari::convert(opts, dir, bar),
         Input::Ogbench(file) => ogbench::convert(opts, file, bar),
+        Input::Shards(files) => shards::convert(opts, &files, bar),
         Input::Pickles => trajectory::convert(opts, bar),
     }
 }
@@ -64,22 +68,32 @@ enum Input<'a> {
     Minari(&'a Path),
     /// An OGBench dataset file (`pointmaze-medium-navigate-v0.npz`).
     Ogbench(&'a Path),
+    /// OGBench shards (a folder of `.npz` files, or several of them): a table folder.
+    Shards(Vec<std::path::PathBuf>),
 }
 
-/// A folder is a Minari dataset and a `.npz` file an OGBench dataset, each converted on its own;
-/// other files are pickles.
+/// A folder is a Minari dataset, or OGBench shards when `.npz` files lie in it; one `.npz` file
+/// is an OGBench dataset and several are shards; other files are pickles.
 fn input(opts: &ConvertOptions) -> Result<Input<'_>> {
     let npz = |p: &Path| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz"));
     if let Some(i) = opts.inputs.iter().position(|p| npz(p)) {
-        if opts.inputs.len() > 1 {
+        if let Some(other) = opts.inputs.iter().find(|p| !npz(p)) {
             bail!(
-                "{}: an OGBench dataset among {} inputs: convert takes pickles, or one dataset (an OGBench .npz file, \
-                 a Minari folder)",
-                opts.inputs[i].display(),
-                opts.inputs.len()
+                "{}: not an .npz file among the OGBench shards ({}): convert takes pickles, or one dataset (an OGBench \
+                 .npz file or folder of shards, a Minari folder)",
+                other.display(),
+                opts.inputs[i].display()
             );
         }
+        if opts.inputs.len() > 1 {
+            return Ok(Input::Shards(opts.inputs.clone()));
+        }
         return Ok(Input::Ogbench(&opts.inputs[0]));
+    }
+    if let [dir] = opts.inputs.as_slice()
+        && let Some(files) = shards::in_folder(dir)?
+    {
+        return Ok(Input::Shards(files));
     }
     match opts.inputs.iter().position(|p| p.is_dir()) {
         None => Ok(Input::Pickles),

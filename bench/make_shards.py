@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""A folder of `.npz` shards in Horizon Reduction's layout, of a chosen shape, for benchmarks
+of sharded datasets (issue 65). Never for tests: they use small folders made in the test.
+
+Each shard `NAME-i.npz` (and one `NAME-val.npz`) holds E episodes of M rows each:
+`observations` [E*M, obs] float32, `actions` [E*M, act] float32 in [-1, 1], `terminals`
+[E*M] float32 (1 on each episode's last row), and `qpos` / `qvel` float32 (obs/2 each, rounded),
+as OGBench's locomotion generators save them. The observations are random walks whose first two
+values are an x, y position, so goal maps and distances behave like a maze's, not like noise.
+
+humanoidmaze-giant's shape is obs 69, act 21, M = 4001, 1000 episodes a shard in the 1B set;
+`--episodes` picks a smaller shard. Shards are written with np.savez (uncompressed, the default)
+or np.savez_compressed (`--compressed`, as OGBench's files are); each is written beside its
+name and renamed, so a killed run leaves no partial shard, and shards already present are kept.
+
+Usage:
+    make_shards.py OUT_DIR [--name humanoidmaze-giant-navigate-v0] [--shards 4]
+                   [--episodes 100] [--rows 4001] [--obs 69] [--act 21] [--compressed] [--seed 0]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+
+
+def shard(rng: np.random.Generator, episodes: int, rows: int, obs: int, act: int) -> dict[str, np.ndarray]:
+    n = episodes * rows
+    actions = rng.uniform(-1.0, 1.0, (n, act)).astype(np.float32)
+    steps = rng.normal(0.0, 0.05, (episodes, rows, obs)).astype(np.float32)
+    steps[:, 0, :] = rng.uniform(-1.0, 1.0, (episodes, obs))
+    steps[:, 0, :2] = rng.uniform(0.0, 40.0, (episodes, 2))
+    observations = np.cumsum(steps, axis=1, dtype=np.float32).reshape(n, obs)
+    terminals = np.zeros(n, np.float32)
+    terminals[rows - 1 :: rows] = 1.0
+    half = max(obs // 2, 1)
+    return {
+        "observations": observations,
+        "actions": actions,
+        "terminals": terminals,
+        "qpos": observations[:, :half].copy(),
+        "qvel": observations[:, half : 2 * half].copy(),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("out")
+    p.add_argument("--name", default="humanoidmaze-giant-navigate-v0")
+    p.add_argument("--shards", type=int, default=4)
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--rows", type=int, default=4001)
+    p.add_argument("--obs", type=int, default=69)
+    p.add_argument("--act", type=int, default=21)
+    p.add_argument("--compressed", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args()
+    os.makedirs(a.out, exist_ok=True)
+    save = np.savez_compressed if a.compressed else np.savez
+    names = [f"{a.name}-{i}.npz" for i in range(a.shards)] + [f"{a.name}-val.npz"]
+    for i, name in enumerate(names):
+        path = os.path.join(a.out, name)
+        if os.path.exists(path):
+            continue
+        rng = np.random.default_rng([a.seed, i])
+        episodes = a.episodes if not name.endswith("-val.npz") else max(a.episodes // 10, 1)
+        tmp = path + ".part.npz"
+        save(tmp, **shard(rng, episodes, a.rows, a.obs, a.act))
+        os.replace(tmp, path)
+        print(path, flush=True)
+
+
+if __name__ == "__main__":
+    main()
