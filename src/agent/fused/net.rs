@@ -185,14 +185,9 @@ fn matmul(
         product::portable(m, n, k, dst, a, b, path);
         return;
     }
-    let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
-        assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "matmul operand out of bounds");
-    };
-    last(m, k, a);
-    last(k, n, b);
-    assert!(dst.len() >= m * n, "matmul output out of bounds");
-    // SAFETY: the asserts above keep every element gemm reads inside `a` and `b` and every one it
-    // writes inside `dst`; `dst` is a unique borrow, so it overlaps neither input.
+    product::check_operands(m, n, k, dst, a, b);
+    // SAFETY: `check_operands` above keeps every element gemm reads inside `a` and `b` and every
+    // one it writes inside `dst`; `dst` is a unique borrow, so it overlaps neither input.
     unsafe {
         gemm_raw(m, n, k, dst.as_mut_ptr(), n, (a.0.as_ptr(), a.1, a.2), (b.0.as_ptr(), b.1, b.2));
     }

@@ -108,6 +108,24 @@ thread_local! {
     static PACKED: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
 }
 
+/// Panics unless every element the strides of `a` (`m × k`) and `b` (`k × n`) reach lies inside
+/// its slice and `dst` holds `m × n`: what makes the raw-pointer kernels of both products safe.
+pub(in crate::agent) fn check_operands(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &[f32],
+    a: (&[f32], usize, usize),
+    b: (&[f32], usize, usize),
+) {
+    let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
+        assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "product operand out of bounds");
+    };
+    last(m, k, a);
+    last(k, n, b);
+    assert!(dst.len() >= m * n, "product output out of bounds");
+}
+
 /// `dst` (`m × n`, row-major, row stride n) = A·B in the portable order, A and B each given as
 /// (values, row stride, column stride), on `path` (which the CPU must have). Same bits on
 /// every path.
@@ -123,12 +141,7 @@ pub(in crate::agent) fn portable(
     if m == 0 || n == 0 {
         return;
     }
-    let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
-        assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "product operand out of bounds");
-    };
-    last(m, k, a);
-    last(k, n, b);
-    assert!(dst.len() >= m * n, "product output out of bounds");
+    check_operands(m, n, k, dst, a, b);
     if b.2 == 1 {
         dense(m, n, k, dst, a, (b.0, b.1), path);
         return;
