@@ -71,6 +71,22 @@ fn a_folder_of_shards_becomes_a_table_folder() {
     let o = etl().arg("verify").arg(&out).output().unwrap();
     assert!(o.status.success() && text(&o.stdout).starts_with("ok "), "{}{}", text(&o.stdout), text(&o.stderr));
     assert!(!out.join(".convert.json").exists(), "the settings file outlives the convert");
+
+    // Exported, the folder is the source folder again: every shard, the validation one too, as
+    // numpy and the zip archive see it (member order, headers, bytes).
+    let back = dir.path().join("back");
+    let o = etl().args(["export", "--format", "ogbench"]).arg(&out).arg("-o").arg(&back).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let mut names: Vec<String> =
+        std::fs::read_dir(&src).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    let mut got: Vec<String> =
+        std::fs::read_dir(&back).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    got.sort();
+    assert_eq!(names, got);
+    for n in &names {
+        py_ok("check_ogbench.py", &["whole", src.join(n).to_str().unwrap(), back.join(n).to_str().unwrap()]);
+    }
 }
 
 /// A convert killed part way (a shard missing, no manifest), run again, converts only what is

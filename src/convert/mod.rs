@@ -51,6 +51,9 @@ pub fn convert(opts: &ConvertOptions, bar: &ProgressBar) -> Result<ConvertSummar
 /// WGCSL pickle ([`minari::export`]), or an OGBench file ([`ogbench::export_npz`], which streams
 /// the table). Chosen here, above both writers, as `convert` chooses between the readers.
 pub fn export(opts: &minari::ExportOptions) -> Result<minari::ExportSummary> {
+    if crate::trajectory::folder::is_folder(&opts.table) {
+        return shards::export(opts);
+    }
     match opts.format {
         minari::ExportFormat::Ogbench => {
             let f = ogbench::export_npz(&opts.table, &opts.output, &opts.drop)?;

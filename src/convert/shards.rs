@@ -298,6 +298,38 @@ pub(super) fn convert(opts: &ConvertOptions, files: &[PathBuf], bar: &ProgressBa
     Ok(summary)
 }
 
+/// `pgser-etl export DIR --format ogbench -o OUT`: a table folder back as OGBench shards, each
+/// shard's table exported to `OUT/NAME-i.npz` (its validation shards beside them, as Horizon
+/// Reduction and OGBench keep them), so a folder converted and exported is the source folder.
+pub(super) fn export(opts: &crate::minari::ExportOptions) -> Result<crate::minari::ExportSummary> {
+    let folder = crate::trajectory::folder::TableFolder::open(&opts.table)?;
+    if opts.format != crate::minari::ExportFormat::Ogbench {
+        bail!(
+            "{}: a table folder exports as OGBench shards (--format ogbench); export one of its shards for another format",
+            opts.table.display()
+        );
+    }
+    let out = &opts.output;
+    if crate::output::normalize(out) == crate::output::normalize(&opts.table) || out.starts_with(&opts.table) {
+        bail!("{}: the output would be inside the table folder it is made from", out.display());
+    }
+    if out.exists() && !out.is_dir() {
+        bail!("{}: the export of a table folder is a folder of .npz shards, and this is a file", out.display());
+    }
+    let mut shards = folder.shard_paths();
+    if let Some(v) = folder.validation()? {
+        shards.extend(v.shard_paths());
+    }
+    if !out.is_dir() {
+        std::fs::create_dir(out).with_context(|| format!("{}: cannot create the output folder", out.display()))?;
+    }
+    shards.par_iter().try_for_each(|shard| {
+        ogbench::export_npz(shard, &out.join(format!("{}.npz", stem(shard))), &opts.drop).map(|_| ())
+    })?;
+    let f = folder.footer();
+    Ok(crate::minari::ExportSummary { task: f.task.clone(), episodes: f.episodes, t: f.t })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

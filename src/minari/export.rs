@@ -37,7 +37,8 @@ pub enum ExportFormat {
     /// A WGCSL pickle (dict of float64 arrays o, ag, u, g; protocol 3).
     Wgcsl,
     /// An OGBench dataset file `NAME.npz` (observations, actions, terminals): written by
-    /// src/ogbench/export.rs, which `convert::export`, the layer above, chooses for it.
+    /// src/ogbench/export.rs, which `convert::export`, the layer above, chooses for it. A table
+    /// folder exports as a folder of its shards (`NAME-i.npz`, `NAME-val.npz`).
     Ogbench,
 }
 
