@@ -1,5 +1,5 @@
 //! WGCSL pickles → trajectory table: the pickle reader of `pgser-etl convert`. The module that
-//! picks this reader or the Minari one for an input sits above both (`src/convert.rs`); the
+//! picks this reader or the Minari one for an input sits above both (`src/convert/`); the
 //! options, plan and summary types here are shared by both readers.
 //!
 //! Every input is memory-mapped and parsed by the safe pickle reader; all keys, shapes, dtypes
