@@ -117,11 +117,13 @@ impl<'a> Pickle<'a> {
         std::mem::replace(&mut self.objs[id], Obj::None)
     }
 
-    /// The text of a str (or bytes, as Python 2 pickles spell dict keys), for keys and messages.
+    /// The text of a str, or of bytes that are UTF-8 (Python 2 pickles spell str dict keys as
+    /// bytes, and a pickle does not tell the two apart); None for anything else, bytes that are
+    /// not UTF-8 included, whose lossy decoding would name a column other than the key.
     pub fn as_text(&self, id: Id) -> Option<Cow<'_, str>> {
         match &self.objs[id] {
             Obj::Str(s) => Some(Cow::Borrowed(s.as_ref())),
-            Obj::Bytes(b) => Some(String::from_utf8_lossy(b)),
+            Obj::Bytes(b) => std::str::from_utf8(b).ok().map(Cow::Borrowed),
             _ => None,
         }
     }

@@ -7,6 +7,7 @@
 //! groups of whole episodes, built and encoded in parallel windows, so memory stays near one
 //! copy of the inputs (the mapped pages) plus a few row groups.
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -328,11 +329,7 @@ fn read_wgcsl<'a>(path: &'a Path, bytes: &'a [u8], drop: &[String]) -> Result<(S
         // A str key names its column; so do bytes that are UTF-8, as Python 2 wrote str keys (a
         // pickle does not tell the two apart). Any other key is named as Python's repr writes it
         // (`1`, `b'\xff'`, `(1, 2)`), which is what --drop takes to leave it out.
-        let name = match pickle.get(k) {
-            Obj::Str(s) => Some(s.to_string()),
-            Obj::Bytes(b) => std::str::from_utf8(b).ok().map(str::to_string),
-            _ => None,
-        };
+        let name = pickle.as_text(k).map(Cow::into_owned);
         let Some(name) = name else {
             let repr = pickle.repr(k);
             if drop.contains(&repr) {
