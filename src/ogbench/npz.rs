@@ -105,6 +105,8 @@ pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Mem
         .with_context(|| format!("{}: no array {key:?} in the archive", path.display()))?;
     let (m, storage) = header(&mut file, key).with_context(|| format!("{}: {key}", path.display()))?;
     let size = m.dtype.size;
+    // The member's type as the file stores it: `reorder` turns its bytes little-endian.
+    let stored = m.stored_dtype();
     // A Fortran array with one dimension above 1 has C order's bytes already.
     if storage.fortran && m.shape.iter().filter(|&&d| d > 1).count() > 1 {
         let mut raw = Vec::new();
@@ -119,13 +121,11 @@ pub fn with_member<T>(path: &Path, key: &str, f: impl FnOnce(&mut dyn Read, &Mem
             );
         }
         let mut c = crate::pickle::fortran_to_c(&raw, &m.shape, size);
-        if storage.big_endian {
-            c.chunks_exact_mut(size).for_each(<[u8]>::reverse);
-        }
+        stored.reorder(&mut c);
         return f(&mut Cursor::new(c), &m);
     }
     if storage.big_endian {
-        return f(&mut SwapBytes::new(&mut file, size), &m);
+        return f(&mut SwapBytes::new(&mut file, stored), &m);
     }
     f(&mut file, &m)
 }
@@ -147,19 +147,20 @@ pub fn with_members(
     })
 }
 
-/// A reader of big-endian numbers of `size` bytes that hands them out little-endian, a buffer
-/// of whole numbers at a time.
+/// A reader of numbers stored as `stored` (big-endian) that hands them out little-endian, a
+/// buffer of whole numbers at a time.
 struct SwapBytes<R: Read> {
     inner: R,
-    size: usize,
+    stored: Dtype,
     buf: Vec<u8>,
     at: usize,
     end: usize,
 }
 
 impl<R: Read> SwapBytes<R> {
-    fn new(inner: R, size: usize) -> SwapBytes<R> {
-        SwapBytes { inner, size, buf: vec![0; (64 << 10) / size * size], at: 0, end: 0 }
+    fn new(inner: R, stored: Dtype) -> SwapBytes<R> {
+        let size = stored.size;
+        SwapBytes { inner, stored, buf: vec![0; (64 << 10) / size * size], at: 0, end: 0 }
     }
 }
 
@@ -178,7 +179,7 @@ impl<R: Read> Read for SwapBytes<R> {
             }
             // A partial number at the end is a member cut short: handed out as it is, and the
             // caller's read_exact of whole rows fails on it.
-            self.buf[..n - n % self.size].chunks_exact_mut(self.size).for_each(<[u8]>::reverse);
+            self.stored.reorder(&mut self.buf[..n - n % self.stored.size]);
             (self.at, self.end) = (0, n);
         }
         let k = out.len().min(self.end - self.at);
