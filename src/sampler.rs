@@ -11,7 +11,9 @@ pub mod dump;
 pub mod priority;
 pub mod replay;
 pub mod scored;
+pub mod pool;
 pub mod stream;
+pub mod view;
 
 use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
