@@ -8,6 +8,7 @@
 //! task's reward function, so relabelled and swapped rows are labelled exactly like original ones.
 
 pub mod dump;
+pub mod ogbench;
 pub mod priority;
 pub mod replay;
 pub mod scored;
@@ -20,8 +21,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::agent::{Batch, Rows, Table};
 use crate::nprandom::NpRandom;
-use crate::swap;
 use crate::trajectory::Episodes;
+use view::View;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -57,8 +58,8 @@ pub enum GoalSource {
     Original,
     /// HER: the achieved goal of this step of the same episode (always later than the row's).
     Future(usize),
-    /// Alg. 1: the achieved goal of (episode, step).
-    Swapped(usize, usize),
+    /// Alg. 1: the achieved goal of a random source (its episode and step are table-wide).
+    Swapped(view::GoalSource),
 }
 
 /// Where a training row's transition and goal are in β: (episode, step) of the transition and
@@ -75,12 +76,12 @@ pub struct RowKey {
 }
 
 impl RowKey {
-    /// The key of a row drawn from β.
-    pub fn of(e: usize, t: usize, source: GoalSource) -> RowKey {
+    /// The key of a row drawn from β: `e` is the transition's table-wide episode number.
+    pub fn of(e: u64, t: usize, source: GoalSource) -> RowKey {
         let (ge, gs) = match source {
             GoalSource::Original => (e, -1),
             GoalSource::Future(f) => (e, f as i32),
-            GoalSource::Swapped(ge, gt) => (ge, gt as i32),
+            GoalSource::Swapped(g) => (g.episode, g.step as i32),
         };
         RowKey { episode: e as u32, step: t as u32, goal_episode: ge as u32, goal_step: gs }
     }
@@ -95,23 +96,24 @@ pub fn sample(
     out: &mut Batch,
 ) -> Vec<(usize, usize, GoalSource)> {
     let drawn = draw(data, cfg, rng, n);
-    *out = rows(data, drawn.iter().map(|&(e, t, s)| RowKey::of(e, t, s))).gather(&table(data));
+    *out = rows(data, drawn.iter().map(|&(e, t, s)| RowKey::of(e as u64, t, s))).gather(&table(data));
     drawn
 }
 
-/// `n` rows' (episode, step, goal source) drawn from `data`: the random half of `sample`.
-pub fn draw(data: &Episodes, cfg: &SamplerConfig, rng: &mut NpRandom, n: usize) -> Vec<(usize, usize, GoalSource)> {
-    let steps = data.t - 1;
+/// `n` rows' (episode, step, goal source) drawn from `data`: the random half of `sample`. The
+/// episode is the view's (resident) one; random goals come from the whole table
+/// ([`View::random_goal`]). On a table in memory, the draws `sample` has always made.
+pub fn draw(data: &dyn View, cfg: &SamplerConfig, rng: &mut NpRandom, n: usize) -> Vec<(usize, usize, GoalSource)> {
+    let steps = data.t() - 1;
     let swapped = match cfg.swap {
         Swap::None => 0,
         Swap::Random => ((n as f64) * cfg.swap_ratio).round() as usize,
     };
     (0..n)
         .map(|i| {
-            let (e, t) = (rng.below(data.n), rng.below(steps));
+            let (e, t) = (rng.below(data.episodes()), rng.below(steps));
             let source = if i < swapped {
-                let (ge, gt) = swap::random_goal(data.n, data.t, rng);
-                GoalSource::Swapped(ge, gt)
+                GoalSource::Swapped(data.random_goal(rng))
             } else if rng.random() < cfg.her_ratio {
                 GoalSource::Future(t + 1 + rng.below(steps - t))
             } else {
@@ -120,6 +122,29 @@ pub fn draw(data: &Episodes, cfg: &SamplerConfig, rng: &mut NpRandom, n: usize) 
             (e, t, source)
         })
         .collect()
+}
+
+/// The batch of rows `drawn` from `data`, built on the host: what a view that no engine holds
+/// (the out-of-core pool) trains on. Rewards are the task's, of s′'s achieved goal and the goal
+/// each row is trained on, as in [`rows`].
+pub fn gather(data: &dyn View, drawn: &[(usize, usize, GoalSource)]) -> Batch {
+    let task = data.task();
+    let mut b = Batch { n: drawn.len(), ..Batch::default() };
+    let mut next_ag = Vec::with_capacity(drawn.len() * task.goal_dim);
+    for &(e, t, source) in drawn {
+        b.obs.extend_from_slice(data.obs(e, t));
+        b.next_obs.extend_from_slice(data.obs(e, t + 1));
+        b.action.extend_from_slice(data.action(e, t));
+        b.goal.extend_from_slice(match source {
+            GoalSource::Original => data.goal(e, t),
+            GoalSource::Future(f) => data.ag(e, f),
+            GoalSource::Swapped(g) => data.goal_ag(g),
+        });
+        next_ag.extend_from_slice(data.ag(e, t + 1));
+    }
+    b.reward = vec![0.0; b.n];
+    task.rewards(&next_ag, &b.goal, &mut b.reward);
+    b
 }
 
 /// β as an engine holds it (`Engine::hold`).
@@ -197,7 +222,7 @@ mod tests {
                     assert!(f > t && f < data.t, "future step {f} for step {t}");
                     assert_eq!(goal, data.ag(e, f));
                 }
-                GoalSource::Swapped(ge, gt) => assert_eq!(goal, data.ag(ge, gt)),
+                GoalSource::Swapped(g) => assert_eq!(goal, data.ag(g.episode as usize, g.step as usize)),
             }
             assert_eq!(b.reward[i], data.task.reward(data.ag(e, t + 1), goal), "row {i}");
         }

@@ -350,9 +350,15 @@ impl Verifier {
     /// Checks `columns` (leaf indices) of every row group, in parallel; the first mismatch names
     /// its row group, column and bytes.
     pub fn check(&self, columns: &[usize]) -> Result<()> {
+        self.check_row_groups(&(0..self.ranges.len()).collect::<Vec<_>>(), columns)
+    }
+
+    /// Checks `columns` (leaf indices) of the row groups `groups` only: what a reader that
+    /// decodes some row groups (the out-of-core pool) pays for.
+    pub fn check_row_groups(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
         let Some(sums) = &self.sums else { return Ok(()) };
         let chunks: Vec<(usize, usize)> =
-            (0..self.ranges.len()).flat_map(|rg| columns.iter().map(move |&c| (rg, c))).collect();
+            groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
         let bad = chunks
             .par_iter()
             .map(|&(rg, c)| {

@@ -25,6 +25,7 @@ use crate::progress;
 use crate::sampler::SamplerConfig;
 use crate::sampler::priority::PriorityConfig;
 use crate::sampler::stream::{BatchSource, BatchStream, StreamConfig};
+use crate::sampler::view::Budget;
 use crate::trajectory::Episodes;
 use rayon::prelude::*;
 
@@ -76,6 +77,12 @@ pub struct TrainConfig {
     /// Record losses in the metrics file every M updates.
     #[arg(long, default_value_t = 1_000)]
     pub log_every: u64,
+    /// Hold the original data within this much memory (e.g. 8GB, 512MiB): whole when it fits
+    /// (the same batches as without), streamed from its row groups otherwise, with transitions
+    /// and random goals from the whole table (docs/ogbench.md, "Datasets larger than memory").
+    #[arg(long, value_name = "SIZE", value_parser = crate::sampler::view::parse_bytes)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub memory_budget: Option<u64>,
 }
 
 impl TrainConfig {
@@ -89,6 +96,11 @@ impl TrainConfig {
             aug_in_memory: self.aug_in_memory,
             seed: self.seed,
         }
+    }
+
+    /// `--memory-budget` as the sampler takes it.
+    pub fn budget(&self) -> Budget {
+        self.memory_budget.map_or(Budget::Unbounded, Budget::Bytes)
     }
 }
 
@@ -248,9 +260,9 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
     let mut agent = Shards::new(agents, backend)?;
     // An engine on a GPU keeps the cells' data there (each distinct β once) and is sent each
     // batch as row numbers; elsewhere batches are gathered here. Same batches either way.
-    let (datas, table_of) = distinct_data(&runs);
+    let (datas, table_of) = distinct_data(&runs).unwrap_or_default();
     let tables: Vec<_> = datas.iter().map(|d| crate::sampler::table(d)).collect();
-    let held = agent.hold(&tables)?;
+    let held = !tables.is_empty() && agent.hold(&tables)?;
     if held {
         let mb = tables.iter().map(|t| t.bytes()).sum::<usize>() as f64 / 1e6;
         progress::milestone(bar, &format!("the device holds the data ({mb:.1} MB): batches are sent as row numbers"));
@@ -372,15 +384,15 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
 
 /// The cells' data, each distinct β once (a grid's cells mostly share one: the baseline's and
 /// `-swap`'s trajectory table is the one `-mem`'s scored table names), and each cell's place
-/// among them.
-fn distinct_data(runs: &[Run]) -> (Vec<Arc<Episodes>>, Vec<usize>) {
+/// among them; `None` when a cell draws from an out-of-core pool, which no engine holds.
+fn distinct_data(runs: &[Run]) -> Option<(Vec<Arc<Episodes>>, Vec<usize>)> {
     let same = |a: &Episodes, b: &Episodes| {
         a.task == b.task && a.n == b.n && a.t == b.t && a.obs == b.obs && a.ag == b.ag && a.g == b.g && a.u == b.u
     };
     let mut datas: Vec<Arc<Episodes>> = Vec::new();
     let mut table_of = Vec::with_capacity(runs.len());
     for r in runs {
-        let d = r.batches.data();
+        let d = r.batches.whole()?;
         let i = match datas.iter().position(|x| Arc::ptr_eq(x, d) || same(x, d)) {
             Some(i) => i,
             None => {
@@ -390,7 +402,7 @@ fn distinct_data(runs: &[Run]) -> (Vec<Arc<Episodes>>, Vec<usize>) {
         };
         table_of.push(i);
     }
-    (datas, table_of)
+    Some((datas, table_of))
 }
 
 /// A log line at a scheduled save: "10.0k of 30.0k updates saved (15 agents), 5.1 updates/s, ≈ 1.1 h
@@ -453,7 +465,8 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let (data_path, out, cfg) = (&cell.data, &cell.out, &cell.cfg);
     crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
     let stream = cfg.stream();
-    let source = BatchSource::open(data_path, &stream)?;
+    let source = BatchSource::open_within(data_path, &stream, cfg.budget())?;
+
     let data_sha = sha256_file(data_path)?;
     let mut extra = BTreeMap::new();
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
@@ -467,15 +480,10 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
         (agent, source.resume(&stream, rng, first)?, metrics)
     } else {
         // The goal normalizer sees achieved goals too: HER and swapping train on them.
-        let data = &source.data;
-        let norm = Normalizer::fit(
-            &[&data.obs],
-            data.task.obs_dim,
-            &[&data.g, &data.ag],
-            data.task.goal_dim,
-            cfg.agent.norm_clip,
-        );
-        let agent = Agent::new(cfg.agent.clone(), data.task.clone(), norm, cfg.seed, device);
+        let task = source.task().clone();
+        let (obs, goals) = source.data.normalizer_arrays();
+        let norm = Normalizer::fit(&obs, task.obs_dim, &goals, task.goal_dim, cfg.agent.norm_clip);
+        let agent = Agent::new(cfg.agent.clone(), task, norm, cfg.seed, device);
         (agent, source.start(&stream)?, Vec::new())
     };
     let (metrics, last_eval) = continued_metrics(metrics, agent.updates, cfg.eval_every);

@@ -11,6 +11,7 @@ use arrow_array::{ArrayRef, Float32Array, Int32Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use serde::Serialize;
 
+use super::view::Budget;
 use super::stream::{BatchSource, StreamConfig};
 use crate::output::sha256_file;
 use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
@@ -73,10 +74,19 @@ pub fn schema(task: &Task) -> SchemaRef {
 
 /// Writes batches 0..`count` of the stream `cfg` draws from `data` to `out` (atomically: a
 /// failure leaves no file).
-pub fn write_batches(data: &Path, cfg: &StreamConfig, count: u64, out: &Path, command: &str) -> Result<DumpSummary> {
+/// `budget` is `--memory-budget`: β within it (an out-of-core pool when it does not fit).
+pub fn write_batches(
+    data: &Path,
+    cfg: &StreamConfig,
+    budget: Budget,
+    count: u64,
+    out: &Path,
+    command: &str,
+) -> Result<DumpSummary> {
     crate::output::check_not_an_input(out, &[data.to_path_buf()])?;
-    let mut stream = BatchSource::open(data, cfg)?.start(cfg)?;
-    let task = stream.data().task.clone();
+    let source = BatchSource::open_within(data, cfg, budget)?;
+    let task = source.task().clone();
+    let mut stream = source.start(cfg)?;
     let schema = schema(&task);
     let mut writer = TableWriter::create(out, schema.clone())?;
     let per_group = (GROUP_ROWS / cfg.batch_size).max(1) as u64;
@@ -117,13 +127,23 @@ pub fn write_batches(data: &Path, cfg: &StreamConfig, count: u64, out: &Path, co
         rows,
         data: data.display().to_string(),
         data_sha256: sha256_file(data)?,
-        settings: serde_json::to_value(cfg)?,
+        settings: settings(cfg, budget)?,
         seed: cfg.seed,
         command: command.to_string(),
         pgser_version: env!("CARGO_PKG_VERSION").to_string(),
     };
     let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
     Ok(DumpSummary { output: out.to_path_buf(), batches: count, rows, bytes })
+}
+
+/// The stream's settings as the footer records them; a budget only when one was given, so
+/// tables written without one keep their bytes.
+fn settings(cfg: &StreamConfig, budget: Budget) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(cfg)?;
+    if let Budget::Bytes(b) = budget {
+        v["memory_budget"] = b.into();
+    }
+    Ok(v)
 }
 
 /// One row group's columns, filled batch by batch.

@@ -1,19 +1,657 @@
-//! The out-of-core pool: β streamed from a table's row groups within a memory budget.
+//! The out-of-core pool: β drawn from a table (one file or a folder of shards) larger than the
+//! memory it may use, with every transition and every random goal coming from the whole table.
+//!
+//! # Why, and the scheme it replaces
+//! OGBench's 100M–1B datasets do not fit a workstation's memory. Horizon Reduction's trainer keeps
+//! one shard in memory, reloads another synchronously every 1000 updates, and draws every goal,
+//! the random ones too, from that shard alone: for 1000 updates the agent sees a thousandth of the
+//! data, and its training stops while the next shard loads.
+//!
+//! # The scheme
+//! - **Blocks.** A block is one Parquet row group: pgser's writers cut row groups on episode
+//!   boundaries, so a block is a run of whole episodes of one shard, and HER's future goals are
+//!   always in memory with their transition.
+//! - **Resident blocks.** The pool holds `S` blocks, as many as the budget allows (see
+//!   [`Plan`]). Every transition is drawn uniformly from the episodes resident at the time.
+//! - **A loader thread** reads blocks in a random permutation of all the table's blocks (a fresh
+//!   one each pass, seeded), checks each against its checksums, decodes it to float32 and hands it
+//!   over through a channel of one. The pool swaps it in for its oldest block **when as many
+//!   transitions have been drawn as the leaving block holds** (times `draws_per_row`). So one pass
+//!   of draws (as many as the table holds) is one pass of loading, in which every block is
+//!   resident once for about the same number of draws: the long-run share of each shard, episode
+//!   and step is its share of the table. The swap points depend on the draws alone, never on the
+//!   loader's timing, so the same seed gives the same batches at any speed; the loader reads
+//!   ahead while the current blocks are drawn from, and a batch waits only when reading a block
+//!   takes longer than drawing the previous block's transitions (counted in [`PoolStats`]).
+//!   Every pass starts with the same first blocks ([`permutation`] says why), which makes each
+//!   pass of draws give every block exactly its share of turns.
+//! - **Random goals** (`--swap random`, OGBench's `p_randomgoal`) come from a **reservoir** of
+//!   achieved goals and observations, refreshed from every block as it enters: a block of `r`
+//!   observations replaces `R · r / N` reservoir entries (oldest first, the fraction carried
+//!   between blocks), drawn uniformly from its observations. After one pass the reservoir holds a
+//!   uniform sample of the whole table's observations, from every shard in proportion to its rows,
+//!   far more spread than the resident blocks. It is first filled the same way from every block
+//!   (one read of the observation and achieved-goal columns at start), so it is a sample of the
+//!   whole table from the first batch on.
+//!
+//! # How it differs from drawing in memory
+//! In memory, each row's transition and random goal are uniform over the whole table, every row
+//! independently. In the pool they are uniform over the resident episodes and the reservoir, which
+//! change as the passes go: marginally the same distribution over a pass, but rows of one batch
+//! share a smaller set of episodes (rows in one batch fall in the same episode about `N / P` times
+//! as often as uniform draws do, for P resident episodes of N; tests/pool.rs bounds it), and the
+//! random numbers are used differently, so batches are not those of the in-memory sampler. When
+//! the whole table fits the budget, [`open`] holds it in memory and the batches are the in-memory
+//! ones, number for number.
 
-use std::path::Path;
-use std::sync::Arc;
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, sync_channel};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
+use rayon::prelude::*;
 
-use super::view::{InMemory, View};
-use crate::trajectory::Episodes;
+use super::view::{GoalSource, InMemory, View};
+use crate::nprandom::NpRandom;
+use crate::task::Task;
+use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
+use crate::trajectory::read::{append, check_keys};
+use crate::trajectory::{Episodes, Footer};
 
-/// Opens `path` within `budget` bytes: the whole table when it fits.
-pub fn open(path: &Path, budget: u64, _seed: u64) -> Result<Box<dyn View>> {
-    let data = Episodes::load(path)?;
-    let bytes = 4 * (data.obs.len() + data.ag.len() + data.g.len() + data.u.len()) as u64;
-    if bytes > budget {
-        bail!("{}: {bytes} bytes do not fit a memory budget of {budget}", path.display());
+/// Spawn keys of the pool's generators: the loader's permutations (with the pass number) and the
+/// reservoir's draws. The batch streams use 1–4 and OGBench's layout its own.
+const KEY_PERMUTATION: u64 = 5;
+const KEY_RESERVOIR: u64 = 6;
+/// The share of the budget the goal reservoir may take.
+const RESERVOIR_SHARE: f64 = 0.125;
+/// Blocks held beyond the resident ones: one waiting in the channel, and one being decoded (its
+/// Arrow arrays and its float32 copy side by side).
+const IN_FLIGHT: u64 = 3;
+/// The columns a block reads.
+const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "action"];
+
+/// Options of a pool besides its budget.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoolConfig {
+    /// Memory the pool may use, in bytes.
+    pub budget: u64,
+    /// Transitions drawn per transition loaded: 1 makes a pass of draws a pass of loading; 2
+    /// keeps each block twice as long (half the reading, for samplers faster than the disk).
+    pub draws_per_row: f64,
+    pub seed: u64,
+}
+
+/// Opens `path` within `budget` bytes: the whole table in memory when it fits (the in-memory
+/// sampler's batches, number for number), the pool otherwise.
+pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Box<dyn View>> {
+    Ok(match Beta::open(path, budget, seed)? {
+        Beta::Whole(data) => Box::new(InMemory(data)),
+        Beta::Pool(pool) => pool,
+    })
+}
+
+/// β for a sampler within a budget: whole, or a pool.
+pub enum Beta {
+    Whole(Arc<Episodes>),
+    Pool(Box<Pool>),
+}
+
+impl Beta {
+    /// β as draws see it.
+    pub fn view(&self) -> &dyn View {
+        match self {
+            Beta::Whole(d) => d.as_ref(),
+            Beta::Pool(p) => p.as_ref(),
+        }
     }
-    Ok(Box::new(InMemory(Arc::new(data))))
+
+    /// The arrays a trainer fits its normalizer on (observations; desired and achieved goals):
+    /// the whole table, or the pool's first blocks, a uniform sample of the table's blocks.
+    pub fn normalizer_arrays(&self) -> (Vec<&[f32]>, Vec<&[f32]>) {
+        match self {
+            Beta::Whole(d) => (vec![&d.obs[..]], vec![&d.g[..], &d.ag[..]]),
+            Beta::Pool(p) => {
+                let (obs, g, ag) = p.resident_arrays();
+                (obs, g.into_iter().chain(ag).collect())
+            }
+        }
+    }
+
+    /// Plans `path` against `budget` and opens it.
+    pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Beta> {
+        let cfg = PoolConfig { budget, draws_per_row: 1.0, seed };
+        let layout = Layout::open(path)?;
+        Ok(match Plan::of(&layout, budget)? {
+            Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
+            Plan::Pool { slots, reservoir } => Beta::Pool(Box::new(Pool::start(Arc::new(layout), cfg, slots, reservoir)?)),
+        })
+    }
+}
+
+/// Bytes of a table held whole (what [`Layout::bytes`] plans with).
+pub fn bytes_of(data: &Episodes) -> u64 {
+    4 * (data.obs.len() + data.ag.len() + data.g.len() + data.u.len()) as u64
+}
+
+/// One shard of the table, as the pool reads it.
+struct Shard {
+    path: PathBuf,
+    /// The shard's own footer (its own rows and episodes): what `check_keys` checks rows against.
+    footer: Footer,
+    meta: ArrowReaderMetadata,
+}
+
+/// One block: a row group of a shard, holding whole episodes.
+#[derive(Debug, Clone, Copy)]
+struct BlockInfo {
+    shard: usize,
+    group: usize,
+    /// The block's first row in its shard.
+    first_row: usize,
+    episodes: usize,
+    /// The table-wide number of its first episode.
+    first_episode: u64,
+}
+
+/// Where every block of a table is, read from footers and Parquet metadata only.
+pub struct Layout {
+    task: Task,
+    t: usize,
+    episodes: u64,
+    shards: Vec<Shard>,
+    blocks: Vec<BlockInfo>,
+}
+
+impl Layout {
+    /// The blocks of a table file or table folder; a row group that does not hold whole
+    /// episodes is refused, naming the shard and row group.
+    pub fn open(path: &Path) -> Result<Layout> {
+        let (footer, shards): (Footer, Vec<(PathBuf, Footer, u64)>) = if is_folder(path) {
+            let folder = TableFolder::open(path)?;
+            let shards = folder
+                .manifest
+                .shards
+                .iter()
+                .map(|s| {
+                    let p = folder.dir.join(&s.file);
+                    Ok((p.clone(), shard_footer(&p)?, s.first_episode as u64))
+                })
+                .collect::<Result<_>>()?;
+            (folder.footer().clone(), shards)
+        } else {
+            let f = shard_footer(path)?;
+            (f.clone(), vec![(path.to_path_buf(), f, 0)])
+        };
+        let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
+        if t < 2 {
+            bail!("{}: episodes of {t} step(s) hold no transition", path.display());
+        }
+        for (i, (p, f, first_episode)) in shards.into_iter().enumerate() {
+            let file = crate::output::open_input(&p)?;
+            let meta = ArrowReaderMetadata::load(&file, ArrowReaderOptions::new())
+                .with_context(|| format!("{}: not a readable Parquet file", p.display()))?;
+            let mut row = 0usize;
+            for (g, rg) in meta.metadata().row_groups().iter().enumerate() {
+                let rows = rg.num_rows() as usize;
+                if row % t != 0 || rows % t != 0 {
+                    bail!(
+                        "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
+                         groups between episodes; convert the data again)",
+                        p.display(),
+                        row + rows
+                    );
+                }
+                let first = first_episode + (row / t) as u64;
+                blocks.push(BlockInfo { shard: i, group: g, first_row: row, episodes: rows / t, first_episode: first });
+                row += rows;
+            }
+            if row != f.rows {
+                bail!("{}: its row groups hold {row} rows but its footer says {}", p.display(), f.rows);
+            }
+            opened.push(Shard { path: p, footer: f, meta });
+        }
+        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks })
+    }
+
+    /// Float32 bytes of one episode as a block holds it.
+    fn episode_bytes(&self) -> u64 {
+        let (t, task) = (self.t as u64, &self.task);
+        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64)
+    }
+
+    /// Float32 bytes of the whole table in memory.
+    pub fn bytes(&self) -> u64 {
+        self.episodes * self.episode_bytes()
+    }
+
+    /// Bytes of one reservoir entry: an achieved goal, an observation, and where they came from.
+    fn entry_bytes(&self) -> u64 {
+        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16
+    }
+
+    /// Reads block `id`: its chunks checked against the shard's checksums, every row checked as
+    /// `Episodes::load` checks them, decoded to float32.
+    fn read(&self, id: usize) -> Result<Block> {
+        self.read_columns(id, &[true; 4])
+    }
+
+    /// Reads the columns of block `id` that `which` marks (in [`VECTORS`] order); the others
+    /// stay empty. The reservoir's first fill reads observations and achieved goals only.
+    fn read_columns(&self, id: usize, which: &[bool; 4]) -> Result<Block> {
+        let b = self.blocks[id];
+        let shard = &self.shards[b.shard];
+        let at = format!("{} (row group {})", shard.path.display(), b.group);
+        let file = crate::output::open_input(&shard.path)?;
+        let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
+        let mut names = vec!["episode", "step"];
+        names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
+        verifier.check_row_groups(&[b.group], &verifier.columns_of(&names))?;
+        let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
+        let schema = builder.schema().clone();
+        let roots = names
+            .iter()
+            .map(|n| schema.index_of(n).map_err(|_| anyhow!("{at}: no `{n}` column")))
+            .collect::<Result<Vec<_>>>()?;
+        let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
+        let t = self.t;
+        let reader = builder
+            .with_projection(mask)
+            .with_row_groups(vec![b.group])
+            .with_batch_size(64 * t)
+            .build()
+            .with_context(|| format!("{at}: cannot read"))?;
+        let task = &self.task;
+        let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
+        let steps = [t, t, t - 1, t - 1];
+        let mut out: [Vec<f32>; 4] =
+            std::array::from_fn(|k| Vec::with_capacity(if which[k] { b.episodes * steps[k] * dims[k] } else { 0 }));
+        let mut row = b.first_row;
+        for batch in reader {
+            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+            check_keys(&at, &batch, row, &shard.footer)?;
+            for (k, v) in out.iter_mut().enumerate().filter(|(k, _)| which[*k]) {
+                let col = batch.column_by_name(VECTORS[k]).expect("projected");
+                append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow!("{at}: {e}"))?;
+            }
+            row += batch.num_rows();
+        }
+        if row != b.first_row + b.episodes * t {
+            bail!("{at}: {} rows read where the row group holds {}", row - b.first_row, b.episodes * t);
+        }
+        let [obs, ag, g, u] = out;
+        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u })
+    }
+}
+
+/// How a table meets a budget.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Plan {
+    /// The table fits: held whole.
+    Whole,
+    /// `slots` resident blocks and a reservoir of `reservoir` goals.
+    Pool { slots: usize, reservoir: usize },
+}
+
+impl Plan {
+    /// The budget's split: the reservoir takes an eighth (at most one entry per observation of the
+    /// table), [`IN_FLIGHT`] blocks are set aside, and the rest holds blocks of the largest size.
+    /// Refused, saying what would do, when fewer than two blocks fit. The budget is β's: the
+    /// process's own memory (code, networks, batches, Parquet metadata) comes on top of it, and
+    /// BENCHMARKS.md measures the whole.
+    pub fn of(layout: &Layout, budget: u64) -> Result<Plan> {
+        if layout.bytes() <= budget {
+            return Ok(Plan::Whole);
+        }
+        let block = layout.blocks.iter().map(|b| b.episodes as u64).max().unwrap_or(0) * layout.episode_bytes();
+        let observations = layout.episodes * layout.t as u64;
+        let reservoir =
+            ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
+        let fixed = reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
+        let slots = budget.saturating_sub(fixed) / block.max(1);
+        if slots < 2 {
+            let need = fixed + 2 * block;
+            bail!(
+                "a memory budget of {} holds fewer than two of the table's row groups ({} each as float32, {} more \
+                 for reading and the goal reservoir); give at least {}, or convert with a smaller --row-group-rows",
+                crate::progress::bytes(budget),
+                crate::progress::bytes(block),
+                crate::progress::bytes(fixed),
+                crate::progress::bytes(need)
+            );
+        }
+        if slots as usize >= layout.blocks.len() {
+            return Ok(Plan::Whole);
+        }
+        Ok(Plan::Pool { slots: slots as usize, reservoir })
+    }
+}
+
+/// A resident block.
+struct Block {
+    id: usize,
+    n: usize,
+    first_episode: u64,
+    obs: Vec<f32>,
+    ag: Vec<f32>,
+    g: Vec<f32>,
+    u: Vec<f32>,
+}
+
+/// Random goals from the whole table (see the module doc).
+struct Reservoir {
+    len: usize,
+    /// Next entry to replace (the oldest).
+    next: usize,
+    key: Vec<(u64, u32)>,
+    ag: Vec<f32>,
+    obs: Vec<f32>,
+    /// The fraction of an entry owed to the next block.
+    carry: f64,
+    rng: NpRandom,
+}
+
+/// What waiting for the disk cost, so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PoolStats {
+    /// Blocks swapped in after the first fill.
+    pub swaps: u64,
+    /// Swaps that had to wait for their block.
+    pub waits: u64,
+    pub waited: Duration,
+    pub longest_wait: Duration,
+}
+
+/// β within a memory budget (see the module doc).
+pub struct Pool {
+    layout: Arc<Layout>,
+    cfg: PoolConfig,
+    /// Resident blocks, oldest first.
+    resident: VecDeque<Block>,
+    /// Resident episode → (position in `resident`, episode within it).
+    index: Vec<(u32, u32)>,
+    reservoir: Reservoir,
+    /// Transitions drawn since the last swap.
+    drawn: f64,
+    loader: Mutex<Receiver<Result<Block>>>,
+    stats: PoolStats,
+}
+
+/// The order blocks enter in pass `pass`: every block once. Pass 0 is a seeded permutation;
+/// every later pass starts with the same `head` blocks (pass 0's first ones, the first fill) and
+/// shuffles the rest afresh.
+///
+/// Why the fixed head: a block is resident for `S` swaps. The first fill's block k leaves at swap
+/// k + 1, having had k + 1 of its S turns; as the pass ends, the same block enters again as the
+/// next pass's k-th and has S − 1 − k turns before the pass's last swap. So within every pass of
+/// draws each block is resident for exactly S turns, and each shard's share of the draws is its
+/// share of the rows, up to sampling noise, with no block half-drawn at a pass's edges.
+fn permutation(blocks: usize, head: usize, seed: u64, pass: u64) -> Vec<usize> {
+    let shuffle = |p: &mut [usize], pass: u64| {
+        let mut rng = NpRandom::spawned(seed, &[KEY_PERMUTATION, pass]);
+        for i in (1..p.len()).rev() {
+            p.swap(i, rng.below(i + 1));
+        }
+    };
+    let mut p: Vec<usize> = (0..blocks).collect();
+    shuffle(&mut p, 0);
+    if pass > 0 {
+        shuffle(&mut p[head..], pass);
+    }
+    p
+}
+
+impl Pool {
+    /// Fills `slots` blocks (the first of pass 0's permutation, read in parallel), fills the
+    /// reservoir from them, and starts the loader on the rest.
+    pub fn start(layout: Arc<Layout>, cfg: PoolConfig, slots: usize, reservoir: usize) -> Result<Pool> {
+        let first = permutation(layout.blocks.len(), slots, cfg.seed, 0);
+        let resident: VecDeque<Block> =
+            first[..slots].par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
+        let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
+        let mut pool = Pool {
+            layout: layout.clone(),
+            cfg,
+            resident,
+            index: Vec::new(),
+            reservoir: Reservoir {
+                len: reservoir,
+                next: 0,
+                key: Vec::with_capacity(reservoir),
+                ag: Vec::with_capacity(reservoir * gd),
+                obs: Vec::with_capacity(reservoir * od),
+                carry: 0.0,
+                rng: NpRandom::spawned(cfg.seed, &[KEY_RESERVOIR]),
+            },
+            drawn: 0.0,
+            loader: Mutex::new(spawn_loader(layout.clone(), cfg.seed, slots)),
+            stats: PoolStats::default(),
+        };
+        pool.reindex();
+        pool.first_fill()?;
+        Ok(pool)
+    }
+
+    /// Fills the reservoir from every block of the table: each gives its share of entries,
+    /// drawn uniformly from its observations, so random goals come from the whole table from the
+    /// first batch on. Reads the observation and achieved-goal columns once (in parallel, a block
+    /// at a time per thread); later blocks refresh the entries as they enter ([`Pool::feed`]).
+    fn first_fill(&mut self) -> Result<()> {
+        let layout = self.layout.clone();
+        let (t, od, gd) = (layout.t, layout.task.obs_dim, layout.task.goal_dim);
+        let r = &mut self.reservoir;
+        // Entries per block, carry-rounded so they sum to the reservoir's size.
+        let mut counts = Vec::with_capacity(layout.blocks.len());
+        let mut carry = 0.0;
+        for b in &layout.blocks {
+            carry += r.len as f64 * b.episodes as f64 / layout.episodes as f64;
+            let k = carry.floor() as usize;
+            carry -= k as f64;
+            counts.push(k);
+        }
+        let short = r.len - counts.iter().sum::<usize>();
+        *counts.last_mut().expect("a table has blocks") += short;
+        // Each block's draws from a generator of its own, so the entries do not depend on the
+        // order the threads finish in.
+        let seed = self.cfg.seed;
+        let parts = (0..layout.blocks.len())
+            .into_par_iter()
+            .map(|id| -> Result<_> {
+                let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR, 1 + id as u64]);
+                let b = layout.read_columns(id, &[true, true, false, false])?;
+                let mut part = (Vec::new(), Vec::new(), Vec::new());
+                for _ in 0..counts[id] {
+                    let (e, s) = (rng.below(b.n), rng.below(t));
+                    part.0.push((b.first_episode + e as u64, s as u32));
+                    part.1.extend_from_slice(&b.ag[(e * t + s) * gd..][..gd]);
+                    part.2.extend_from_slice(&b.obs[(e * t + s) * od..][..od]);
+                }
+                Ok(part)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let (mut key, mut ag, mut obs) = (Vec::with_capacity(r.len), Vec::new(), Vec::new());
+        for part in parts {
+            key.extend(part.0);
+            ag.extend(part.1);
+            obs.extend(part.2);
+        }
+        // In a random order: entries are replaced oldest first, and in block order the entries
+        // of the table's first shards would all go before any of the last ones'.
+        let mut order: Vec<usize> = (0..r.len).collect();
+        for i in (1..order.len()).rev() {
+            order.swap(i, r.rng.below(i + 1));
+        }
+        for i in order {
+            r.key.push(key[i]);
+            r.ag.extend_from_slice(&ag[i * gd..][..gd]);
+            r.obs.extend_from_slice(&obs[i * od..][..od]);
+        }
+        Ok(())
+    }
+
+    /// What waiting for the disk has cost so far.
+    pub fn stats(&self) -> PoolStats {
+        self.stats
+    }
+
+    /// Resident episodes now.
+    pub fn resident_episodes(&self) -> usize {
+        self.index.len()
+    }
+
+    /// The resident blocks' arrays (observations, desired goals, achieved goals): what a trainer
+    /// fits its normalizer on, a uniform sample of the table's blocks.
+    pub fn resident_arrays(&self) -> (Vec<&[f32]>, Vec<&[f32]>, Vec<&[f32]>) {
+        let r = &self.resident;
+        (r.iter().map(|b| &b.obs[..]).collect(), r.iter().map(|b| &b.g[..]).collect(), r.iter().map(|b| &b.ag[..]).collect())
+    }
+
+    fn reindex(&mut self) {
+        self.index.clear();
+        for (slot, b) in self.resident.iter().enumerate() {
+            self.index.extend((0..b.n).map(|e| (slot as u32, e as u32)));
+        }
+    }
+
+    /// Takes the next block from the loader in place of the oldest, and feeds the reservoir.
+    fn swap(&mut self) -> Result<()> {
+        let t0 = Instant::now();
+        let next = {
+            let rx = self.loader.get_mut().expect("the loader's channel is never poisoned");
+            match rx.try_recv() {
+                Ok(b) => b,
+                Err(_) => {
+                    let b = rx.recv().map_err(|_| anyhow!("the pool's loader stopped"))?;
+                    let w = t0.elapsed();
+                    self.stats.waits += 1;
+                    self.stats.waited += w;
+                    self.stats.longest_wait = self.stats.longest_wait.max(w);
+                    b
+                }
+            }
+        }?;
+        self.stats.swaps += 1;
+        self.resident.pop_front();
+        self.feed(&next);
+        self.resident.push_back(next);
+        self.reindex();
+        Ok(())
+    }
+
+    /// Replaces `R · r / N` reservoir entries, oldest first, with observations of block `b`.
+    fn feed(&mut self, b: &Block) {
+        let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
+        let r = &mut self.reservoir;
+        r.carry += r.len as f64 * b.n as f64 / self.layout.episodes as f64;
+        let k = r.carry.floor() as usize;
+        r.carry -= k as f64;
+        for _ in 0..k {
+            let (e, s) = (r.rng.below(b.n), r.rng.below(t));
+            let i = r.next;
+            r.key[i] = (b.first_episode + e as u64, s as u32);
+            r.ag[i * gd..][..gd].copy_from_slice(&b.ag[(e * t + s) * gd..][..gd]);
+            r.obs[i * od..][..od].copy_from_slice(&b.obs[(e * t + s) * od..][..od]);
+            r.next = (i + 1) % r.len;
+        }
+    }
+
+    fn block(&self, e: usize) -> (&Block, usize) {
+        let (slot, local) = self.index[e];
+        (&self.resident[slot as usize], local as usize)
+    }
+}
+
+/// The loader: pass after pass of [`permutation`]s, from position `skip` of pass 0 (the `skip`
+/// blocks before it are the first fill, and every pass's fixed head), each block read and sent through a channel of one. It stops
+/// when the pool is dropped (the send fails) or after a read error, which it sends.
+fn spawn_loader(layout: Arc<Layout>, seed: u64, skip: usize) -> Receiver<Result<Block>> {
+    let (tx, rx) = sync_channel(1);
+    std::thread::Builder::new()
+        .name("pgser-pool-loader".into())
+        .spawn(move || {
+            for pass in 0.. {
+                let order = permutation(layout.blocks.len(), skip, seed, pass);
+                let from = if pass == 0 { skip } else { 0 };
+                for &id in &order[from..] {
+                    let block = layout.read(id);
+                    let failed = block.is_err();
+                    if tx.send(block).is_err() || failed {
+                        return;
+                    }
+                }
+            }
+        })
+        .expect("a thread starts");
+    rx
+}
+
+impl View for Pool {
+    fn task(&self) -> &Task {
+        &self.layout.task
+    }
+    fn episodes(&self) -> usize {
+        self.index.len()
+    }
+    fn t(&self) -> usize {
+        self.layout.t
+    }
+    fn obs(&self, e: usize, s: usize) -> &[f32] {
+        let (b, l) = self.block(e);
+        let d = self.layout.task.obs_dim;
+        &b.obs[(l * self.layout.t + s) * d..][..d]
+    }
+    fn ag(&self, e: usize, s: usize) -> &[f32] {
+        let (b, l) = self.block(e);
+        let d = self.layout.task.goal_dim;
+        &b.ag[(l * self.layout.t + s) * d..][..d]
+    }
+    fn goal(&self, e: usize, s: usize) -> &[f32] {
+        let (b, l) = self.block(e);
+        let d = self.layout.task.goal_dim;
+        &b.g[(l * (self.layout.t - 1) + s) * d..][..d]
+    }
+    fn action(&self, e: usize, s: usize) -> &[f32] {
+        let (b, l) = self.block(e);
+        let d = self.layout.task.act_dim;
+        &b.u[(l * (self.layout.t - 1) + s) * d..][..d]
+    }
+    fn episode_number(&self, e: usize) -> u64 {
+        let (b, l) = self.block(e);
+        b.first_episode + l as u64
+    }
+    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+        let i = rng.below(self.reservoir.len);
+        let (episode, step) = self.reservoir.key[i];
+        GoalSource { episode, step, slot: i as u64 }
+    }
+    fn goal_ag(&self, g: GoalSource) -> &[f32] {
+        let d = self.layout.task.goal_dim;
+        &self.reservoir.ag[g.slot as usize * d..][..d]
+    }
+    fn goal_obs(&self, g: GoalSource) -> &[f32] {
+        let d = self.layout.task.obs_dim;
+        &self.reservoir.obs[g.slot as usize * d..][..d]
+    }
+    fn refresh(&mut self, rows: usize) -> Result<()> {
+        self.drawn += rows as f64;
+        loop {
+            let leaving = self.resident.front().expect("at least two blocks resident");
+            let due = self.cfg.draws_per_row * (leaving.n * (self.layout.t - 1)) as f64;
+            if self.drawn < due {
+                return Ok(());
+            }
+            self.drawn -= due;
+            self.swap()?;
+        }
+    }
+}
+
+impl std::fmt::Debug for Pool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let ids: Vec<usize> = self.resident.iter().map(|b| b.id).collect();
+        write!(f, "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}", self.layout.task.name, self.reservoir.len)
+    }
 }

@@ -104,36 +104,9 @@ impl Replay {
     /// it with the checkpoint it belongs to). `note` goes into the footer's `policy` field, which
     /// `load` checks, so a buffer is never continued with a checkpoint it does not belong to.
     pub fn stage(&self, path: &Path, note: &str, command: &str) -> Result<AtomicFile> {
-        let d = &self.data;
-        let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, WriterOptions::new(ROW_GROUP_ROWS))?;
-        // A few row groups at a time, so the byte copy beside the buffer stays small; cuts fall
-        // on row-group boundaries, so the file does not depend on them.
-        let chunk = w.episodes_per_group() * 4;
-        let (t, task) = (d.t, &d.task);
-        let dims = [(t, task.obs_dim), (t, task.goal_dim), (t - 1, task.act_dim), (t - 1, task.goal_dim)];
-        for start in (0..d.n).step_by(chunk.max(1)) {
-            let end = (start + chunk).min(d.n);
-            let bytes: Vec<Vec<u8>> = [&d.obs, &d.ag, &d.u, &d.g]
-                .iter()
-                .zip(dims)
-                .map(|(v, (steps, dim))| {
-                    v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect()
-                })
-                .collect();
-            let arrays =
-                std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
-            let src = EpisodeArrays {
-                origin: path.display().to_string(),
-                keys: KEYS,
-                arrays,
-                episodes: end - start,
-                extras: Vec::new(),
-            };
-            w.append(&src, 0, end - start)?;
-        }
-        let mut footer = Footer::new(&d.task, FloatType::Float32, d.n, command.to_string());
+        let mut footer = Footer::new(&self.data.task, FloatType::Float32, self.data.n, command.to_string());
         footer.policy = Some(note.to_string());
-        w.finish_staged(&footer)
+        stage_table(&self.data, path, ROW_GROUP_ROWS, &footer)
     }
 
     /// The buffer `stage` wrote, checked: `task`'s episodes, no more than `capacity`, and the
@@ -249,4 +222,34 @@ mod tests {
         let err = Replay::load(&path, &task, 10, "after cycle 8").err().unwrap().to_string();
         assert!(err.contains("after cycle 7") && err.contains("another point"), "{err}");
     }
+}
+
+/// Writes `d` as a float32 trajectory table at `path` with row groups of about `row_group_rows`
+/// rows (whole episodes), not yet in place (the caller commits it). What a replay buffer is saved
+/// as, and how tests make tables of coded episodes.
+pub fn stage_table(d: &Episodes, path: &Path, row_group_rows: usize, footer: &Footer) -> Result<AtomicFile> {
+    let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, WriterOptions::new(row_group_rows))?;
+    // A few row groups at a time, so the byte copy beside the episodes stays small; cuts fall
+    // on row-group boundaries, so the file does not depend on them.
+    let chunk = w.episodes_per_group() * 4;
+    let (t, task) = (d.t, &d.task);
+    let dims = [(t, task.obs_dim), (t, task.goal_dim), (t - 1, task.act_dim), (t - 1, task.goal_dim)];
+    for start in (0..d.n).step_by(chunk.max(1)) {
+        let end = (start + chunk).min(d.n);
+        let bytes: Vec<Vec<u8>> = [&d.obs, &d.ag, &d.u, &d.g]
+            .iter()
+            .zip(dims)
+            .map(|(v, (steps, dim))| v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect())
+            .collect();
+        let arrays = std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
+        let src = EpisodeArrays {
+            origin: path.display().to_string(),
+            keys: KEYS,
+            arrays,
+            episodes: end - start,
+            extras: Vec::new(),
+        };
+        w.append(&src, 0, end - start)?;
+    }
+    w.finish_staged(footer)
 }

@@ -15,10 +15,13 @@ use anyhow::{Result, bail};
 
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
+use super::pool::{Beta, Pool};
+use super::view::{Budget, View};
 use super::{RowKey, SamplerConfig, Swap};
 use crate::agent::{Batch, Rows};
 use crate::nprandom::NpRandom;
 use crate::output::sha256_file;
+use crate::task::Task;
 use crate::trajectory::Episodes;
 
 /// Spawn key of the batch stream (the agent's streams use 1 and 2, the prioritized draws 4).
@@ -50,14 +53,21 @@ pub struct RowIds {
 /// The data a stream draws from, opened and checked, before the stream starts: the trainer fits
 /// its normalizer on `data` and restores a checkpoint before it knows where the stream resumes.
 pub struct BatchSource {
-    pub data: Arc<Episodes>,
+    pub data: Beta,
     scored: Option<ScoredTable>,
 }
 
 impl BatchSource {
-    /// Opens a trajectory table, or a scored table and the trajectory table its footer names.
-    /// Settings that cannot make batches from this data are refused here, naming the file.
+    /// Opens a trajectory table (a file or a table folder), or a scored table and the trajectory
+    /// table its footer names, whole in memory. Settings that cannot make batches from this data
+    /// are refused here, naming the file.
     pub fn open(path: &Path, cfg: &StreamConfig) -> Result<BatchSource> {
+        BatchSource::open_within(path, cfg, Budget::Unbounded)
+    }
+
+    /// As [`BatchSource::open`], with β held within `budget` (`--memory-budget`): whole when it
+    /// fits (the same batches as `open`), an out-of-core pool otherwise (`pool.rs`).
+    pub fn open_within(path: &Path, cfg: &StreamConfig, budget: Budget) -> Result<BatchSource> {
         if cfg.batch_size == 0 {
             bail!("--batch-size must be at least 1");
         }
@@ -77,19 +87,39 @@ impl BatchSource {
                 if !(0.0..=1.0).contains(&cfg.aug_ratio) {
                     bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
                 }
-                beta_of(table)?
+                let data = beta_of(table)?;
+                if let Budget::Bytes(b) = budget {
+                    let need = super::pool::bytes_of(&data);
+                    if need > b {
+                        bail!(
+                            "{at}: its original data take {} in memory, more than --memory-budget {}: a scored \
+                             table's prioritized rows are drawn from its original data held whole",
+                            crate::progress::bytes(need),
+                            crate::progress::bytes(b)
+                        );
+                    }
+                }
+                Beta::Whole(Arc::new(data))
             }
-            None => Episodes::load(path)?,
+            None => match budget {
+                Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
+                Budget::Bytes(b) => Beta::open(path, b, cfg.seed)?,
+            },
         };
-        if data.t < 2 {
-            bail!("{}: episodes of {} step(s) hold no transition", path.display(), data.t);
+        if data.view().t() < 2 {
+            bail!("{}: episodes of {} step(s) hold no transition", path.display(), data.view().t());
         }
-        Ok(BatchSource { data: Arc::new(data), scored })
+        Ok(BatchSource { data, scored })
     }
 
     /// Whether the data is a scored table (batches then mix in prioritized swapped rows).
     pub fn is_scored(&self) -> bool {
         self.scored.is_some()
+    }
+
+    /// The task of the data.
+    pub fn task(&self) -> &Task {
+        self.data.view().task()
     }
 
     /// The stream a fresh run of `cfg` draws: batch 0 on.
@@ -101,25 +131,32 @@ impl BatchSource {
     /// batch `first − 1` (a resumed run's saved state): the batches an uninterrupted run draws.
     pub fn resume(self, cfg: &StreamConfig, rng: NpRandom, first: u64) -> Result<BatchStream> {
         let k_aug = if self.scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
-        let aug = match self.scored {
-            Some(t) => Some(ScoredSampler::start(
+        let aug = match (self.scored, &self.data) {
+            (Some(t), Beta::Whole(data)) => Some(ScoredSampler::start(
                 t,
-                self.data.clone(),
+                data.clone(),
                 &cfg.priority,
                 k_aug,
                 cfg.seed,
                 first,
                 cfg.aug_in_memory,
             )?),
-            None => None,
+            (Some(_), Beta::Pool(_)) => unreachable!("a scored table's β is held whole (open_within)"),
+            (None, _) => None,
         };
+        if first > 0 && matches!(self.data, Beta::Pool(_)) {
+            bail!(
+                "a run drawing from an out-of-core pool (--memory-budget below the data's size) cannot resume yet: \
+                 start it again, or give a budget that holds the data"
+            );
+        }
         Ok(BatchStream { data: self.data, aug, k_aug, rng, cfg: cfg.clone() })
     }
 }
 
 /// Batch after batch of one run's training data.
 pub struct BatchStream {
-    data: Arc<Episodes>,
+    data: Beta,
     aug: Option<ScoredSampler>,
     k_aug: usize,
     rng: NpRandom,
@@ -127,8 +164,20 @@ pub struct BatchStream {
 }
 
 impl BatchStream {
-    pub fn data(&self) -> &Arc<Episodes> {
-        &self.data
+    /// β, when it is held whole (what an engine may hold on its device).
+    pub fn whole(&self) -> Option<&Arc<Episodes>> {
+        match &self.data {
+            Beta::Whole(d) => Some(d),
+            Beta::Pool(_) => None,
+        }
+    }
+
+    /// The out-of-core pool, when β is one.
+    pub fn pool(&self) -> Option<&Pool> {
+        match &self.data {
+            Beta::Whole(_) => None,
+            Beta::Pool(p) => Some(p),
+        }
     }
 
     /// The original data's generator, as a resumed run must restore it.
@@ -138,16 +187,35 @@ impl BatchStream {
 
     /// The next batch, with where each of its rows came from.
     pub fn next_batch(&mut self) -> Result<(Batch, RowIds)> {
-        let (rows, ids) = self.next_rows()?;
-        Ok((rows.gather(&super::table(&self.data)), ids))
+        match &mut self.data {
+            Beta::Whole(data) => {
+                let data = data.clone();
+                let (rows, ids) = self.next_rows()?;
+                Ok((rows.gather(&super::table(&data)), ids))
+            }
+            Beta::Pool(pool) => {
+                pool.refresh(self.cfg.batch_size)?;
+                let drawn = super::draw(pool.as_ref(), &self.cfg.sampler, &mut self.rng, self.cfg.batch_size);
+                let ids = RowIds {
+                    episode: drawn.iter().map(|r| pool.episode_number(r.0) as u32).collect(),
+                    step: drawn.iter().map(|r| r.1 as u32).collect(),
+                    scored_row: vec![-1; drawn.len()],
+                };
+                Ok((super::gather(pool.as_ref(), &drawn), ids))
+            }
+        }
     }
 
-    /// The next batch as the rows it names in β (`super::table(self.data())`), with their
-    /// rewards and weights: what an engine that holds β gathers on its device.
+    /// The next batch as the rows it names in β (`super::table` of [`BatchStream::whole`]), with
+    /// their rewards and weights: what an engine that holds β gathers on its device. Only for β
+    /// held whole; a pool's batches are gathered on the host ([`BatchStream::next_batch`]).
     pub fn next_rows(&mut self) -> Result<(Rows, RowIds)> {
+        let Beta::Whole(data) = &self.data else {
+            bail!("an out-of-core pool's batches are built on the host, not sent as rows of a held table");
+        };
         let n = self.cfg.batch_size - self.k_aug;
-        let drawn = super::draw(&self.data, &self.cfg.sampler, &mut self.rng, n);
-        let mut keys: Vec<RowKey> = drawn.iter().map(|&(e, t, s)| RowKey::of(e, t, s)).collect();
+        let drawn = super::draw(data.as_ref(), &self.cfg.sampler, &mut self.rng, n);
+        let mut keys: Vec<RowKey> = drawn.iter().map(|&(e, t, s)| RowKey::of(e as u64, t, s)).collect();
         let mut ids = RowIds {
             episode: drawn.iter().map(|r| r.0 as u32).collect(),
             step: drawn.iter().map(|r| r.1 as u32).collect(),
@@ -165,7 +233,7 @@ impl BatchStream {
             ids.scored_row.extend(scored.iter().map(|&r| r as i64));
             keys.extend(aug_keys);
         }
-        let mut rows = super::rows(&self.data, keys);
+        let mut rows = super::rows(data, keys);
         rows.weight = weight;
         Ok((rows, ids))
     }

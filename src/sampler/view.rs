@@ -56,14 +56,56 @@ pub trait View: Send + Sync {
     fn goal_ag(&self, g: GoalSource) -> &[f32];
     /// The observation of a source `random_goal` returned.
     fn goal_obs(&self, g: GoalSource) -> &[f32];
-    /// Called between batches: a pool takes in the blocks its loader has read when their turn
-    /// comes. Never changes what is resident in the middle of a batch.
-    fn refresh(&mut self) -> Result<()> {
+    /// Called before each batch with the number of transitions it will draw: a pool counts
+    /// them and takes in the blocks its loader has read when their turn comes (after as many
+    /// draws as the leaving block has transitions), so what is resident depends on the draws
+    /// made, never on timing, and never changes in the middle of a batch.
+    fn refresh(&mut self, rows: usize) -> Result<()> {
+        let _ = rows;
         Ok(())
     }
 }
 
-/// The whole table in memory.
+/// The whole table in memory: every episode resident.
+impl View for Episodes {
+    fn task(&self) -> &Task {
+        &self.task
+    }
+    fn episodes(&self) -> usize {
+        self.n
+    }
+    fn t(&self) -> usize {
+        self.t
+    }
+    fn obs(&self, e: usize, s: usize) -> &[f32] {
+        Episodes::obs(self, e, s)
+    }
+    fn ag(&self, e: usize, s: usize) -> &[f32] {
+        Episodes::ag(self, e, s)
+    }
+    fn goal(&self, e: usize, s: usize) -> &[f32] {
+        Episodes::goal(self, e, s)
+    }
+    fn action(&self, e: usize, s: usize) -> &[f32] {
+        Episodes::action(self, e, s)
+    }
+    fn episode_number(&self, e: usize) -> u64 {
+        e as u64
+    }
+    /// `swap::random_goal`: one draw of `below(n · t)`, as the in-memory sampler has always made it.
+    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+        let (e, s) = crate::swap::random_goal(self.n, self.t, rng);
+        GoalSource { episode: e as u64, step: s as u32, slot: (e * self.t + s) as u64 }
+    }
+    fn goal_ag(&self, g: GoalSource) -> &[f32] {
+        Episodes::ag(self, g.episode as usize, g.step as usize)
+    }
+    fn goal_obs(&self, g: GoalSource) -> &[f32] {
+        Episodes::obs(self, g.episode as usize, g.step as usize)
+    }
+}
+
+/// The whole table in memory, shared.
 #[derive(Debug, Clone)]
 pub struct InMemory(pub Arc<Episodes>);
 
@@ -92,16 +134,14 @@ impl View for InMemory {
     fn episode_number(&self, e: usize) -> u64 {
         e as u64
     }
-    /// `swap::random_goal`: one draw of `below(n · t)`, as the in-memory sampler has always made it.
     fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
-        let (e, s) = crate::swap::random_goal(self.0.n, self.0.t, rng);
-        GoalSource { episode: e as u64, step: s as u32, slot: (e * self.0.t + s) as u64 }
+        View::random_goal(&*self.0, rng)
     }
     fn goal_ag(&self, g: GoalSource) -> &[f32] {
-        self.0.ag(g.episode as usize, g.step as usize)
+        View::goal_ag(&*self.0, g)
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
-        self.0.obs(g.episode as usize, g.step as usize)
+        View::goal_obs(&*self.0, g)
     }
 }
 
@@ -117,9 +157,50 @@ pub enum Budget {
 
 /// Opens a trajectory table (a file or a table folder) as a view within `budget`.
 pub fn open(path: &Path, budget: Budget, seed: u64) -> Result<Box<dyn View>> {
-    let _ = seed;
     match budget {
         Budget::Unbounded => Ok(Box::new(InMemory(Arc::new(Episodes::load(path)?)))),
         Budget::Bytes(b) => super::pool::open(path, b, seed),
+    }
+}
+
+/// A size as `--memory-budget` and `memory_budget=` take it: bytes, or a number with a unit,
+/// decimal (`kB`, `MB`, `GB`, `TB`) or binary (`KiB`, `MiB`, `GiB`, `TiB`): "2GB", "1.5 GiB".
+pub fn parse_bytes(s: &str) -> std::result::Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let value: f64 = num.parse().map_err(|_| format!("{s:?}: not a size (e.g. 2GB, 512MiB, 1000000000)"))?;
+    let scale: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kb" => 1e3,
+        "m" | "mb" => 1e6,
+        "g" | "gb" => 1e9,
+        "t" | "tb" => 1e12,
+        "kib" => 1024.0,
+        "mib" => 1024.0 * 1024.0,
+        "gib" => 1024.0 * 1024.0 * 1024.0,
+        "tib" => 1024.0f64.powi(4),
+        u => return Err(format!("{s:?}: unknown unit {u:?} (B, kB, MB, GB, TB, KiB, MiB, GiB, TiB)")),
+    };
+    let b = value * scale;
+    if !b.is_finite() || b < 1.0 || b > u64::MAX as f64 {
+        return Err(format!("{s:?}: not a size of at least one byte"));
+    }
+    Ok(b as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_in_both_unit_systems_and_bad_ones_are_named() {
+        assert_eq!(parse_bytes("2GB"), Ok(2_000_000_000));
+        assert_eq!(parse_bytes("1.5 GiB"), Ok(1_610_612_736));
+        assert_eq!(parse_bytes("512mib"), Ok(512 << 20));
+        assert_eq!(parse_bytes("1000"), Ok(1000));
+        for bad in ["", "GB", "2XB", "-1GB", "0"] {
+            assert!(parse_bytes(bad).is_err(), "{bad:?}");
+        }
     }
 }

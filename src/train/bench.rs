@@ -188,7 +188,8 @@ pub fn bench_stream(
             .map(|s| {
                 let rows = s.next_rows()?.0;
                 if gather {
-                    std::hint::black_box(rows.gather(&crate::sampler::table(s.data())));
+                    let data = s.whole().expect("opened whole");
+                    std::hint::black_box(rows.gather(&crate::sampler::table(data)));
                 }
                 Ok(())
             })

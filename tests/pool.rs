@@ -1,0 +1,304 @@
+//! The out-of-core pool (`src/sampler/pool.rs`): β drawn from a table folder larger than the
+//! memory budget, with transitions and random goals from the whole table.
+//!
+//! The tables are coded (`Episodes::coded`): every observation and achieved goal of the folder's
+//! episode e, step s is e·1000 + s, so every value in a batch says which row it came from. The
+//! folder has four shards of unequal size cut into row groups of 5 episodes (96 blocks), and the
+//! budget holds 6 of them, so at any time 30 of the 480 episodes are resident.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use pgser::sampler::stream::{BatchSource, StreamConfig};
+use pgser::sampler::view::Budget;
+use pgser::sampler::{SamplerConfig, Swap};
+use pgser::trajectory::folder::Manifest;
+use pgser::trajectory::{Episodes, FloatType, Footer};
+
+const SHARDS: [usize; 4] = [120, 75, 180, 105];
+const EPISODES: usize = 480;
+/// FetchReach's T.
+const T: usize = 50;
+const GROUP_EPISODES: usize = 5;
+/// Holds 6 blocks of 5 episodes beside the reservoir and the blocks in flight (pool.rs `Plan`).
+const BUDGET: u64 = 220_000;
+const BATCH: usize = 98;
+/// One pass: as many draws as the table has transitions.
+const PASS_BATCHES: usize = EPISODES * (T - 1) / BATCH;
+
+/// The coded folder, written once per test into `dir`.
+fn folder(dir: &Path) -> PathBuf {
+    let out = dir.join("coded");
+    std::fs::create_dir_all(&out).unwrap();
+    let mut first = 0;
+    let mut files = Vec::new();
+    for (i, &n) in SHARDS.iter().enumerate() {
+        // Desired goals are never reached (−1), so rewards say nothing here; the values do.
+        let d = coded(first, n);
+        let file = format!("coded-{i}.parquet");
+        let footer = Footer::new(&d.task, FloatType::Float32, n, "test".into());
+        pgser::sampler::replay::stage_table(&d, &out.join(&file), GROUP_EPISODES * T, &footer).unwrap().commit().unwrap();
+        files.push(file);
+        first += n;
+    }
+    Manifest::of_shards(&out, &files, "test", false, None).unwrap().write(&out).unwrap();
+    out
+}
+
+/// FetchReach-shaped episodes whose observations and achieved goals of (episode e, step s) are
+/// (first + e)·1000 + s, actions that over 10⁵, and desired goals −1 (never reached).
+fn coded(first: usize, n: usize) -> Episodes {
+    let task = pgser::task::Task::known("FetchReach").unwrap();
+    let code = |e: usize, s: usize| ((first + e) * 1000 + s) as f32;
+    let (mut obs, mut ag, mut g, mut u) = (vec![], vec![], vec![], vec![]);
+    for e in 0..n {
+        for s in 0..T {
+            obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
+            ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
+            if s + 1 < T {
+                g.extend(std::iter::repeat_n(-1.0, task.goal_dim));
+                u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
+            }
+        }
+    }
+    let footer = Footer::new(&task, FloatType::Float32, n, "test".into());
+    Episodes { footer, task, n, t: T, obs, ag, g, u }
+}
+
+fn config(swap: Swap, swap_ratio: f64, her_ratio: f64, seed: u64) -> StreamConfig {
+    StreamConfig {
+        sampler: SamplerConfig { swap, swap_ratio, her_ratio },
+        batch_size: BATCH,
+        aug_ratio: 0.5,
+        priority: Default::default(),
+        aug_in_memory: false,
+        seed,
+    }
+}
+
+/// The shard holding the folder's episode `e`.
+fn shard_of(e: usize) -> usize {
+    let mut end = 0;
+    SHARDS.iter().position(|&n| {
+        end += n;
+        e < end
+    })
+    .unwrap()
+}
+
+/// (episode, step) a coded value names.
+fn decode(v: f32) -> (usize, usize) {
+    let v = v as usize;
+    (v / 1000, v % 1000)
+}
+
+/// Pearson's statistic of `counts` against equal expectation, and the bound a uniform draw
+/// exceeds with probability about 1e-4 (Wilson–Hilferty).
+fn chi_square(counts: &[u64]) -> (f64, f64) {
+    let total: u64 = counts.iter().sum();
+    let e = total as f64 / counts.len() as f64;
+    let stat = counts.iter().map(|&c| (c as f64 - e).powi(2) / e).sum();
+    let k = (counts.len() - 1) as f64;
+    let z = 3.72;
+    let bound = k * (1.0 - 2.0 / (9.0 * k) + z * (2.0 / (9.0 * k)).sqrt()).powi(3);
+    (stat, bound)
+}
+
+/// Shares of shards in `episodes` against their shares of rows: the largest gap, in points.
+fn worst_share_gap(episodes: impl Iterator<Item = usize>) -> f64 {
+    let mut counts = [0u64; 4];
+    for e in episodes {
+        counts[shard_of(e)] += 1;
+    }
+    let total: u64 = counts.iter().sum();
+    (0..4)
+        .map(|i| (100.0 * counts[i] as f64 / total as f64 - 100.0 * SHARDS[i] as f64 / EPISODES as f64).abs())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn one_pass_gives_every_shard_its_share_and_episodes_and_steps_uniform_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::None, 0.5, 0.0, 7);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let pool = s.pool().expect("the table is larger than the budget");
+    assert_eq!(pool.resident_episodes(), 6 * GROUP_EPISODES);
+    let (mut by_episode, mut by_step) = (vec![0u64; EPISODES], vec![0u64; T - 1]);
+    for _ in 0..PASS_BATCHES {
+        let (b, ids) = s.next_batch().unwrap();
+        for i in 0..b.n {
+            // The row is what its ids say: o and o′ of that episode and step.
+            let (e, t) = (ids.episode[i] as usize, ids.step[i] as usize);
+            assert_eq!(decode(b.obs[i * 10]), (e, t));
+            assert_eq!(decode(b.next_obs[i * 10]), (e, t + 1));
+            by_episode[e] += 1;
+            by_step[t] += 1;
+        }
+    }
+    let gap = worst_share_gap(by_episode.iter().enumerate().flat_map(|(e, &c)| std::iter::repeat_n(e, c as usize)));
+    assert!(gap < 2.0, "a shard's share of the draws is {gap:.2} points off its share of the rows");
+    let (stat, bound) = chi_square(&by_episode);
+    assert!(stat < bound, "episode counts: chi-square {stat:.0} over {bound:.0} ({} episodes)", EPISODES);
+    assert!(by_episode.iter().all(|&c| c > 0), "an episode was never drawn in a pass");
+    let (stat, bound) = chi_square(&by_step);
+    assert!(stat < bound, "step counts: chi-square {stat:.1} over {bound:.1}");
+    let stats = s.pool().unwrap().stats();
+    assert_eq!(stats.swaps as usize, EPISODES / GROUP_EPISODES, "one pass swaps every block in once");
+}
+
+#[test]
+fn random_goals_come_from_every_shard_in_proportion_and_her_goals_from_the_rows_episode() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    // Every row swapped.
+    let cfg = config(Swap::Random, 1.0, 0.0, 3);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut goal_episodes = Vec::new();
+    let mut sources = std::collections::BTreeSet::new();
+    for _ in 0..PASS_BATCHES {
+        let (b, _) = s.next_batch().unwrap();
+        for i in 0..b.n {
+            let (ge, gs) = decode(b.goal[i * 3]);
+            goal_episodes.push(ge);
+            sources.insert((ge, gs));
+        }
+    }
+    // The reservoir this budget affords is small (about 400 goals, refreshed as blocks enter),
+    // so goals repeat across a pass; the steps of the distinct goals must be uniform.
+    let mut goal_steps = vec![0u64; T];
+    for &(_, gs) in &sources {
+        goal_steps[gs] += 1;
+    }
+    let gap = worst_share_gap(goal_episodes.iter().copied());
+    assert!(gap < 2.0, "a shard's share of the random goals is {gap:.2} points off its share of the rows");
+    let distinct: std::collections::BTreeSet<usize> = goal_episodes.iter().copied().collect();
+    assert!(distinct.len() > EPISODES / 2, "random goals came from {} episodes of {EPISODES}", distinct.len());
+    let (stat, bound) = chi_square(&goal_steps);
+    assert!(stat < bound, "random goals' steps: chi-square {stat:.1} over {bound:.1}");
+
+    // HER: every relabelled goal is a later achieved goal of the row's own episode.
+    let cfg = config(Swap::None, 0.5, 1.0, 4);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    for _ in 0..PASS_BATCHES / 4 {
+        let (b, ids) = s.next_batch().unwrap();
+        for i in 0..b.n {
+            let (ge, gs) = decode(b.goal[i * 3]);
+            assert_eq!(ge, ids.episode[i] as usize, "row {i}: HER goal from another episode");
+            assert!(gs > ids.step[i] as usize && gs < T, "row {i}: HER goal step {gs} for step {}", ids.step[i]);
+        }
+    }
+}
+
+#[test]
+fn rows_of_a_batch_share_episodes_as_uniform_draws_from_the_resident_ones_do() {
+    // Uniform draws of B rows from P episodes put C(B, 2)/P pairs in one episode, and C(B, 2)/(P·(T − 1))
+    // pairs on one transition. The pool's rows must not cluster more than that (within 10 % and
+    // 20 %: about 10 and 5 standard deviations over a pass); drawing from the whole table would
+    // give N/P = 16 times fewer pairs, the price of the budget, which docs/ogbench.md states.
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::None, 0.5, 0.0, 11);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let p = s.pool().unwrap().resident_episodes() as f64;
+    let (mut same_episode, mut same_row) = (0u64, 0u64);
+    for _ in 0..PASS_BATCHES {
+        let (_, ids) = s.next_batch().unwrap();
+        for i in 0..BATCH {
+            for j in 0..i {
+                if ids.episode[i] == ids.episode[j] {
+                    same_episode += 1;
+                    same_row += (ids.step[i] == ids.step[j]) as u64;
+                }
+            }
+        }
+    }
+    let pairs = (BATCH * (BATCH - 1) / 2 * PASS_BATCHES) as f64;
+    let (want_episode, want_row) = (pairs / p, pairs / (p * (T - 1) as f64));
+    let r = same_episode as f64 / want_episode;
+    assert!((0.9..1.1).contains(&r), "{same_episode} same-episode pairs where uniform draws give {want_episode:.0}");
+    let r = same_row as f64 / want_row;
+    assert!((0.8..1.2).contains(&r), "{same_row} repeated rows where uniform draws give {want_row:.0}");
+}
+
+#[test]
+fn a_budget_that_holds_the_table_gives_the_in_memory_batches_number_for_number() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    for cfg in [config(Swap::None, 0.5, 0.5, 5), config(Swap::Random, 0.5, 0.5, 6)] {
+        let mut whole = BatchSource::open(&data, &cfg).unwrap().start(&cfg).unwrap();
+        let mut within = BatchSource::open_within(&data, &cfg, Budget::Bytes(1 << 30)).unwrap().start(&cfg).unwrap();
+        assert!(within.pool().is_none());
+        for _ in 0..50 {
+            assert_eq!(whole.next_batch().unwrap(), within.next_batch().unwrap());
+        }
+    }
+}
+
+#[test]
+fn the_same_seed_gives_the_same_batches_and_another_seed_others() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let run = |seed| {
+        let cfg = config(Swap::Random, 0.5, 0.5, seed);
+        let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+        (0..PASS_BATCHES).map(|_| s.next_batch().unwrap()).collect::<Vec<_>>()
+    };
+    let a = run(1);
+    assert!(a == run(1), "the same seed drew other batches");
+    assert!(a != run(2), "another seed drew the same batches");
+}
+
+#[test]
+fn the_cli_draws_the_same_bytes_at_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let out = |threads: &str| {
+        let path = dir.path().join(format!("batches-{threads}.parquet"));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+            .args(["batches", "--data"])
+            .arg(&data)
+            .args(["--count", "300", "--batch-size", "98", "--swap", "random", "--memory-budget", "220kB", "-o"])
+            .arg(&path)
+            .env("RAYON_NUM_THREADS", threads)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", common::text(&o.stderr));
+        std::fs::read(&path).unwrap()
+    };
+    assert_eq!(out("1"), out("2"));
+}
+
+#[test]
+fn a_budget_too_small_is_refused_saying_what_would_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::None, 0.5, 0.5, 0);
+    let e = BatchSource::open_within(&data, &cfg, Budget::Bytes(60_000)).err().expect("refused").to_string();
+    assert!(e.contains("fewer than two") && e.contains("give at least"), "{e}");
+}
+
+#[test]
+fn a_corrupt_block_is_named_by_file_and_row_group() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    // Flip a byte in the middle of shard 2's data pages.
+    let shard = data.join("coded-2.parquet");
+    let mut bytes = std::fs::read(&shard).unwrap();
+    let i = bytes.len() / 3;
+    bytes[i] ^= 0x40;
+    std::fs::write(&shard, &bytes).unwrap();
+    // The manifest's sizes still agree, so the folder opens; the block read finds the fault,
+    // at the first fill (observations and goals) or when the loader reaches it.
+    let cfg = config(Swap::None, 0.5, 0.5, 0);
+    let e = match BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)) {
+        Err(e) => e,
+        Ok(src) => {
+            let mut s = src.start(&cfg).unwrap();
+            (0..3 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("the corrupt block is read in 3 passes")
+        }
+    };
+    let e = format!("{e:#}");
+    assert!(e.contains("coded-2.parquet") && e.contains("row group"), "{e}");
+}
