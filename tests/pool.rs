@@ -302,3 +302,22 @@ fn a_corrupt_block_is_named_by_file_and_row_group() {
     let e = format!("{e:#}");
     assert!(e.contains("coded-2.parquet") && e.contains("row group"), "{e}");
 }
+
+#[test]
+fn a_resumed_stream_draws_what_an_uninterrupted_one_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::Random, 0.5, 0.5, 9);
+    let open = || BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap();
+    let mut whole = open().start(&cfg).unwrap();
+    // Stopped past more than a pass (swaps, reservoir refreshes and a new pass's order replayed).
+    let stop = PASS_BATCHES as u64 + 37;
+    for _ in 0..stop {
+        whole.next_batch().unwrap();
+    }
+    let rng = whole.rng().clone();
+    let mut resumed = open().resume(&cfg, rng, stop).unwrap();
+    for _ in 0..PASS_BATCHES {
+        assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
+    }
+}

@@ -127,7 +127,9 @@ impl Beta {
         let layout = Layout::open(path)?;
         Ok(match Plan::of(&layout, budget)? {
             Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
-            Plan::Pool { slots, reservoir } => Beta::Pool(Box::new(Pool::start(Arc::new(layout), cfg, slots, reservoir)?)),
+            Plan::Pool { slots, reservoir } => {
+                Beta::Pool(Box::new(Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?))
+            }
         })
     }
 }
@@ -341,23 +343,102 @@ struct Block {
     u: Vec<f32>,
 }
 
-/// Random goals from the whole table (see the module doc).
-struct Reservoir {
-    len: usize,
-    /// Next entry to replace (the oldest).
+impl Block {
+    fn obs(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
+        &self.obs[(e * t + s) * d..][..d]
+    }
+    fn ag(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
+        &self.ag[(e * t + s) * d..][..d]
+    }
+}
+
+/// The order blocks enter in, as one sequence over the passes: entry i is block
+/// `permutation(.., i / B)[i % B]`. Computed, never stored beyond the current pass, so both the
+/// loader and a resumed pool can find entry i without reading anything.
+struct Entries {
+    blocks: usize,
+    head: usize,
+    seed: u64,
+    pass: u64,
+    order: Vec<usize>,
+}
+
+impl Entries {
+    fn new(blocks: usize, head: usize, seed: u64) -> Entries {
+        Entries { blocks, head, seed, pass: 0, order: permutation(blocks, head, seed, 0) }
+    }
+
+    fn get(&mut self, i: u64) -> usize {
+        let pass = i / self.blocks as u64;
+        if pass != self.pass {
+            self.order = permutation(self.blocks, self.head, self.seed, pass);
+            self.pass = pass;
+        }
+        self.order[(i % self.blocks as u64) as usize]
+    }
+}
+
+/// The reservoir's entries as (block, episode in it, step): what the pool's random numbers decide
+/// alone, before any data is read. Vectors are filled in from the blocks afterwards
+/// ([`Pool::materialize`], [`Pool::swap`]).
+struct Keys {
+    slots: Vec<(u32, u32, u32)>,
+    /// Next slot to replace (the oldest).
     next: usize,
-    key: Vec<(u64, u32)>,
-    ag: Vec<f32>,
-    obs: Vec<f32>,
     /// The fraction of an entry owed to the next block.
     carry: f64,
     rng: NpRandom,
 }
 
+impl Keys {
+    /// The first fill: every block gives its share of entries (carry-rounded, so they sum to
+    /// `len`), uniform over its observations, each block's from a generator of its own; then the
+    /// entries are put in a random order, since they are replaced oldest first and in block order
+    /// the first shards' entries would all go before any of the last ones'.
+    fn first(layout: &Layout, len: usize, seed: u64) -> Keys {
+        let mut slots = Vec::with_capacity(len);
+        let mut carry = 0.0;
+        for (id, b) in layout.blocks.iter().enumerate() {
+            carry += len as f64 * b.episodes as f64 / layout.episodes as f64;
+            let mut k = carry.floor() as usize;
+            carry -= k as f64;
+            if id + 1 == layout.blocks.len() {
+                k = len - slots.len();
+            }
+            let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR, 1 + id as u64]);
+            for _ in 0..k {
+                slots.push((id as u32, rng.below(b.episodes) as u32, rng.below(layout.t) as u32));
+            }
+        }
+        let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR]);
+        for i in (1..slots.len()).rev() {
+            slots.swap(i, rng.below(i + 1));
+        }
+        Keys { slots, next: 0, carry: 0.0, rng }
+    }
+
+    /// Block `id` enters: it replaces its share of entries, `R · r / N` for its `r` observations
+    /// (the fraction carried), oldest first. Returns the slots it wrote.
+    fn feed(&mut self, layout: &Layout, id: usize) -> std::ops::Range<usize> {
+        let b = layout.blocks[id];
+        let len = self.slots.len();
+        self.carry += len as f64 * b.episodes as f64 / layout.episodes as f64;
+        let k = (self.carry.floor() as usize).min(len);
+        self.carry -= k as f64;
+        let from = self.next;
+        for j in 0..k {
+            let (e, s) = (self.rng.below(b.episodes), self.rng.below(layout.t));
+            self.slots[(from + j) % len] = (id as u32, e as u32, s as u32);
+        }
+        self.next = (from + k) % len;
+        from..from + k
+    }
+}
+
 /// What waiting for the disk cost, so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PoolStats {
-    /// Blocks swapped in after the first fill.
+    /// Blocks swapped in since the pool started (or resumed).
     pub swaps: u64,
     /// Swaps that had to wait for their block.
     pub waits: u64,
@@ -369,11 +450,19 @@ pub struct PoolStats {
 pub struct Pool {
     layout: Arc<Layout>,
     cfg: PoolConfig,
+    slots: usize,
+    entries: Entries,
+    /// The next entry to swap in.
+    next_entry: u64,
     /// Resident blocks, oldest first.
     resident: VecDeque<Block>,
     /// Resident episode → (position in `resident`, episode within it).
     index: Vec<(u32, u32)>,
-    reservoir: Reservoir,
+    keys: Keys,
+    /// The reservoir's vectors, slot by slot, and the table-wide (episode, step) of each.
+    goal_at: Vec<(u64, u32)>,
+    goal_ag: Vec<f32>,
+    goal_obs: Vec<f32>,
     /// Transitions drawn since the last swap.
     drawn: f64,
     loader: Mutex<Receiver<Result<Block>>>,
@@ -405,91 +494,97 @@ fn permutation(blocks: usize, head: usize, seed: u64, pass: u64) -> Vec<usize> {
 }
 
 impl Pool {
-    /// Fills `slots` blocks (the first of pass 0's permutation, read in parallel), fills the
-    /// reservoir from them, and starts the loader on the rest.
-    pub fn start(layout: Arc<Layout>, cfg: PoolConfig, slots: usize, reservoir: usize) -> Result<Pool> {
-        let first = permutation(layout.blocks.len(), slots, cfg.seed, 0);
+    /// The pool after `batches` batches of `rows` draws each (0 for a fresh one): the swaps and
+    /// reservoir refreshes those draws made are replayed on block sizes alone, then the resident
+    /// blocks are read (in parallel) and the reservoir's vectors filled from the blocks its
+    /// entries name (observations and achieved goals only), and the loader starts at the next
+    /// entry. A resumed run thus draws what an uninterrupted one does, number for number.
+    pub fn start(
+        layout: Arc<Layout>,
+        cfg: PoolConfig,
+        slots: usize,
+        reservoir: usize,
+        (batches, rows): (u64, usize),
+    ) -> Result<Pool> {
+        let mut entries = Entries::new(layout.blocks.len(), slots, cfg.seed);
+        let mut queue: VecDeque<usize> = (0..slots as u64).map(|i| entries.get(i)).collect();
+        let mut next_entry = slots as u64;
+        let mut keys = Keys::first(&layout, reservoir, cfg.seed);
+        let mut drawn = 0.0;
+        for _ in 0..batches {
+            drawn += rows as f64;
+            loop {
+                let due = cfg.draws_per_row * (layout.blocks[queue[0]].episodes * (layout.t - 1)) as f64;
+                if drawn < due {
+                    break;
+                }
+                drawn -= due;
+                queue.pop_front();
+                let id = entries.get(next_entry);
+                next_entry += 1;
+                keys.feed(&layout, id);
+                queue.push_back(id);
+            }
+        }
         let resident: VecDeque<Block> =
-            first[..slots].par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
+            queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
         let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
         let mut pool = Pool {
             layout: layout.clone(),
             cfg,
+            slots,
+            entries,
+            next_entry,
             resident,
             index: Vec::new(),
-            reservoir: Reservoir {
-                len: reservoir,
-                next: 0,
-                key: Vec::with_capacity(reservoir),
-                ag: Vec::with_capacity(reservoir * gd),
-                obs: Vec::with_capacity(reservoir * od),
-                carry: 0.0,
-                rng: NpRandom::spawned(cfg.seed, &[KEY_RESERVOIR]),
-            },
-            drawn: 0.0,
-            loader: Mutex::new(spawn_loader(layout.clone(), cfg.seed, slots)),
+            keys,
+            goal_at: vec![(0, 0); reservoir],
+            goal_ag: vec![0.0; reservoir * gd],
+            goal_obs: vec![0.0; reservoir * od],
+            drawn,
+            loader: Mutex::new(spawn_loader(layout, cfg.seed, slots, next_entry)),
             stats: PoolStats::default(),
         };
         pool.reindex();
-        pool.first_fill()?;
+        pool.materialize()?;
         Ok(pool)
     }
 
-    /// Fills the reservoir from every block of the table: each gives its share of entries,
-    /// drawn uniformly from its observations, so random goals come from the whole table from the
-    /// first batch on. Reads the observation and achieved-goal columns once (in parallel, a block
-    /// at a time per thread); later blocks refresh the entries as they enter ([`Pool::feed`]).
-    fn first_fill(&mut self) -> Result<()> {
-        let layout = self.layout.clone();
-        let (t, od, gd) = (layout.t, layout.task.obs_dim, layout.task.goal_dim);
-        let r = &mut self.reservoir;
-        // Entries per block, carry-rounded so they sum to the reservoir's size.
-        let mut counts = Vec::with_capacity(layout.blocks.len());
-        let mut carry = 0.0;
-        for b in &layout.blocks {
-            carry += r.len as f64 * b.episodes as f64 / layout.episodes as f64;
-            let k = carry.floor() as usize;
-            carry -= k as f64;
-            counts.push(k);
+    /// Fills every reservoir slot's vectors from the block its key names: resident blocks from
+    /// memory, the others read (observations and achieved goals only), a block per thread.
+    fn materialize(&mut self) -> Result<()> {
+        let mut by_block: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for (slot, &(id, _, _)) in self.keys.slots.iter().enumerate() {
+            by_block.entry(id as usize).or_default().push(slot);
         }
-        let short = r.len - counts.iter().sum::<usize>();
-        *counts.last_mut().expect("a table has blocks") += short;
-        // Each block's draws from a generator of its own, so the entries do not depend on the
-        // order the threads finish in.
-        let seed = self.cfg.seed;
-        let parts = (0..layout.blocks.len())
+        let resident: std::collections::BTreeMap<usize, &Block> = self.resident.iter().map(|b| (b.id, b)).collect();
+        let layout = &self.layout;
+        let read = by_block
+            .keys()
+            .filter(|id| !resident.contains_key(id))
+            .copied()
+            .collect::<Vec<_>>()
             .into_par_iter()
-            .map(|id| -> Result<_> {
-                let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR, 1 + id as u64]);
-                let b = layout.read_columns(id, &[true, true, false, false])?;
-                let mut part = (Vec::new(), Vec::new(), Vec::new());
-                for _ in 0..counts[id] {
-                    let (e, s) = (rng.below(b.n), rng.below(t));
-                    part.0.push((b.first_episode + e as u64, s as u32));
-                    part.1.extend_from_slice(&b.ag[(e * t + s) * gd..][..gd]);
-                    part.2.extend_from_slice(&b.obs[(e * t + s) * od..][..od]);
-                }
-                Ok(part)
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let (mut key, mut ag, mut obs) = (Vec::with_capacity(r.len), Vec::new(), Vec::new());
-        for part in parts {
-            key.extend(part.0);
-            ag.extend(part.1);
-            obs.extend(part.2);
-        }
-        // In a random order: entries are replaced oldest first, and in block order the entries
-        // of the table's first shards would all go before any of the last ones'.
-        let mut order: Vec<usize> = (0..r.len).collect();
-        for i in (1..order.len()).rev() {
-            order.swap(i, r.rng.below(i + 1));
-        }
-        for i in order {
-            r.key.push(key[i]);
-            r.ag.extend_from_slice(&ag[i * gd..][..gd]);
-            r.obs.extend_from_slice(&obs[i * od..][..od]);
+            .map(|id| Ok((id, layout.read_columns(id, &[true, true, false, false])?)))
+            .collect::<Result<std::collections::BTreeMap<usize, Block>>>()?;
+        let (t, od, gd) = (layout.t, layout.task.obs_dim, layout.task.goal_dim);
+        for (id, slots) in by_block {
+            let b = resident.get(&id).copied().unwrap_or_else(|| &read[&id]);
+            for slot in slots {
+                let (_, e, s) = self.keys.slots[slot];
+                let (e, s) = (e as usize, s as usize);
+                self.goal_at[slot] = (b.first_episode + e as u64, s as u32);
+                self.goal_ag[slot * gd..][..gd].copy_from_slice(b.ag(e, s, t, gd));
+                self.goal_obs[slot * od..][..od].copy_from_slice(b.obs(e, s, t, od));
+            }
         }
         Ok(())
+    }
+
+    /// The same pool as it is after `batches` batches of `rows` draws: what a resumed run
+    /// continues from. Reads the blocks again.
+    pub fn resumed(&self, batches: u64, rows: usize) -> Result<Pool> {
+        Pool::start(self.layout.clone(), self.cfg, self.slots, self.goal_at.len(), (batches, rows))
     }
 
     /// What waiting for the disk has cost so far.
@@ -500,6 +595,16 @@ impl Pool {
     /// Resident episodes now.
     pub fn resident_episodes(&self) -> usize {
         self.index.len()
+    }
+
+    /// Blocks resident, and blocks in the table.
+    pub fn blocks(&self) -> (usize, usize) {
+        (self.slots, self.layout.blocks.len())
+    }
+
+    /// Goals in the reservoir.
+    pub fn reservoir(&self) -> usize {
+        self.goal_at.len()
     }
 
     /// The resident blocks' arrays (observations, desired goals, achieved goals): what a trainer
@@ -533,29 +638,24 @@ impl Pool {
                 }
             }
         }?;
+        let want = self.entries.get(self.next_entry);
+        assert_eq!(next.id, want, "the loader and the pool agree on the order of entries");
+        self.next_entry += 1;
         self.stats.swaps += 1;
         self.resident.pop_front();
-        self.feed(&next);
+        let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
+        let len = self.goal_at.len();
+        for j in self.keys.feed(&self.layout, next.id) {
+            let slot = j % len;
+            let (_, e, s) = self.keys.slots[slot];
+            let (e, s) = (e as usize, s as usize);
+            self.goal_at[slot] = (next.first_episode + e as u64, s as u32);
+            self.goal_ag[slot * gd..][..gd].copy_from_slice(next.ag(e, s, t, gd));
+            self.goal_obs[slot * od..][..od].copy_from_slice(next.obs(e, s, t, od));
+        }
         self.resident.push_back(next);
         self.reindex();
         Ok(())
-    }
-
-    /// Replaces `R · r / N` reservoir entries, oldest first, with observations of block `b`.
-    fn feed(&mut self, b: &Block) {
-        let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
-        let r = &mut self.reservoir;
-        r.carry += r.len as f64 * b.n as f64 / self.layout.episodes as f64;
-        let k = r.carry.floor() as usize;
-        r.carry -= k as f64;
-        for _ in 0..k {
-            let (e, s) = (r.rng.below(b.n), r.rng.below(t));
-            let i = r.next;
-            r.key[i] = (b.first_episode + e as u64, s as u32);
-            r.ag[i * gd..][..gd].copy_from_slice(&b.ag[(e * t + s) * gd..][..gd]);
-            r.obs[i * od..][..od].copy_from_slice(&b.obs[(e * t + s) * od..][..od]);
-            r.next = (i + 1) % r.len;
-        }
     }
 
     fn block(&self, e: usize) -> (&Block, usize) {
@@ -564,23 +664,19 @@ impl Pool {
     }
 }
 
-/// The loader: pass after pass of [`permutation`]s, from position `skip` of pass 0 (the `skip`
-/// blocks before it are the first fill, and every pass's fixed head), each block read and sent through a channel of one. It stops
-/// when the pool is dropped (the send fails) or after a read error, which it sends.
-fn spawn_loader(layout: Arc<Layout>, seed: u64, skip: usize) -> Receiver<Result<Block>> {
+/// The loader: entries `from` on ([`Entries`]), each block read and sent through a channel of
+/// one. It stops when the pool is dropped (the send fails) or after a read error, which it sends.
+fn spawn_loader(layout: Arc<Layout>, seed: u64, head: usize, from: u64) -> Receiver<Result<Block>> {
     let (tx, rx) = sync_channel(1);
     std::thread::Builder::new()
         .name("pgser-pool-loader".into())
         .spawn(move || {
-            for pass in 0.. {
-                let order = permutation(layout.blocks.len(), skip, seed, pass);
-                let from = if pass == 0 { skip } else { 0 };
-                for &id in &order[from..] {
-                    let block = layout.read(id);
-                    let failed = block.is_err();
-                    if tx.send(block).is_err() || failed {
-                        return;
-                    }
+            let mut entries = Entries::new(layout.blocks.len(), head, seed);
+            for i in from.. {
+                let block = layout.read(entries.get(i));
+                let failed = block.is_err();
+                if tx.send(block).is_err() || failed {
+                    return;
                 }
             }
         })
@@ -623,17 +719,17 @@ impl View for Pool {
         b.first_episode + l as u64
     }
     fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
-        let i = rng.below(self.reservoir.len);
-        let (episode, step) = self.reservoir.key[i];
+        let i = rng.below(self.goal_at.len());
+        let (episode, step) = self.goal_at[i];
         GoalSource { episode, step, slot: i as u64 }
     }
     fn goal_ag(&self, g: GoalSource) -> &[f32] {
         let d = self.layout.task.goal_dim;
-        &self.reservoir.ag[g.slot as usize * d..][..d]
+        &self.goal_ag[g.slot as usize * d..][..d]
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
         let d = self.layout.task.obs_dim;
-        &self.reservoir.obs[g.slot as usize * d..][..d]
+        &self.goal_obs[g.slot as usize * d..][..d]
     }
     fn refresh(&mut self, rows: usize) -> Result<()> {
         self.drawn += rows as f64;
@@ -652,6 +748,6 @@ impl View for Pool {
 impl std::fmt::Debug for Pool {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let ids: Vec<usize> = self.resident.iter().map(|b| b.id).collect();
-        write!(f, "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}", self.layout.task.name, self.reservoir.len)
+        write!(f, "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}", self.layout.task.name, self.goal_at.len())
     }
 }

@@ -144,13 +144,12 @@ impl BatchSource {
             (Some(_), Beta::Pool(_)) => unreachable!("a scored table's β is held whole (open_within)"),
             (None, _) => None,
         };
-        if first > 0 && matches!(self.data, Beta::Pool(_)) {
-            bail!(
-                "a run drawing from an out-of-core pool (--memory-budget below the data's size) cannot resume yet: \
-                 start it again, or give a budget that holds the data"
-            );
-        }
-        Ok(BatchStream { data: self.data, aug, k_aug, rng, cfg: cfg.clone() })
+        let data = match self.data {
+            // Every batch of a pool's stream draws `batch_size` rows (no scored rows).
+            Beta::Pool(pool) if first > 0 => Beta::Pool(Box::new(pool.resumed(first, cfg.batch_size)?)),
+            data => data,
+        };
+        Ok(BatchStream { data, aug, k_aug, rng, cfg: cfg.clone() })
     }
 }
 
