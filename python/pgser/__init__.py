@@ -3,7 +3,9 @@ Shadow Hand environments, from the same Rust library as the `pgser-etl` / `pgser
 
 - ``read_table(path)`` / ``read_footer(path)``: any pgser table as a ``pyarrow.Table``; its footer.
 - ``convert(...)`` / ``score(...)``: ``pgser-etl convert`` and ``pgser-etl score``.
-- ``Sampler(path, ...)``: the batches ``pgser-train`` trains on, as dicts of numpy arrays.
+- ``Sampler(path, ...)``: the batches ``pgser-train`` trains on, as dicts of numpy arrays;
+  ``Sampler(path, layout="ogbench", config=agent_config)``: OGBench's goal-conditioned batches
+  (``GCDataset.sample(batch_size)``'s dict), the one object an OGBench JAX agent replaces.
 - ``make(task)`` / ``VectorEnv(task, n)``: gymnasium environments (ids ``pgser/FetchPush-v4`` ...).
 - ``Policy(task, "expert")``: the scripted experts, random actions, or a checkpoint's actor;
   ``Policy("run.ckpt").act(observations, goals)``: a checkpoint's actor on batches.

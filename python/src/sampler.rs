@@ -1,43 +1,87 @@
-//! `pgser.Sampler`: the batches `pgser-train` trains on, as an iterator of dicts of numpy arrays.
+//! `pgser.Sampler`: the batches `pgser-train` trains on (`layout="pgser"`), or OGBench's
+//! goal-conditioned batches (`layout="ogbench"`), as dicts of numpy arrays.
 //!
-//! It is [`pgser::sampler::stream`] itself, not a Python port of it: same settings and seed, same
-//! batches (tests/python/test_sampler.py checks it against `pgser-train batches`). The stream runs
-//! on a background thread that keeps `prefetch` batches ready, so a Python trainer's update and
-//! the next batch's sampling (and the prioritized half's disk reads) overlap; the thread never
-//! holds the GIL. Dropping the sampler, or the end of `num_batches`, stops the thread.
+//! Each layout is the library's own stream, not a Python port of it. `layout="pgser"` is
+//! [`pgser::sampler::stream`]: same settings and seed, same batches as `pgser-train`
+//! (tests/python/test_sampler.py checks it against `pgser-train batches`). `layout="ogbench"` is
+//! [`pgser::sampler::ogbench`]: OGBench's `GCDataset.sample` rules (tests/python/
+//! test_ogbench_sampler.py checks their distribution against OGBench's rules in numpy).
+//!
+//! Both draw on a background thread that keeps `prefetch` batches ready, so a Python trainer's
+//! update and the next batch's sampling (and a pool's or the prioritized half's disk reads)
+//! overlap; the thread never holds the GIL. Dropping the sampler, `close()`, or the end of
+//! `num_batches` stops the thread.
 
+use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Mutex;
-use std::sync::mpsc::{Receiver, RecvTimeoutError, sync_channel};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, SyncSender, channel, sync_channel};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use numpy::{IntoPyArray, PyArrayMethods};
 use pgser::agent::Batch;
+use pgser::sampler::ogbench::{OgbenchBatch, OgbenchConfig, OgbenchStream};
 use pgser::sampler::priority::{PriorityConfig, PriorityKind};
 use pgser::sampler::stream::{BatchSource, RowIds, StreamConfig};
+use pgser::sampler::view::{Budget, parse_bytes};
 use pgser::sampler::{SamplerConfig, Swap};
 use pyo3::exceptions::{PyStopIteration, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyString};
 
 use crate::{existing, py_err};
 
 type Drawn = anyhow::Result<(Batch, RowIds)>;
+type OgDrawn = anyhow::Result<OgbenchBatch>;
 
-/// Batches of a trajectory table (original data, HER, optional random swapping) or of a scored
-/// table (the `-mem` mix: original rows plus rows drawn by priority from its swapped rows).
+/// How long a wait sleeps between checks for Ctrl-C.
+const TICK: Duration = Duration::from_millis(100);
+
+/// OGBench's config keys this sampler reads; any other key of an agent's config is ignored.
+const OG_FLOATS: [&str; 7] = [
+    "discount",
+    "value_p_curgoal",
+    "value_p_trajgoal",
+    "value_p_randomgoal",
+    "actor_p_curgoal",
+    "actor_p_trajgoal",
+    "actor_p_randomgoal",
+];
+const OG_BOOLS: [&str; 3] = ["value_geom_sample", "actor_geom_sample", "gc_negative"];
+
+/// pgser's own batches (original data, HER, random swapping, the prioritized `-mem` mix), or
+/// OGBench's (`layout="ogbench"`).
 #[pyclass(module = "pgser._pgser")]
 pub struct Sampler {
-    rx: Mutex<Option<Receiver<Drawn>>>,
-    worker: Mutex<Option<JoinHandle<()>>>,
-    dims: (usize, usize, usize),
+    kind: Kind,
     #[pyo3(get)]
     task: String,
+    /// The size of the batches iteration yields (and `sample()` without an argument).
     #[pyo3(get)]
     batch_size: usize,
     #[pyo3(get)]
     scored: bool,
+    #[pyo3(get)]
+    layout: String,
+    num_batches: Option<u64>,
+    /// Batches handed out so far (iteration and `sample()` together).
+    handed: AtomicU64,
+}
+
+enum Kind {
+    /// A worker that sends batches of `batch_size`, `num_batches` of them, in order.
+    Pgser { rx: Mutex<Option<Receiver<Drawn>>>, worker: Mutex<Option<JoinHandle<()>>>, dims: (usize, usize, usize) },
+    /// A worker that answers requests for batches of any size ([`og_worker`]).
+    Ogbench { chan: Mutex<Option<OgChannel>>, worker: Mutex<Option<JoinHandle<()>>> },
+}
+
+struct OgChannel {
+    req: Sender<usize>,
+    rx: Receiver<OgDrawn>,
+    /// Answers still owed to requests whose wait was interrupted (Ctrl-C): read and dropped first.
+    stale: usize,
 }
 
 fn parse_swap(s: Option<&str>) -> PyResult<Swap> {
@@ -57,53 +101,338 @@ fn parse_priority(s: &str) -> PyResult<PriorityKind> {
     }
 }
 
+/// `memory_budget=`: None (the whole table in memory), bytes as an int, or a size string.
+fn parse_budget(b: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
+    let Some(b) = b.filter(|b| !b.is_none()) else { return Ok(Budget::Unbounded) };
+    let bytes = if let Ok(s) = b.cast::<PyString>() {
+        parse_bytes(&s.to_cow()?).map_err(|e| PyValueError::new_err(format!("memory_budget={e}")))?
+    } else {
+        match b.extract::<i128>() {
+            Ok(n) if n >= 1 && n <= u64::MAX as i128 => n as u64,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "memory_budget={}: use None, a number of bytes (at least 1), or a size such as \"2GB\"",
+                    b.repr()?
+                )));
+            }
+        }
+    };
+    Ok(Budget::Bytes(bytes))
+}
+
+/// OGBench's settings: its defaults, then an agent's `config` (any mapping: a dict, an
+/// `ml_collections.ConfigDict`), then the keyword arguments. Keys OGBench's GCDataset reads but
+/// pgser does not draw (`frame_stack`, `p_aug`, a `dataset_class` other than GCDataset) are
+/// refused when set, so a config is never silently trained on other batches than it asks for.
+fn ogbench_config<'py>(
+    config: Option<&Bound<'py, PyAny>>,
+    kw: &[(&str, Option<f64>)],
+    kw_bools: &[(&str, Option<bool>)],
+) -> PyResult<OgbenchConfig> {
+    let mut values = serde_json::to_value(OgbenchConfig::default()).expect("a plain struct");
+    let obj = values.as_object_mut().expect("a struct is an object");
+    if let Some(c) = config.filter(|c| !c.is_none()) {
+        // A key that is absent or None is not set (ConfigDict's placeholders are None).
+        let get = |k: &str| -> PyResult<Option<Bound<'py, PyAny>>> {
+            if !c.contains(k)? {
+                return Ok(None);
+            }
+            let v = c.get_item(k)?;
+            Ok(if v.is_none() { None } else { Some(v) })
+        };
+        for k in OG_FLOATS {
+            if let Some(v) = get(k)? {
+                let x: f64 = v.extract().map_err(|_| PyValueError::new_err(format!("config[{k:?}]: not a number")))?;
+                obj.insert(k.into(), x.into());
+            }
+        }
+        for k in OG_BOOLS {
+            if let Some(v) = get(k)? {
+                obj.insert(k.into(), v.is_truthy()?.into());
+            }
+        }
+        if let Some(v) = get("frame_stack")? {
+            return Err(PyValueError::new_err(format!(
+                "config[\"frame_stack\"] = {}: frame stacking (OGBench's pixel tasks) is not drawn by pgser; use None",
+                v.repr()?
+            )));
+        }
+        if let Some(v) = get("p_aug")?
+            && v.extract::<f64>().map_or(true, |p| p != 0.0)
+        {
+            return Err(PyValueError::new_err(format!(
+                "config[\"p_aug\"] = {}: image augmentation (OGBench's pixel tasks) is not done by pgser; use 0 or None",
+                v.repr()?
+            )));
+        }
+        if let Some(v) = get("dataset_class")? {
+            let name: String = v.str()?.to_cow()?.into_owned();
+            if name != "GCDataset" {
+                return Err(PyValueError::new_err(format!(
+                    "config[\"dataset_class\"] = {name:?}: pgser draws GCDataset's batches only (not HGCDataset's subgoals)"
+                )));
+            }
+        }
+    }
+    for &(k, v) in kw {
+        if let Some(x) = v {
+            obj.insert(k.into(), x.into());
+        }
+    }
+    for &(k, v) in kw_bools {
+        if let Some(x) = v {
+            obj.insert(k.into(), x.into());
+        }
+    }
+    let cfg: OgbenchConfig = serde_json::from_value(values).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    cfg.validate().map_err(py_err)?;
+    Ok(cfg)
+}
+
+/// The batch size from `config["batch_size"]`, when an agent's config carries one.
+fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+    match config.filter(|c| !c.is_none()) {
+        Some(c) if c.contains("batch_size")? => Ok(Some(
+            c.get_item("batch_size")?
+                .extract()
+                .map_err(|_| PyValueError::new_err("config[\"batch_size\"]: not a positive int"))?,
+        )),
+        _ => Ok(None),
+    }
+}
+
+/// The ogbench layout's worker. Batch k of the stream is drawn from its own generator, so the
+/// worker keeps batches k, k+1, … of the default size ready and, asked for another size, drops
+/// them and draws batch k at that size. It fills its queue before it answers a request, so which
+/// batches were drawn (and, for a pool, which data are resident) depends only on the requests
+/// made, never on timing: the same seed and the same calls give the same bytes.
+fn og_worker(mut stream: OgbenchStream, size: usize, prefetch: usize, req: Receiver<usize>, out: SyncSender<OgDrawn>) {
+    let mut ready: VecDeque<OgDrawn> = VecDeque::new();
+    let mut k = 0u64;
+    loop {
+        if ready.len() < prefetch && !ready.back().is_some_and(|b| b.is_err()) {
+            ready.push_back(stream.batch(k + ready.len() as u64, size));
+            continue;
+        }
+        // A closed request channel: the sampler was closed or dropped.
+        let Ok(n) = req.recv() else { return };
+        let b = if n == size {
+            ready.pop_front().expect("filled above")
+        } else {
+            ready.clear();
+            stream.batch(k, n)
+        };
+        k += 1;
+        let failed = b.is_err();
+        if out.send(b).is_err() || failed {
+            return;
+        }
+    }
+}
+
 #[pymethods]
 impl Sampler {
-    /// Arguments mirror `pgser-train`'s flags: `her` is --her-ratio, `swap`/`swap_ratio` are
-    /// --swap/--swap-ratio, `aug_ratio`, `priority`, `alpha` (--priority-alpha), `eps`
-    /// (--priority-eps), `is_beta`, `seed`, `in_memory` (--aug-in-memory).
+    /// `layout="pgser"` (the default): arguments mirror `pgser-train`'s flags: `her` is
+    /// --her-ratio (0.5), `swap`/`swap_ratio` are --swap/--swap-ratio (0.5), `aug_ratio` (0.5),
+    /// `priority` ("rank"), `alpha` (--priority-alpha, 1.0), `eps` (--priority-eps, 0.01),
+    /// `is_beta`, `seed`, `in_memory` (--aug-in-memory).
+    ///
+    /// `layout="ogbench"`: OGBench's GCDataset batches; `config` is an OGBench agent's config
+    /// (a dict or ConfigDict, passed unchanged: its sampling keys are read, the rest ignored),
+    /// and `discount`, `value_p_curgoal`, … `gc_negative` override it.
+    ///
+    /// Both: `batch_size` (default `config["batch_size"]`, else 512), `memory_budget` (None: the
+    /// whole table in memory; bytes, or a size such as "2GB": an out-of-core pool when the table
+    /// is larger), `num_batches` (how many batches iteration yields; None: endless), `prefetch`.
     #[new]
-    #[pyo3(signature = (path, *, batch_size=512, her=0.5, swap=None, swap_ratio=0.5, aug_ratio=0.5,
-        priority="rank", alpha=1.0, eps=0.01, is_beta=None, seed=0, in_memory=false, num_batches=None, prefetch=4))]
+    #[pyo3(signature = (path, *, layout="pgser", batch_size=None, her=None, swap=None, swap_ratio=None,
+        aug_ratio=None, priority=None, alpha=None, eps=None, is_beta=None, seed=0, in_memory=false,
+        num_batches=None, prefetch=4, memory_budget=None, config=None, discount=None, value_p_curgoal=None,
+        value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
+        actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         path: PathBuf,
-        batch_size: usize,
-        her: f64,
+        layout: &str,
+        batch_size: Option<usize>,
+        her: Option<f64>,
         swap: Option<&str>,
-        swap_ratio: f64,
-        aug_ratio: f64,
-        priority: &str,
-        alpha: f64,
-        eps: f64,
+        swap_ratio: Option<f64>,
+        aug_ratio: Option<f64>,
+        priority: Option<&str>,
+        alpha: Option<f64>,
+        eps: Option<f64>,
         is_beta: Option<f64>,
         seed: u64,
         in_memory: bool,
         num_batches: Option<u64>,
         prefetch: usize,
+        memory_budget: Option<&Bound<'_, PyAny>>,
+        config: Option<&Bound<'_, PyAny>>,
+        discount: Option<f64>,
+        value_p_curgoal: Option<f64>,
+        value_p_trajgoal: Option<f64>,
+        value_p_randomgoal: Option<f64>,
+        value_geom_sample: Option<bool>,
+        actor_p_curgoal: Option<f64>,
+        actor_p_trajgoal: Option<f64>,
+        actor_p_randomgoal: Option<f64>,
+        actor_geom_sample: Option<bool>,
+        gc_negative: Option<bool>,
     ) -> PyResult<Sampler> {
         existing(&path)?;
-        for (name, v) in [("her", her), ("swap_ratio", swap_ratio)] {
+        let budget = parse_budget(memory_budget)?;
+        let kw = [
+            ("discount", discount),
+            ("value_p_curgoal", value_p_curgoal),
+            ("value_p_trajgoal", value_p_trajgoal),
+            ("value_p_randomgoal", value_p_randomgoal),
+            ("actor_p_curgoal", actor_p_curgoal),
+            ("actor_p_trajgoal", actor_p_trajgoal),
+            ("actor_p_randomgoal", actor_p_randomgoal),
+        ];
+        let kw_bools = [
+            ("value_geom_sample", value_geom_sample),
+            ("actor_geom_sample", actor_geom_sample),
+            ("gc_negative", gc_negative),
+        ];
+        let pgser_args = [
+            ("her", her.is_some()),
+            ("swap", swap.is_some()),
+            ("swap_ratio", swap_ratio.is_some()),
+            ("aug_ratio", aug_ratio.is_some()),
+            ("priority", priority.is_some()),
+            ("alpha", alpha.is_some()),
+            ("eps", eps.is_some()),
+            ("is_beta", is_beta.is_some()),
+            ("in_memory", in_memory),
+        ];
+        let misplaced = |given: &mut dyn Iterator<Item = &str>, other: &str| -> PyResult<()> {
+            match given.next() {
+                Some(k) => Err(PyValueError::new_err(format!(
+                    "{k}= is a setting of layout=\"{other}\", not of layout={layout:?}"
+                ))),
+                None => Ok(()),
+            }
+        };
+        let batch_size = match batch_size {
+            Some(b) => b,
+            None => config_batch_size(config)?.unwrap_or(512),
+        };
+        match layout {
+            "pgser" => {
+                let og = kw.iter().filter(|k| k.1.is_some()).map(|k| k.0);
+                let og_bools = kw_bools.iter().filter(|k| k.1.is_some()).map(|k| k.0);
+                let with_config = config.filter(|c| !c.is_none()).map(|_| "config");
+                misplaced(&mut og.chain(og_bools).chain(with_config), "ogbench")?;
+                Self::pgser(
+                    py,
+                    path,
+                    budget,
+                    StreamConfig {
+                        sampler: SamplerConfig {
+                            swap: parse_swap(swap)?,
+                            swap_ratio: swap_ratio.unwrap_or(0.5),
+                            her_ratio: her.unwrap_or(0.5),
+                        },
+                        batch_size,
+                        aug_ratio: aug_ratio.unwrap_or(0.5),
+                        priority: PriorityConfig {
+                            priority: parse_priority(priority.unwrap_or("rank"))?,
+                            priority_alpha: alpha.unwrap_or(1.0),
+                            priority_eps: eps.unwrap_or(0.01),
+                            is_beta,
+                        },
+                        aug_in_memory: in_memory,
+                        seed,
+                    },
+                    num_batches,
+                    prefetch,
+                )
+            }
+            "ogbench" => {
+                misplaced(&mut pgser_args.iter().filter(|k| k.1).map(|k| k.0), "pgser")?;
+                if batch_size == 0 {
+                    return Err(PyValueError::new_err("batch_size=0: must be at least 1"));
+                }
+                let cfg = ogbench_config(config, &kw, &kw_bools)?;
+                Self::ogbench(py, path, budget, cfg, seed, batch_size, num_batches, prefetch)
+            }
+            o => Err(PyValueError::new_err(format!("layout={o:?}: use \"pgser\" or \"ogbench\""))),
+        }
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// The next batch of `batch_size` rows. `layout="pgser"`: obs, goal, action, reward,
+    /// next_obs, weight (float32), episode, step, scored_row (int64; −1 for rows of the original
+    /// data). `layout="ogbench"`: as `sample()`.
+    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        if self.num_batches.is_some_and(|n| self.handed.load(Ordering::SeqCst) >= n) {
+            return Err(PyStopIteration::new_err(()));
+        }
+        self.draw(py, self.batch_size)
+    }
+
+    /// A batch of `batch_size` rows (default: the sampler's). `layout="ogbench"`: any size, as
+    /// OGBench's `GCDataset.sample(batch_size)`: observations, next_observations, actions,
+    /// value_goals, actor_goals, terminals (float32), rewards, masks (float64, as OGBench's), and
+    /// where each row came from (int64): episode, step (table-wide episode numbers, in shard order
+    /// across a folder), value_goal_episode, value_goal_step, actor_goal_episode, actor_goal_step.
+    /// `layout="pgser"`: the next batch, whose size is fixed when the sampler is made.
+    #[pyo3(signature = (batch_size=None))]
+    fn sample<'py>(&self, py: Python<'py>, batch_size: Option<usize>) -> PyResult<Bound<'py, PyDict>> {
+        let n = batch_size.unwrap_or(self.batch_size);
+        if n == 0 {
+            return Err(PyValueError::new_err("batch_size=0: must be at least 1"));
+        }
+        if matches!(self.kind, Kind::Pgser { .. }) && n != self.batch_size {
+            return Err(PyValueError::new_err(format!(
+                "batch_size={n}: layout=\"pgser\" draws batches of the size it was made with ({}); make another \
+                 Sampler for another size",
+                self.batch_size
+            )));
+        }
+        self.draw(py, n)
+    }
+
+    /// Stops the background thread now (also done when the sampler is dropped).
+    fn close(&self, py: Python<'_>) {
+        // Without the GIL: another thread's `sample` may hold the channel and need the GIL.
+        py.detach(|| self.stop());
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_args))]
+    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
+        py.detach(|| self.stop());
+        false
+    }
+}
+
+impl Sampler {
+    #[allow(clippy::too_many_arguments)]
+    fn pgser(
+        py: Python<'_>,
+        path: PathBuf,
+        budget: Budget,
+        cfg: StreamConfig,
+        num_batches: Option<u64>,
+        prefetch: usize,
+    ) -> PyResult<Sampler> {
+        for (name, v) in [("her", cfg.sampler.her_ratio), ("swap_ratio", cfg.sampler.swap_ratio)] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(PyValueError::new_err(format!("{name}={v}: must be in [0, 1]")));
             }
         }
-        let cfg = StreamConfig {
-            sampler: SamplerConfig { swap: parse_swap(swap)?, swap_ratio, her_ratio: her },
-            batch_size,
-            aug_ratio,
-            priority: PriorityConfig {
-                priority: parse_priority(priority)?,
-                priority_alpha: alpha,
-                priority_eps: eps,
-                is_beta,
-            },
-            aug_in_memory: in_memory,
-            seed,
-        };
-        let source = py.detach(|| BatchSource::open(&path, &cfg)).map_err(py_err)?;
-        let t = source.data.task.clone();
+        let source = py.detach(|| BatchSource::open_within(&path, &cfg, budget)).map_err(py_err)?;
+        let t = source.task().clone();
         let scored = source.is_scored();
         let mut stream = py.detach(|| source.start(&cfg)).map_err(py_err)?;
         let (tx, rx) = sync_channel::<Drawn>(prefetch.max(1));
@@ -123,80 +452,168 @@ impl Sampler {
             })
             .map_err(|e| py_err(e.into()))?;
         Ok(Sampler {
-            rx: Mutex::new(Some(rx)),
-            worker: Mutex::new(Some(worker)),
-            dims: (t.obs_dim, t.goal_dim, t.act_dim),
+            kind: Kind::Pgser {
+                rx: Mutex::new(Some(rx)),
+                worker: Mutex::new(Some(worker)),
+                dims: (t.obs_dim, t.goal_dim, t.act_dim),
+            },
             task: t.name,
-            batch_size,
+            batch_size: cfg.batch_size,
             scored,
+            layout: "pgser".into(),
+            num_batches,
+            handed: AtomicU64::new(0),
         })
     }
 
-    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
+    #[allow(clippy::too_many_arguments)]
+    fn ogbench(
+        py: Python<'_>,
+        path: PathBuf,
+        budget: Budget,
+        cfg: OgbenchConfig,
+        seed: u64,
+        batch_size: usize,
+        num_batches: Option<u64>,
+        prefetch: usize,
+    ) -> PyResult<Sampler> {
+        let stream = py.detach(|| OgbenchStream::open(&path, budget, cfg, seed)).map_err(py_err)?;
+        let task = stream.view().task().name.clone();
+        let (req_tx, req_rx) = channel::<usize>();
+        let (tx, rx) = sync_channel::<OgDrawn>(1);
+        let worker = std::thread::Builder::new()
+            .name("pgser-py-ogbench".into())
+            .spawn(move || og_worker(stream, batch_size, prefetch.max(1), req_rx, tx))
+            .map_err(|e| py_err(e.into()))?;
+        Ok(Sampler {
+            kind: Kind::Ogbench {
+                chan: Mutex::new(Some(OgChannel { req: req_tx, rx, stale: 0 })),
+                worker: Mutex::new(Some(worker)),
+            },
+            task,
+            batch_size,
+            scored: false,
+            layout: "ogbench".into(),
+            num_batches,
+            handed: AtomicU64::new(0),
+        })
     }
 
-    /// The next batch: obs, goal, action, reward, next_obs, weight (float32), episode, step,
-    /// scored_row (int64; −1 for rows of the original data).
-    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let drawn = loop {
-            let got =
-                py.detach(|| self.rx.lock().unwrap().as_ref().map(|rx| rx.recv_timeout(Duration::from_millis(100))));
-            match got {
-                None => return Err(PyValueError::new_err("the sampler is closed")),
-                Some(Ok(d)) => break d,
-                Some(Err(RecvTimeoutError::Timeout)) => py.check_signals()?,
-                // The worker ended: `num_batches` were handed out (or its error was, last).
-                Some(Err(RecvTimeoutError::Disconnected)) => return Err(PyStopIteration::new_err(())),
+    /// The next batch, of `n` rows (`n` is the sampler's own size for `layout="pgser"`).
+    fn draw<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Bound<'py, PyDict>> {
+        let d = match &self.kind {
+            Kind::Pgser { rx, dims, .. } => {
+                let drawn = loop {
+                    let got = py.detach(|| rx.lock().unwrap().as_ref().map(|rx| rx.recv_timeout(TICK)));
+                    match got {
+                        None => return Err(PyValueError::new_err("the sampler is closed")),
+                        Some(Ok(d)) => break d,
+                        Some(Err(RecvTimeoutError::Timeout)) => py.check_signals()?,
+                        // The worker ended: `num_batches` were handed out (or its error was, last).
+                        Some(Err(RecvTimeoutError::Disconnected)) => return Err(PyStopIteration::new_err(())),
+                    }
+                };
+                let (b, ids) = drawn.map_err(py_err)?;
+                pgser_dict(py, *dims, b, ids)?
+            }
+            Kind::Ogbench { chan, .. } => {
+                // The channel is locked with the GIL released, so a thread that waits for it never
+                // holds the GIL that the one holding it needs to check for Ctrl-C.
+                let got = py.detach(|| -> PyResult<OgDrawn> {
+                    let mut guard = chan.lock().unwrap();
+                    let Some(c) = guard.as_mut() else { return Err(PyValueError::new_err("the sampler is closed")) };
+                    let ended = || PyValueError::new_err("the sampler's worker has ended (after an error it raised)");
+                    while c.stale > 0 {
+                        let _stale = c.rx.recv().map_err(|_| ended())?;
+                        c.stale -= 1;
+                    }
+                    c.req.send(n).map_err(|_| ended())?;
+                    loop {
+                        match c.rx.recv_timeout(TICK) {
+                            Ok(b) => return Ok(b),
+                            Err(RecvTimeoutError::Timeout) => {
+                                if let Err(interrupt) = Python::attach(|py| py.check_signals()) {
+                                    c.stale += 1;
+                                    return Err(interrupt);
+                                }
+                            }
+                            Err(RecvTimeoutError::Disconnected) => return Err(ended()),
+                        }
+                    }
+                })?;
+                og_dict(py, got.map_err(py_err)?)?
             }
         };
-        let (b, ids) = drawn.map_err(py_err)?;
-        self.to_dict(py, b, ids)
-    }
-
-    /// Stops the background thread now (also done when the sampler is dropped).
-    fn close(&self) {
-        self.stop();
-    }
-
-    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
-    }
-
-    #[pyo3(signature = (*_args))]
-    fn __exit__(&self, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
-        self.stop();
-        false
-    }
-}
-
-impl Sampler {
-    fn to_dict<'py>(&self, py: Python<'py>, b: Batch, ids: RowIds) -> PyResult<Bound<'py, PyDict>> {
-        let (od, gd, ad) = self.dims;
-        let n = b.n;
-        let d = PyDict::new(py);
-        let matrix = |v: Vec<f32>, dim: usize| v.into_pyarray(py).reshape([n, dim]);
-        d.set_item("obs", matrix(b.obs, od)?)?;
-        d.set_item("goal", matrix(b.goal, gd)?)?;
-        d.set_item("action", matrix(b.action, ad)?)?;
-        d.set_item("reward", b.reward.into_pyarray(py))?;
-        d.set_item("next_obs", matrix(b.next_obs, od)?)?;
-        let weight = if b.weight.is_empty() { vec![1.0f32; n] } else { b.weight };
-        d.set_item("weight", weight.into_pyarray(py))?;
-        let wide = |v: Vec<u32>| v.into_iter().map(i64::from).collect::<Vec<i64>>().into_pyarray(py);
-        d.set_item("episode", wide(ids.episode))?;
-        d.set_item("step", wide(ids.step))?;
-        d.set_item("scored_row", ids.scored_row.into_pyarray(py))?;
+        self.handed.fetch_add(1, Ordering::SeqCst);
         Ok(d)
     }
 
     fn stop(&self) {
-        // Dropping the receiver makes the worker's next send fail, which ends it.
-        self.rx.lock().unwrap().take();
-        if let Some(w) = self.worker.lock().unwrap().take() {
-            let _ = w.join();
+        // Dropping the receiver (and the request channel) makes the worker's next send (or wait)
+        // fail, which ends it.
+        match &self.kind {
+            Kind::Pgser { rx, worker, .. } => {
+                rx.lock().unwrap().take();
+                if let Some(w) = worker.lock().unwrap().take() {
+                    let _ = w.join();
+                }
+            }
+            Kind::Ogbench { chan, worker } => {
+                chan.lock().unwrap().take();
+                if let Some(w) = worker.lock().unwrap().take() {
+                    let _ = w.join();
+                }
+            }
         }
     }
+}
+
+fn pgser_dict<'py>(
+    py: Python<'py>,
+    dims: (usize, usize, usize),
+    b: Batch,
+    ids: RowIds,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (od, gd, ad) = dims;
+    let n = b.n;
+    let d = PyDict::new(py);
+    let matrix = |v: Vec<f32>, dim: usize| v.into_pyarray(py).reshape([n, dim]);
+    d.set_item("obs", matrix(b.obs, od)?)?;
+    d.set_item("goal", matrix(b.goal, gd)?)?;
+    d.set_item("action", matrix(b.action, ad)?)?;
+    d.set_item("reward", b.reward.into_pyarray(py))?;
+    d.set_item("next_obs", matrix(b.next_obs, od)?)?;
+    let weight = if b.weight.is_empty() { vec![1.0f32; n] } else { b.weight };
+    d.set_item("weight", weight.into_pyarray(py))?;
+    let wide = |v: Vec<u32>| v.into_iter().map(i64::from).collect::<Vec<i64>>().into_pyarray(py);
+    d.set_item("episode", wide(ids.episode))?;
+    d.set_item("step", wide(ids.step))?;
+    d.set_item("scored_row", ids.scored_row.into_pyarray(py))?;
+    Ok(d)
+}
+
+/// OGBench's batch dict, with its dtypes: float32 vectors and terminals, float64 rewards and
+/// masks (`successes.astype(float)` in its GCDataset), and pgser's int64 provenance columns.
+fn og_dict(py: Python<'_>, b: OgbenchBatch) -> PyResult<Bound<'_, PyDict>> {
+    let (n, od, ad) = (b.n, b.obs_dim, b.act_dim);
+    let d = PyDict::new(py);
+    let matrix = |v: Vec<f32>, dim: usize| v.into_pyarray(py).reshape([n, dim]);
+    let wide = |v: Vec<f32>| v.into_iter().map(f64::from).collect::<Vec<f64>>().into_pyarray(py);
+    d.set_item("observations", matrix(b.observations, od)?)?;
+    d.set_item("next_observations", matrix(b.next_observations, od)?)?;
+    d.set_item("actions", matrix(b.actions, ad)?)?;
+    d.set_item("terminals", b.terminals.into_pyarray(py))?;
+    d.set_item("rewards", wide(b.rewards))?;
+    d.set_item("masks", wide(b.masks))?;
+    d.set_item("value_goals", matrix(b.value_goals, od)?)?;
+    d.set_item("actor_goals", matrix(b.actor_goals, od)?)?;
+    d.set_item("episode", b.episode.into_pyarray(py))?;
+    d.set_item("step", b.step.into_pyarray(py))?;
+    d.set_item("value_goal_episode", b.value_goal_episode.into_pyarray(py))?;
+    d.set_item("value_goal_step", b.value_goal_step.into_pyarray(py))?;
+    d.set_item("actor_goal_episode", b.actor_goal_episode.into_pyarray(py))?;
+    d.set_item("actor_goal_step", b.actor_goal_step.into_pyarray(py))?;
+    Ok(d)
 }
 
 impl Drop for Sampler {
