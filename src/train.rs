@@ -81,7 +81,7 @@ pub struct TrainConfig {
     /// (the same batches as without), streamed from its row groups otherwise, with transitions
     /// and random goals from the whole table (docs/ogbench.md, "Datasets larger than memory").
     #[arg(long, value_name = "SIZE", value_parser = crate::sampler::view::parse_bytes)]
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "budget_setting")]
     pub memory_budget: Option<u64>,
 }
 
@@ -101,6 +101,22 @@ impl TrainConfig {
     /// `--memory-budget` as the sampler takes it.
     pub fn budget(&self) -> Budget {
         self.memory_budget.map_or(Budget::Unbounded, Budget::Bytes)
+    }
+}
+
+/// `memory_budget` as a pipeline's `[train]` or a checkpoint's settings give it: bytes, or a
+/// size with a unit ("8GB"), as `--memory-budget` takes it.
+fn budget_setting<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<u64>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Size {
+        Bytes(u64),
+        Text(String),
+    }
+    match Option::<Size>::deserialize(d)? {
+        None => Ok(None),
+        Some(Size::Bytes(b)) => Ok(Some(b)),
+        Some(Size::Text(t)) => crate::sampler::view::parse_bytes(&t).map(Some).map_err(serde::de::Error::custom),
     }
 }
 
@@ -258,6 +274,22 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
     let by_success = eval::scored_by_success(&agents[0].task.name);
     // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
     let mut agent = Shards::new(agents, backend)?;
+    for run in &runs {
+        if let Some(pool) = run.batches.pool() {
+            let (resident, blocks) = pool.blocks();
+            progress::milestone(
+                bar,
+                &format!(
+                    "{}: the data stream from disk within --memory-budget {}: {resident} of {blocks} row groups resident \
+                     ({} episodes), {} random goals from the whole table",
+                    run.cell.out.display(),
+                    crate::progress::bytes(run.cell.cfg.memory_budget.unwrap_or(0)),
+                    pool.resident_episodes(),
+                    pool.reservoir()
+                ),
+            );
+        }
+    }
     // An engine on a GPU keeps the cells' data there (each distinct β once) and is sent each
     // batch as row numbers; elsewhere batches are gathered here. Same batches either way.
     let (datas, table_of) = distinct_data(&runs).unwrap_or_default();
