@@ -42,6 +42,16 @@ pub fn milestone(bar: &ProgressBar, line: &str) {
     }
 }
 
+/// A line a user should see whether or not the bar draws (what a run holds, once at its start):
+/// above the bar on a terminal, one log line otherwise.
+pub fn note(bar: &ProgressBar, line: &str) {
+    if bar.is_hidden() {
+        eprintln!("{}: {line}", bar.message());
+    } else {
+        bar.println(line);
+    }
+}
+
 /// A count in a few characters: "950", "7.5k", "31.0M".
 pub fn count(n: u64) -> String {
     match n {

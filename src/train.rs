@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Rows, Shards, checkpoint};
 use crate::eval::{self, EvalReport};
 use crate::nprandom::NpRandom;
-use crate::output::{AtomicFile, sha256_file};
+use crate::output::AtomicFile;
 use crate::progress;
 use crate::sampler::SamplerConfig;
 use crate::sampler::priority::PriorityConfig;
@@ -277,7 +277,7 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
     for run in &runs {
         if let Some(pool) = run.batches.pool() {
             let (resident, blocks) = pool.blocks();
-            progress::milestone(
+            progress::note(
                 bar,
                 &format!(
                     "{}: the data stream from disk within --memory-budget {}: {resident} of {blocks} row groups resident \
@@ -499,7 +499,7 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let stream = cfg.stream();
     let source = BatchSource::open_within(data_path, &stream, cfg.budget())?;
 
-    let data_sha = sha256_file(data_path)?;
+    let data_sha = crate::output::data_digest(data_path)?;
     let mut extra = BTreeMap::new();
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
     extra.insert("data".to_string(), data_path.display().to_string());
@@ -537,7 +537,7 @@ pub fn resume_point(cell: &Cell) -> Result<Option<u64>> {
     if !cell.out.exists() {
         return Ok(None);
     }
-    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &sha256_file(&cell.data)?, Device::flex())?;
+    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &crate::output::data_digest(&cell.data)?, Device::flex())?;
     // The resume state must load too, so a stack never starts on a cell it cannot continue.
     checkpoint::load_resume(&mut agent, &checkpoint::resume_path(&cell.out))?;
     Ok(Some(agent.updates))

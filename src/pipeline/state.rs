@@ -25,7 +25,7 @@ use sha2::Digest;
 
 use super::Step;
 use crate::agent::{Backend, checkpoint};
-use crate::output::{AtomicFile, hex, sha256_file};
+use crate::output::{AtomicFile, hex};
 use crate::train::TrainConfig;
 
 /// Bump when the meaning of a key changes, so old records are not trusted (2: the key holds
@@ -87,7 +87,7 @@ impl Hashes {
         {
             return Ok(Some(sha.clone()));
         }
-        let sha = sha256_file(path)?;
+        let sha = crate::output::data_digest(path)?;
         self.seen.insert(path.to_path_buf(), (stamp.0, stamp.1, sha.clone()));
         Ok(Some(sha))
     }

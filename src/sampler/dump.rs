@@ -13,7 +13,6 @@ use serde::Serialize;
 
 use super::view::Budget;
 use super::stream::{BatchSource, StreamConfig};
-use crate::output::sha256_file;
 use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
 use crate::task::Task;
 
@@ -126,7 +125,7 @@ pub fn write_batches(
         batches: count,
         rows,
         data: data.display().to_string(),
-        data_sha256: sha256_file(data)?,
+        data_sha256: crate::output::data_digest(data)?,
         settings: settings(cfg, budget)?,
         seed: cfg.seed,
         command: command.to_string(),

@@ -20,7 +20,6 @@ use super::view::{Budget, View};
 use super::{RowKey, SamplerConfig, Swap};
 use crate::agent::{Batch, Rows};
 use crate::nprandom::NpRandom;
-use crate::output::sha256_file;
 use crate::task::Task;
 use crate::trajectory::Episodes;
 
@@ -248,7 +247,7 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
             path.display()
         );
     }
-    if sha256_file(&path)? != sha {
+    if crate::output::data_digest(&path)? != sha {
         bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
     }
     let data = Episodes::load(&path)?;

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::agent::{Agent, Backend, checkpoint};
 use crate::nprandom::NpRandom;
-use crate::output::{check_not_an_input, relative_to_folder_of, sha256_file};
+use crate::output::{check_not_an_input, relative_to_folder_of};
 use crate::swap::{self, GoalPool, SwappedRows};
 use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
 use crate::task::{GoalMetric, Task};
@@ -343,7 +343,7 @@ fn check_compatible(ckpt: &Task, ckpt_path: &Path, table: &trajectory::Footer, d
 }
 
 fn file_ref(input: &Path, output: &Path) -> Result<FileRef> {
-    Ok(FileRef { path: relative_to_folder_of(input, output)?.display().to_string(), sha256: sha256_file(input)? })
+    Ok(FileRef { path: relative_to_folder_of(input, output)?.display().to_string(), sha256: crate::output::data_digest(input)? })
 }
 
 /// Swap, score and lay out one chunk (chunk `index`, episodes `first ..` of the table).

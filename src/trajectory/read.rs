@@ -63,30 +63,24 @@ impl std::fmt::Debug for Episodes {
 }
 
 impl Episodes {
-    /// Read and check a whole trajectory table; errors are one line naming the file and where.
+    /// Read and check a whole trajectory table, one file or a table folder (its shards appended
+    /// in the manifest's order, episodes numbered across the folder); errors are one line naming
+    /// the file and where.
     pub fn load(path: &Path) -> Result<Episodes> {
-        let at = path.display().to_string();
-        let (footer, reader) = open_checked(path, &VECTORS, BATCH_EPISODES)?;
-        let (n, t) = (footer.episodes, footer.t);
-        let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
-
-        let steps = [t, t, t - 1, t - 1];
-        let mut out: [Vec<f32>; 4] = std::array::from_fn(|k| {
-            Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE))
-        });
-        let mut row = 0;
-        for batch in reader {
-            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
-            check_keys(&at, &batch, row, &footer)?;
-            for (k, v) in out.iter_mut().enumerate() {
-                let col = batch.column_by_name(VECTORS[k]).expect("projected");
-                append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+        let mut out = None;
+        let footer = if super::folder::is_folder(path) {
+            // Opening checks that every shard's footer agrees with the manifest's.
+            let folder = super::folder::TableFolder::open(path)?;
+            let whole = folder.footer().clone();
+            for file in folder.shard_paths() {
+                append_file(&file, &mut out, Some(whole.episodes))?;
             }
-            row += batch.num_rows();
-        }
-        check_all_read(&at, row, &footer)?;
-        let [obs, ag, g, u] = out;
-        Ok(Episodes { task: footer.task(), footer, n, t, obs, ag, g, u })
+            whole
+        } else {
+            append_file(path, &mut out, None)?
+        };
+        let [obs, ag, g, u] = out.expect("at least one file read");
+        Ok(Episodes { task: footer.task(), n: footer.episodes, t: footer.t, footer, obs, ag, g, u })
     }
 
     /// o[ep, step], step < T.
@@ -126,6 +120,34 @@ impl Episodes {
     pub fn transition(&self, i: usize) -> (usize, usize) {
         (i / (self.t - 1), i % (self.t - 1))
     }
+}
+
+/// Reads the file `path` and appends its rows to `out`, which the first file makes, with room for
+/// `episodes` (a folder's total; else the file's own). Returns the file's footer.
+fn append_file(path: &Path, out: &mut Option<[Vec<f32>; 4]>, episodes: Option<usize>) -> Result<Footer> {
+    let at = path.display().to_string();
+    let (footer, reader) = open_checked(path, &VECTORS, BATCH_EPISODES)?;
+    let t = footer.t;
+    let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
+    let steps = [t, t, t - 1, t - 1];
+    let n = episodes.unwrap_or(footer.episodes);
+    let out = out.get_or_insert_with(|| {
+        std::array::from_fn(|k| {
+            Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE))
+        })
+    });
+    let mut row = 0;
+    for batch in reader {
+        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+        check_keys(&at, &batch, row, &footer)?;
+        for (k, v) in out.iter_mut().enumerate() {
+            let col = batch.column_by_name(VECTORS[k]).expect("projected");
+            append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+        }
+        row += batch.num_rows();
+    }
+    check_all_read(&at, row, &footer)?;
+    Ok(footer)
 }
 
 /// Opens `path` as a trajectory table: footer, row count and all six columns checked, `columns`
