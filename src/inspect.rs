@@ -85,6 +85,9 @@ pub struct Summary {
     pub bytes: u64,
     pub rows: u64,
     pub row_groups: usize,
+    /// A table folder: its shards (statistics are over all of them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shards: Option<usize>,
     /// The `pgser` footer, less its checksums (summarised in `checksums`).
     pub footer: Option<serde_json::Value>,
     /// "N column chunks (B bytes) verified", or why nothing could be.
@@ -97,6 +100,9 @@ pub struct Summary {
 }
 
 pub fn inspect(path: &Path) -> Result<Summary> {
+    if trajectory::folder::is_folder(path) {
+        return inspect_folder(path);
+    }
     let at = path.display();
     let file = crate::output::open_input(path)?;
     let bytes = file.metadata()?.len();
@@ -150,6 +156,7 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         bytes,
         rows,
         row_groups: meta.num_row_groups(),
+        shards: None,
         footer: footer.map(|mut f: serde_json::Value| {
             f.as_object_mut().map(|m| m.remove(crate::table::CHECKSUMS_KEY));
             f
@@ -164,6 +171,59 @@ pub fn inspect(path: &Path) -> Result<Summary> {
         episodes,
         final_success,
         success_rate: episodes.zip(final_success).map(|(e, s)| if e == 0 { 0.0 } else { s as f64 / e as f64 }),
+    })
+}
+
+/// A table folder as one table: every shard's chunks checked against its checksums, statistics
+/// over all shards in one scan (`query::scan_folder`, episodes numbered across the folder), the
+/// manifest's footer (the shards' shared one with the folder's totals).
+fn inspect_folder(dir: &Path) -> Result<Summary> {
+    let at = dir.display();
+    let folder = trajectory::folder::TableFolder::open(dir)?;
+    let paths = folder.shard_paths();
+    let (mut bytes, mut row_groups, mut chunks, mut checked) = (0, 0, 0, 0);
+    let mut schema = None;
+    for path in &paths {
+        let file = crate::output::open_input(path)?;
+        bytes += file.metadata()?.len();
+        let builder = ParquetRecordBatchReaderBuilder::try_new(file)
+            .with_context(|| format!("{}: not a Parquet file", path.display()))?;
+        row_groups += builder.metadata().num_row_groups();
+        let verifier = crate::table::Verifier::new(path, builder.metadata())?;
+        verifier.check_all()?;
+        let (c, b) = verifier.extent();
+        (chunks, checked) = (chunks + c, checked + b);
+        schema.get_or_insert_with(|| builder.schema().clone());
+    }
+    let schema = schema.expect("a folder has shards");
+    let footer = folder.footer().clone();
+    let fail = |e: polars::error::PolarsError| anyhow!("{at}: cannot compute statistics: {}", first_line(&e));
+    let mut columns: Vec<ColumnSummary> = schema
+        .fields()
+        .iter()
+        .zip(column_stats(crate::query::scan_folder(dir)?, &schema).map_err(fail)?)
+        .map(|(f, (nulls, per_dim))| {
+            let mut all = Moments::default();
+            per_dim.iter().for_each(|m| all.merge(m));
+            ColumnSummary { name: f.name().clone(), data_type: type_text(f.data_type()), nulls, std: all.std(), all, per_dim }
+        })
+        .collect();
+    columns.iter_mut().for_each(|c| c.std = c.all.std());
+    let (episodes, ok) = final_success(crate::query::scan_folder(dir)?, footer.task()).map_err(fail)?;
+    let mut json = serde_json::to_value(&footer)?;
+    json.as_object_mut().map(|m| m.remove(crate::table::CHECKSUMS_KEY));
+    Ok(Summary {
+        path: dir.display().to_string(),
+        bytes,
+        rows: folder.manifest.rows as u64,
+        row_groups,
+        shards: Some(paths.len()),
+        footer: Some(json),
+        checksums: format!("{chunks} column chunks ({checked} bytes) verified, in {} shards", paths.len()),
+        columns,
+        episodes: Some(episodes),
+        final_success: Some(ok),
+        success_rate: Some(if episodes == 0 { 0.0 } else { ok as f64 / episodes as f64 }),
     })
 }
 
@@ -269,9 +329,13 @@ fn flat_f64(c: &Column, dim: usize) -> PolarsResult<Vec<f64>> {
 pub fn render(s: &Summary, per_dim: bool) -> String {
     use std::fmt::Write;
     let mut o = String::new();
+    let what = match s.shards {
+        Some(n) => format!("table folder of {n} shards"),
+        None => "file".to_string(),
+    };
     let _ = writeln!(
         o,
-        "file: {} ({:.1} MB, {} rows in {} row groups)",
+        "{what}: {} ({:.1} MB, {} rows in {} row groups)",
         s.path,
         s.bytes as f64 / 1e6,
         s.rows,

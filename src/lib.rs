@@ -18,8 +18,8 @@
 //! | 7 | [`train`] |
 //! | 6 | [`sampler`], [`inspect`] |
 //! | 5 | [`collect`], [`score`], [`convert`] |
-//! | 4 | [`eval`], [`swap`], [`minari`], [`ogbench`], [`verify`] |
-//! | 3 | [`agent`], [`query`], [`trajectory`] |
+//! | 4 | [`eval`], [`swap`], [`minari`], [`ogbench`], [`query`], [`verify`] |
+//! | 3 | [`agent`], [`trajectory`] |
 //! | 2 | [`env`](mod@env), [`table`] |
 //! | 1 | [`pickle`], [`nprandom`], [`output`], [`task`], [`cli`], [`progress`] |
 //! | 0 | [`dtype`], [`install`] |

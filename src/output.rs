@@ -330,20 +330,6 @@ pub fn sha256_file(path: &Path) -> Result<String> {
     Ok(hex(&hasher.finalize()))
 }
 
-/// The digest a run records of its data (checkpoints, batch tables, pipelines' content keys): a
-/// file's SHA-256, or for a table folder the SHA-256 of its manifest once the folder opens (the
-/// manifest holds every shard's SHA-256 and size, and opening checks the sizes and footers).
-/// Hashing every shard again is `pgser-etl verify`'s job: a 1B-transition folder is hundreds of
-/// GB, which no training run should read twice before it starts.
-pub fn data_digest(path: &Path) -> Result<String> {
-    if crate::trajectory::folder::is_folder(path) {
-        crate::trajectory::folder::TableFolder::open(path)?;
-        sha256_file(&path.join(crate::trajectory::folder::MANIFEST))
-    } else {
-        sha256_file(path)
-    }
-}
-
 /// Feeds `file`'s bytes into `hasher` in 1 MiB blocks (a file may be larger than memory);
 /// returns how many were read. `path` names it in errors.
 pub fn feed_file(hasher: &mut sha2::Sha256, mut file: File, path: &Path) -> Result<u64> {

@@ -104,6 +104,9 @@ fn is_identifier(s: &str) -> bool {
 /// most rows).
 pub fn scan(path: &Path) -> Result<LazyFrame> {
     let at = path.display();
+    if crate::trajectory::folder::is_folder(path) {
+        return scan_folder(path);
+    }
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("parquet" | "pq") => {
             // polars reads what it is given: the checksums are checked here, before it does.
@@ -121,6 +124,21 @@ pub fn scan(path: &Path) -> Result<LazyFrame> {
         }
         _ => bail!("{at}: not a .parquet or .csv file"),
     }
+}
+
+/// A lazy scan of a table folder as one table: its shards in the manifest's order, each checked
+/// against its checksums first, with `episode` numbered across the folder (each shard file keeps
+/// its own numbering from 0, and the manifest gives where it starts).
+pub fn scan_folder(dir: &Path) -> Result<LazyFrame> {
+    let folder = crate::trajectory::folder::TableFolder::open(dir)?;
+    let mut scans = Vec::with_capacity(folder.manifest.shards.len());
+    for (shard, path) in folder.manifest.shards.iter().zip(folder.shard_paths()) {
+        crate::table::open_checked(&path, None)?;
+        let first = shard.first_episode as i64;
+        scans.push(scan_parquet(&path)?.with_column(col("episode") + lit(first)));
+    }
+    polars::prelude::concat(scans, polars::prelude::UnionArgs::default())
+        .map_err(|e| anyhow!("{}: {}", dir.display(), first_line(&e)))
 }
 
 /// A lazy scan of a Parquet file, whatever its name: pgser's vector columns become Array

@@ -499,7 +499,7 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let stream = cfg.stream();
     let source = BatchSource::open_within(data_path, &stream, cfg.budget())?;
 
-    let data_sha = crate::output::data_digest(data_path)?;
+    let data_sha = crate::trajectory::folder::digest(data_path)?;
     let mut extra = BTreeMap::new();
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
     extra.insert("data".to_string(), data_path.display().to_string());
@@ -537,7 +537,7 @@ pub fn resume_point(cell: &Cell) -> Result<Option<u64>> {
     if !cell.out.exists() {
         return Ok(None);
     }
-    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &crate::output::data_digest(&cell.data)?, Device::flex())?;
+    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &crate::trajectory::folder::digest(&cell.data)?, Device::flex())?;
     // The resume state must load too, so a stack never starts on a cell it cannot continue.
     checkpoint::load_resume(&mut agent, &checkpoint::resume_path(&cell.out))?;
     Ok(Some(agent.updates))

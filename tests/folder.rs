@@ -147,3 +147,67 @@ fn disagreeing_shards_and_changed_folders_are_refused_by_name() {
     let e = text(&o.stdout);
     assert!(!o.status.success() && e.contains(&format!("{NAME}-1.parquet")) && e.contains("SHA-256"), "{e}");
 }
+
+/// Every reader takes a table folder as the one table it is: `inspect`, `query`, the trainer's
+/// batches and Python's `read_table` give what they give for the single file of the same
+/// episodes, with episodes numbered across the folder.
+#[test]
+fn readers_take_a_folder_as_the_single_table_of_its_episodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = shards(dir.path(), 1, &[]);
+    let folder = dir.path().join("folder");
+    let o = run_convert(&[&src], &folder);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let dataset = repo().join("tests/fixtures/ogbench").join(format!("{NAME}.npz"));
+    let single = dir.path().join(format!("{NAME}.parquet"));
+    let o = run_convert(&[&dataset], &single);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+
+    // inspect: the same counts, success and statistics; the folder says it is one.
+    let (f, s) = (inspect_json(&folder), inspect_json(&single));
+    assert_eq!(f["shards"], 4);
+    for key in ["rows", "episodes", "final_success"] {
+        assert_eq!(f[key], s[key], "{key}");
+    }
+    for (a, b) in f["columns"].as_array().unwrap().iter().zip(s["columns"].as_array().unwrap()) {
+        assert_eq!(a["name"], b["name"]);
+        for (x, y) in a["per_dim"].as_array().unwrap().iter().zip(b["per_dim"].as_array().unwrap()) {
+            let (x, y) = (x["mean"].as_f64().unwrap(), y["mean"].as_f64().unwrap());
+            assert!((x - y).abs() <= 1e-9 * (1.0 + y.abs()), "{}: mean {x} vs {y}", a["name"]);
+        }
+    }
+
+    // query: the same rows, episodes numbered across the folder.
+    let query = |table: &Path| {
+        let sql = "SELECT episode, step, obs, action FROM t ORDER BY episode, step";
+        let o = etl().args(["query", "--json", sql]).arg(format!("t={}", table.display())).output().unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        o.stdout
+    };
+    assert_eq!(query(&folder), query(&single));
+
+    // The trainer's batches: number for number.
+    let batches = |table: &Path, out: &str| {
+        let path = dir.path().join(out);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+            .args(["batches", "--data"])
+            .arg(table)
+            .args(["--count", "20", "--batch-size", "64", "--swap", "random", "-o"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        read_table(&path).0.columns().to_vec()
+    };
+    assert!(batches(&folder, "f.parquet") == batches(&single, "s.parquet"), "other batches from the folder");
+
+    // A shard that changed is named by every reader.
+    let shard = folder.join(format!("{NAME}-2.parquet"));
+    let mut bytes = std::fs::read(&shard).unwrap();
+    bytes.push(0);
+    std::fs::write(&shard, &bytes).unwrap();
+    let o = etl().arg("inspect").arg(&folder).output().unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains(&format!("{NAME}-2.parquet")), "{}", text(&o.stderr));
+    let o = etl().args(["query", "SELECT COUNT(*) FROM t"]).arg(format!("t={}", folder.display())).output().unwrap();
+    assert!(!o.status.success() && text(&o.stderr).contains("manifest says"), "{}", text(&o.stderr));
+}

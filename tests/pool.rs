@@ -22,7 +22,7 @@ const EPISODES: usize = 480;
 const T: usize = 50;
 const GROUP_EPISODES: usize = 5;
 /// Holds 6 blocks of 5 episodes beside the reservoir and the blocks in flight (pool.rs `Plan`).
-const BUDGET: u64 = 220_000;
+const BUDGET: u64 = 240_000;
 const BATCH: usize = 98;
 /// One pass: as many draws as the table has transitions.
 const PASS_BATCHES: usize = EPISODES * (T - 1) / BATCH;
@@ -259,7 +259,7 @@ fn the_cli_draws_the_same_bytes_at_any_thread_count() {
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
             .args(["batches", "--data"])
             .arg(&data)
-            .args(["--count", "300", "--batch-size", "98", "--swap", "random", "--memory-budget", "220kB", "-o"])
+            .args(["--count", "300", "--batch-size", "98", "--swap", "random", "--memory-budget", "240kB", "-o"])
             .arg(&path)
             .env("RAYON_NUM_THREADS", threads)
             .output()
@@ -332,7 +332,7 @@ fn pgser_train_resumes_a_pool_run_to_the_uninterrupted_weights() {
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"));
         cmd.arg("--data").arg(&data).arg("-o").arg(&ckpt);
         cmd.args(["--updates", updates, "--batch-size", "98", "--hidden", "32", "--eval-episodes", "0"]);
-        cmd.args(["--log-every", "50", "--swap", "random", "--memory-budget", "220kB", "--seed", "2"]);
+        cmd.args(["--log-every", "50", "--swap", "random", "--memory-budget", "240kB", "--seed", "2"]);
         if resume {
             cmd.arg("--resume");
         }

@@ -103,6 +103,41 @@ fn read_table(py: Python<'_>, path: PathBuf, columns: Option<Vec<String>>) -> Py
 type Batches = (arrow_schema::SchemaRef, Vec<RecordBatch>);
 
 fn read_batches(path: &Path, columns: Option<&[String]>) -> anyhow::Result<Batches> {
+    if pgser::trajectory::folder::is_folder(path) {
+        return read_folder(path, columns);
+    }
+    read_file(path, columns)
+}
+
+/// A table folder as one table: its shards in order, `episode` numbered across the folder (each
+/// shard file numbers its own from 0), and the manifest's footer (the shards' shared one with the
+/// folder's totals) in the schema's metadata.
+fn read_folder(dir: &Path, columns: Option<&[String]>) -> anyhow::Result<Batches> {
+    use arrow_array::{Array, Int64Array};
+    let folder = pgser::trajectory::folder::TableFolder::open(dir)?;
+    let footer = serde_json::to_string(folder.footer())?;
+    let mut out = Vec::new();
+    let mut schema = None;
+    for (shard, path) in folder.manifest.shards.iter().zip(folder.shard_paths()) {
+        let (s, batches) = read_file(&path, columns)?;
+        let mut metadata = s.metadata().clone();
+        metadata.insert(pgser::table::FOOTER_KEY.to_string(), footer.clone());
+        let s = schema.get_or_insert_with(|| std::sync::Arc::new(s.as_ref().clone().with_metadata(metadata))).clone();
+        for b in batches {
+            let mut cols = b.columns().to_vec();
+            if let Ok(i) = s.index_of("episode") {
+                let e = cols[i].as_any().downcast_ref::<Int64Array>().expect("episode is int64");
+                let first = shard.first_episode as i64;
+                cols[i] = std::sync::Arc::new(e.iter().map(|v| v.map(|v| v + first)).collect::<Int64Array>());
+                debug_assert_eq!(cols[i].len(), b.num_rows());
+            }
+            out.push(RecordBatch::try_new(s.clone(), cols)?);
+        }
+    }
+    Ok((schema.expect("a folder has shards"), out))
+}
+
+fn read_file(path: &Path, columns: Option<&[String]>) -> anyhow::Result<Batches> {
     use anyhow::Context;
     let at = path.display();
     // pyarrow gets the decoded buffers as they are: the chunks it will get are checked first.
@@ -132,7 +167,13 @@ fn read_batches(path: &Path, columns: Option<&[String]>) -> anyhow::Result<Batch
 #[pyfunction]
 fn read_footer(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
     existing(&path)?;
-    let footer = pgser::table::read_footer(&path).map_err(py_err)?;
+    let footer = if pgser::trajectory::folder::is_folder(&path) {
+        // A table folder's footer: the manifest's (the shards' shared one, the folder's totals).
+        let folder = pgser::trajectory::folder::TableFolder::open(&path).map_err(py_err)?;
+        serde_json::to_value(folder.footer()).map_err(|e| py_err(e.into()))?
+    } else {
+        pgser::table::read_footer(&path).map_err(py_err)?
+    };
     json_to_py(py, &footer)
 }
 

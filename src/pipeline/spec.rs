@@ -372,6 +372,10 @@ fn take<T: serde::de::DeserializeOwned>(t: &mut toml::Table, key: &str) -> Resul
     }
 }
 
+/// `TrainConfig`'s own settings that its JSON leaves out when unset, so that runs from before
+/// they existed keep their bytes and keys.
+const OPTIONAL_TRAIN_KEYS: [&str; 1] = ["memory_budget"];
+
 /// `TrainConfig` from the CLI's defaults with `layers` applied in order. Keys are the flags'
 /// snake_case names, found in whichever group (agent, sampler, priority) holds them.
 pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
@@ -393,6 +397,10 @@ pub fn train_config(layers: &[&toml::Table]) -> Result<TrainConfig> {
                     obj[&g].as_object_mut().expect("a group").insert(key.clone(), value);
                 }
                 None if obj.get(key).is_some_and(|v| !v.is_object()) => {
+                    obj.insert(key.clone(), value);
+                }
+                // A training setting its JSON leaves out when unset (`memory_budget`).
+                None if OPTIONAL_TRAIN_KEYS.contains(&key.as_str()) => {
                     obj.insert(key.clone(), value);
                 }
                 // An agent setting its JSON leaves out at the default (`arithmetic`, `action_l2`).

@@ -87,7 +87,7 @@ impl Hashes {
         {
             return Ok(Some(sha.clone()));
         }
-        let sha = crate::output::data_digest(path)?;
+        let sha = crate::trajectory::folder::digest(path)?;
         self.seen.insert(path.to_path_buf(), (stamp.0, stamp.1, sha.clone()));
         Ok(Some(sha))
     }

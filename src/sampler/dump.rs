@@ -125,7 +125,7 @@ pub fn write_batches(
         batches: count,
         rows,
         data: data.display().to_string(),
-        data_sha256: crate::output::data_digest(data)?,
+        data_sha256: crate::trajectory::folder::digest(data)?,
         settings: settings(cfg, budget)?,
         seed: cfg.seed,
         command: command.to_string(),

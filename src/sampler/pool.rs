@@ -300,7 +300,8 @@ pub enum Plan {
 
 impl Plan {
     /// The budget's split: the reservoir takes an eighth (at most one entry per observation of the
-    /// table), [`IN_FLIGHT`] blocks are set aside, and the rest holds blocks of the largest size.
+    /// table) and as much again while it is first filled, [`IN_FLIGHT`] blocks are set aside, and
+    /// the rest holds blocks of the largest size.
     /// Refused, saying what would do, when fewer than two blocks fit. The budget is β's: the
     /// process's own memory (code, networks, batches, Parquet metadata) comes on top of it, and
     /// BENCHMARKS.md measures the whole.
@@ -312,7 +313,8 @@ impl Plan {
         let observations = layout.episodes * layout.t as u64;
         let reservoir =
             ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
-        let fixed = reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
+        // The reservoir twice: its first fill gathers every block's entries before they are placed.
+        let fixed = 2 * reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
         let slots = budget.saturating_sub(fixed) / block.max(1);
         if slots < 2 {
             let need = fixed + 2 * block;
@@ -551,31 +553,48 @@ impl Pool {
     }
 
     /// Fills every reservoir slot's vectors from the block its key names: resident blocks from
-    /// memory, the others read (observations and achieved goals only), a block per thread.
+    /// memory, the others read (observations and achieved goals only), a block per thread, each
+    /// dropped as soon as its entries are copied out, so memory is the reservoir and one block
+    /// per thread, never the table's columns.
     fn materialize(&mut self) -> Result<()> {
         let mut by_block: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
         for (slot, &(id, _, _)) in self.keys.slots.iter().enumerate() {
             by_block.entry(id as usize).or_default().push(slot);
         }
-        let resident: std::collections::BTreeMap<usize, &Block> = self.resident.iter().map(|b| (b.id, b)).collect();
         let layout = &self.layout;
-        let read = by_block
-            .keys()
-            .filter(|id| !resident.contains_key(id))
-            .copied()
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(|id| Ok((id, layout.read_columns(id, &[true, true, false, false])?)))
-            .collect::<Result<std::collections::BTreeMap<usize, Block>>>()?;
         let (t, od, gd) = (layout.t, layout.task.obs_dim, layout.task.goal_dim);
-        for (id, slots) in by_block {
-            let b = resident.get(&id).copied().unwrap_or_else(|| &read[&id]);
-            for slot in slots {
-                let (_, e, s) = self.keys.slots[slot];
+        let keys = &self.keys.slots;
+        // A block's entries, flat: their slots, table-wide (episode, step), achieved goals and
+        // observations (at most the reservoir's own size over all blocks).
+        type Entries = (Vec<usize>, Vec<(u64, u32)>, Vec<f32>, Vec<f32>);
+        let take = |b: &Block, slots: &[usize]| -> Entries {
+            let mut out: Entries = (slots.to_vec(), Vec::new(), Vec::new(), Vec::new());
+            for &slot in slots {
+                let (_, e, s) = keys[slot];
                 let (e, s) = (e as usize, s as usize);
-                self.goal_at[slot] = (b.first_episode + e as u64, s as u32);
-                self.goal_ag[slot * gd..][..gd].copy_from_slice(b.ag(e, s, t, gd));
-                self.goal_obs[slot * od..][..od].copy_from_slice(b.obs(e, s, t, od));
+                out.1.push((b.first_episode + e as u64, s as u32));
+                out.2.extend_from_slice(b.ag(e, s, t, gd));
+                out.3.extend_from_slice(b.obs(e, s, t, od));
+            }
+            out
+        };
+        let resident: std::collections::BTreeMap<usize, &Block> = self.resident.iter().map(|b| (b.id, b)).collect();
+        let mut entries: Vec<Entries> = by_block
+            .iter()
+            .filter_map(|(id, slots)| resident.get(id).map(|b| take(b, slots)))
+            .collect();
+        let others: Vec<(&usize, &Vec<usize>)> = by_block.iter().filter(|(id, _)| !resident.contains_key(id)).collect();
+        entries.extend(
+            others
+                .into_par_iter()
+                .map(|(&id, slots)| Ok(take(&layout.read_columns(id, &[true, true, false, false])?, slots)))
+                .collect::<Result<Vec<_>>>()?,
+        );
+        for (slots, at, ag, obs) in entries {
+            for (i, slot) in slots.into_iter().enumerate() {
+                self.goal_at[slot] = at[i];
+                self.goal_ag[slot * gd..][..gd].copy_from_slice(&ag[i * gd..][..gd]);
+                self.goal_obs[slot * od..][..od].copy_from_slice(&obs[i * od..][..od]);
             }
         }
         Ok(())

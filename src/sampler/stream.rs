@@ -247,7 +247,7 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
             path.display()
         );
     }
-    if crate::output::data_digest(&path)? != sha {
+    if crate::trajectory::folder::digest(&path)? != sha {
         bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
     }
     let data = Episodes::load(&path)?;

@@ -3,7 +3,7 @@
 //! a whole table (the same functions), so a bad table fails with the row named, not as a wrong
 //! score. Memory is one block and one Parquet row group of the projected columns at a time.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use arrow_array::RecordBatch;
@@ -12,15 +12,50 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReader;
 use crate::swap::GoalPool;
 use crate::trajectory::Episodes;
 use crate::trajectory::Footer;
+use crate::trajectory::folder::{TableFolder, is_folder};
 use crate::trajectory::read::{append, check_all_read, check_keys, open_checked, rows_read_error};
 
-/// The footer of a trajectory table, checked against the file's row count and column types.
+/// The files of a table and the table-wide number of each one's first episode: the file itself,
+/// or a table folder's shards in order (the folder opened and checked).
+fn files(path: &Path) -> Result<Vec<(PathBuf, usize)>> {
+    if !is_folder(path) {
+        return Ok(vec![(path.to_path_buf(), 0)]);
+    }
+    let folder = TableFolder::open(path)?;
+    Ok(folder.shard_paths().into_iter().zip(folder.manifest.shards.iter().map(|s| s.first_episode)).collect())
+}
+
+/// The footer of a trajectory table, checked against the file's row count and column types; a
+/// table folder's is its manifest's (the shards' shared one with the folder's totals), each
+/// shard's checked the same way.
 pub fn footer(path: &Path) -> Result<Footer> {
+    if is_folder(path) {
+        for (shard, _) in files(path)? {
+            open_checked(&shard, &[], 1)?;
+        }
+        return Ok(TableFolder::open(path)?.footer().clone());
+    }
     Ok(open_checked(path, &[], 1)?.0)
 }
 
-/// Every achieved goal of the table, read as a stream of the `achieved_goal` column alone.
+/// Every achieved goal of the table (a folder's shards in order), read as a stream of the
+/// `achieved_goal` column alone.
 pub fn goal_pool(path: &Path) -> Result<GoalPool> {
+    let mut pool: Option<GoalPool> = None;
+    for (file, _) in files(path)? {
+        let p = file_goal_pool(&file)?;
+        match pool.as_mut() {
+            None => pool = Some(p),
+            Some(all) => {
+                all.n += p.n;
+                all.ag.extend_from_slice(&p.ag);
+            }
+        }
+    }
+    Ok(pool.expect("a table has a file"))
+}
+
+fn file_goal_pool(path: &Path) -> Result<GoalPool> {
     let at = path.display().to_string();
     let (f, reader) = open_checked(path, &["achieved_goal"], 1024)?;
     let mut ag = Vec::with_capacity(f.rows.saturating_mul(f.goal_dim).min(1 << 26));
@@ -36,9 +71,57 @@ pub fn goal_pool(path: &Path) -> Result<GoalPool> {
     Ok(GoalPool { n: f.episodes, t: f.t, goal_dim: f.goal_dim, ag })
 }
 
-/// Blocks of `per_block` whole episodes, in table order, as float32 [`Episodes`] (the last
-/// block may be shorter). `desired_goal` is read only when `with_goals` (for original rows).
+/// Blocks of `per_block` whole episodes, in table order, as float32 [`Episodes`] (a file's last
+/// block may be shorter; a folder's blocks never span two shards), each with the table-wide
+/// number of its first episode. `desired_goal` is read only when `with_goals` (for original rows).
 pub struct Blocks {
+    files: std::collections::VecDeque<(PathBuf, usize)>,
+    current: Option<(usize, FileBlocks)>,
+    per_block: usize,
+    with_goals: bool,
+    done: bool,
+}
+
+impl Blocks {
+    pub fn open(path: &Path, per_block: usize, with_goals: bool) -> Result<Blocks> {
+        let mut files: std::collections::VecDeque<_> = files(path)?.into();
+        let (first, offset) = files.pop_front().expect("a table has a file");
+        let current = Some((offset, FileBlocks::open(&first, per_block, with_goals)?));
+        Ok(Blocks { files, current, per_block, with_goals, done: false })
+    }
+}
+
+impl Iterator for Blocks {
+    type Item = Result<(usize, Episodes)>;
+
+    /// Stops after the first error.
+    fn next(&mut self) -> Option<Self::Item> {
+        while !self.done {
+            let (offset, blocks) = self.current.as_mut()?;
+            match blocks.next() {
+                Some(Ok((first, block))) => return Some(Ok((*offset + first, block))),
+                Some(Err(e)) => {
+                    self.done = true;
+                    return Some(Err(e));
+                }
+                None => match self.files.pop_front() {
+                    None => self.done = true,
+                    Some((file, offset)) => match FileBlocks::open(&file, self.per_block, self.with_goals) {
+                        Ok(b) => self.current = Some((offset, b)),
+                        Err(e) => {
+                            self.done = true;
+                            return Some(Err(e));
+                        }
+                    },
+                },
+            }
+        }
+        None
+    }
+}
+
+/// [`Blocks`] of one file.
+struct FileBlocks {
     at: String,
     footer: Footer,
     reader: ParquetRecordBatchReader,
@@ -51,15 +134,15 @@ pub struct Blocks {
     done: bool,
 }
 
-impl Blocks {
-    pub fn open(path: &Path, per_block: usize, with_goals: bool) -> Result<Blocks> {
+impl FileBlocks {
+    fn open(path: &Path, per_block: usize, with_goals: bool) -> Result<FileBlocks> {
         let mut columns = vec!["obs", "achieved_goal", "action"];
         if with_goals {
             columns.push("desired_goal");
         }
         // Batches of one block: blocks are then cut from whole batches, not pieced together.
         let (footer, reader) = open_checked(path, &columns, per_block)?;
-        Ok(Blocks {
+        Ok(FileBlocks {
             at: path.display().to_string(),
             footer,
             reader,
@@ -122,7 +205,7 @@ impl Blocks {
     }
 }
 
-impl Iterator for Blocks {
+impl Iterator for FileBlocks {
     type Item = Result<(usize, Episodes)>;
 
     /// Stops after the first error.

@@ -130,6 +130,20 @@ fn difference(a: &Footer, b: &Footer) -> Option<String> {
     Some("a footer that differs from the first shard's".into())
 }
 
+/// The digest a run records of its data (checkpoints, batch tables, scored footers, pipelines'
+/// content keys): a file's SHA-256, or for a table folder the SHA-256 of its manifest once the
+/// folder opens (the manifest holds every shard's SHA-256 and size, and opening checks the sizes
+/// and footers). Hashing every shard again is `pgser-etl verify`'s job: a 1B-transition folder is
+/// hundreds of GB, which no training run should read twice before it starts.
+pub fn digest(path: &Path) -> Result<String> {
+    if is_folder(path) {
+        TableFolder::open(path)?;
+        crate::output::sha256_file(&path.join(MANIFEST))
+    } else {
+        crate::output::sha256_file(path)
+    }
+}
+
 /// The trajectory footer of the shard at `path`.
 pub fn shard_footer(path: &Path) -> Result<Footer> {
     let json = crate::table::read_footer(path)?;

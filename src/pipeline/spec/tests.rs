@@ -208,3 +208,17 @@ fn normalize_is_lexical() {
     assert_eq!(normalize(Path::new("../x/../y")), PathBuf::from("../y"));
     assert_eq!(normalize(Path::new("/a/../b")), PathBuf::from("/b"));
 }
+
+#[test]
+fn a_memory_budget_reads_as_a_size_or_bytes_and_is_left_out_when_unset() {
+    let table = |t: &str| -> toml::Table { toml::from_str(t).unwrap() };
+    let c = train_config(&[&table(r#"memory_budget = "8GB""#)]).unwrap();
+    assert_eq!(c.memory_budget, Some(8_000_000_000));
+    let c = train_config(&[&table("memory_budget = 1048576")]).unwrap();
+    assert_eq!(c.memory_budget, Some(1 << 20));
+    let e = train_config(&[&table(r#"memory_budget = "8XB""#)]).unwrap_err().to_string();
+    assert!(e.contains("unknown unit"), "{e}");
+    // Unset, the settings' JSON (checkpoints, content keys) is what it was before the key existed.
+    let c = train_config(&[]).unwrap();
+    assert!(serde_json::to_value(&c).unwrap().get("memory_budget").is_none());
+}
