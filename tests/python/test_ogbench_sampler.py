@@ -287,3 +287,18 @@ def test_same_seed_same_bytes_whatever_the_sizes_asked(folder):
     d.close()
     with pytest.raises(ValueError, match="closed"):
         d.sample()
+
+
+def test_read_table_takes_a_folder_as_one_table(folder, tmp_path):
+    """pgser.read_table of a table folder is the single file of the same episodes, episodes
+    numbered across the shards, with the manifest's footer (the folder's totals)."""
+    table, _, _ = folder
+    single = tmp_path / "single.parquet"
+    run(BIN / "pgser-etl", "convert", FIXTURE, "-o", single)
+    a, b = pgser.read_table(table), pgser.read_table(single)
+    for name in ["episode", "step", "obs", "achieved_goal", "action"]:
+        assert a.column(name).to_pylist() == b.column(name).to_pylist(), name
+    footer = pgser.read_footer(table)
+    assert footer["episodes"] == pgser.read_footer(single)["episodes"] == 4
+    obs = pgser.read_table(table, columns=["episode", "obs"])
+    assert obs.column_names == ["episode", "obs"]
