@@ -33,6 +33,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 from make_wgcsl_pickle import DEFAULT_EPISODES, HORIZON, TASKS  # noqa: E402
+import peer_python  # noqa: E402
 
 MB = 1e6
 MiB = 1 << 20
@@ -55,12 +56,6 @@ def run_measured(cmd: list[str], log_path: Path) -> dict:
         "major_faults": ru.ru_majflt,
     }
 
-
-def tail(path: Path, n: int = 30) -> str:
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
-    except OSError:
-        return ""
 
 
 def peer_timings(log_path: Path) -> dict | None:
@@ -198,7 +193,7 @@ def main(argv=None):
             log = workdir / f"log_{side}_{r}.txt"
             m = run_measured(cmds[side], log)
             if m["rc"] != 0:
-                print(f"\n{side} failed (exit {m['rc']}): {shlex.join(cmds[side])}\n{tail(log)}",
+                print(f"\n{side} failed (exit {m['rc']}): {shlex.join(cmds[side])}\n{peer_python.tail(log)}",
                       file=sys.stderr)
                 sys.exit(1)
             m["output_bytes"] = outs[side].stat().st_size

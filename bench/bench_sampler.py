@@ -81,12 +81,6 @@ def run_measured(cmd: list[str], env: dict, out_path: Path, err_path: Path, key:
     return res
 
 
-def tail(path: Path, n: int = 30) -> str:
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
-    except OSError:
-        return ""
-
 
 def median(xs):
     return statistics.median(xs) if xs else float("nan")
@@ -219,8 +213,8 @@ def main(argv=None):
             m = run_measured(cmds[side], env, out, err, "samples_per_sec")
             if m["rc"] != 0 or m["report"] is None:
                 why = f"exit {m['rc']}" if m["rc"] != 0 else "no JSON line with samples_per_sec on stdout"
-                print(f"\n{side} failed ({why}): {shlex.join(cmds[side])}\n--- stdout\n{tail(out)}\n"
-                      f"--- stderr\n{tail(err)}", file=sys.stderr)
+                print(f"\n{side} failed ({why}): {shlex.join(cmds[side])}\n--- stdout\n{peer_python.tail(out)}\n"
+                      f"--- stderr\n{peer_python.tail(err)}", file=sys.stderr)
                 failed[side] = why
                 continue
             m["run"] = r
@@ -237,7 +231,7 @@ def main(argv=None):
                 "--updates", str(args.trainer_updates), *thr, "--json"]
         m = run_measured(tcmd, env, logdir / "trainer.out", logdir / "trainer.err", "updates_per_sec")
         if m["rc"] != 0 or m["report"] is None:
-            print(f"\ntrainer bench failed (exit {m['rc']}): {shlex.join(tcmd)}\n{tail(logdir / 'trainer.err')}",
+            print(f"\ntrainer bench failed (exit {m['rc']}): {shlex.join(tcmd)}\n{peer_python.tail(logdir / 'trainer.err')}",
                   file=sys.stderr)
             failed["trainer"] = f"exit {m['rc']}"
         else:

@@ -200,12 +200,6 @@ def run_measured(cmd: list[str], out_path: Path, err_path: Path, env: dict | Non
     return res
 
 
-def tail(path: Path, n: int = 20) -> str:
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
-    except OSError:
-        return ""
-
 
 def vm(key: str) -> int | None:
     """This process's /proc/self/status figure `key` (VmRSS, VmHWM) in bytes."""
@@ -307,7 +301,7 @@ def convert(etl: Path, src: Path, out: Path, extra: list[str], logdir: Path, lab
     load = os.getloadavg()
     m = run_measured(cmd, logdir / f"convert-{label}.out", logdir / f"convert-{label}.err")
     if m["rc"] != 0:
-        sys.exit(f"convert failed (exit {m['rc']}): {shlex.join(cmd)}\n{tail(logdir / f'convert-{label}.err')}")
+        sys.exit(f"convert failed (exit {m['rc']}): {shlex.join(cmd)}\n{peer_python.tail(logdir / f'convert-{label}.err')}")
     man = json.loads((out / "manifest.json").read_text())
     m.update({"command": shlex.join(cmd), "rows": man["rows"], "episodes": man["episodes"],
               "shards": len(man["shards"]), "rows_per_sec": man["rows"] / m["wall_s"],
@@ -520,8 +514,8 @@ def main(argv=None) -> None:
             rep = peer_python.last_json(out.read_text(errors="replace"), "batches_per_sec")
             if m["rc"] != 0 or rep is None:
                 why = f"exit {m['rc']}" if m["rc"] != 0 else "no JSON line with batches_per_sec"
-                print(f"\n{side} failed ({why}): {shlex.join(cmds[side])}\n{tail(err)}", file=sys.stderr)
-                last = [x for x in tail(err).splitlines() if x.strip()]
+                print(f"\n{side} failed ({why}): {shlex.join(cmds[side])}\n{peer_python.tail(err)}", file=sys.stderr)
+                last = [x for x in peer_python.tail(err).splitlines() if x.strip()]
                 failed[side] = f"{why}: {last[-1].strip() if last else ''}"
                 continue
             m.update({"run": r, "report": rep, "loadavg_before": load, "loadavg_after": os.getloadavg()})

@@ -45,3 +45,11 @@ def last_json(text: str, key: str = "updates_per_sec") -> dict | None:
             if isinstance(doc, dict) and key in doc:
                 return doc
     return None
+
+
+def tail(path: Path, n: int = 30) -> str:
+    """The last `n` lines of a log, for a failure's message ("" when it cannot be read)."""
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-n:])
+    except OSError:
+        return ""
