@@ -508,6 +508,7 @@ impl Pool {
         reservoir: usize,
         (batches, rows): (u64, usize),
     ) -> Result<Pool> {
+        keep_large_buffers_returnable();
         let mut entries = Entries::new(layout.blocks.len(), slots, cfg.seed);
         let mut queue: VecDeque<usize> = (0..slots as u64).map(|i| entries.get(i)).collect();
         let mut next_entry = slots as u64;
@@ -680,6 +681,21 @@ impl Pool {
     fn block(&self, e: usize) -> (&Block, usize) {
         let (slot, local) = self.index[e];
         (&self.resident[slot as usize], local as usize)
+    }
+}
+
+/// Makes glibc give large buffers (a block's arrays, a row group's decoded pages) back to the
+/// system when they are freed. By default glibc raises its mmap threshold each time such a
+/// buffer is freed, up to 32 MB, after which buffers of a block's size come from the heaps of the
+/// threads that allocated them and stay there when freed: measured on 10M humanoidmaze-shaped
+/// rows, the process then held 0.9 GB beyond a 1 GB budget, more on a larger table. A fixed
+/// threshold keeps every buffer over 1 MB a mapping of its own, returned on free. Process-wide
+/// and idempotent; elsewhere than glibc it does nothing.
+fn keep_large_buffers_returnable() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets an allocator parameter; it is safe to call at any time.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
     }
 }
 
