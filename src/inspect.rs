@@ -205,7 +205,14 @@ fn inspect_folder(dir: &Path) -> Result<Summary> {
         .map(|(f, (nulls, per_dim))| {
             let mut all = Moments::default();
             per_dim.iter().for_each(|m| all.merge(m));
-            ColumnSummary { name: f.name().clone(), data_type: type_text(f.data_type()), nulls, std: all.std(), all, per_dim }
+            ColumnSummary {
+                name: f.name().clone(),
+                data_type: type_text(f.data_type()),
+                nulls,
+                std: all.std(),
+                all,
+                per_dim,
+            }
         })
         .collect();
     columns.iter_mut().for_each(|c| c.std = c.all.std());

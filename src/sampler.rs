@@ -9,10 +9,10 @@
 
 pub mod dump;
 pub mod ogbench;
+pub mod pool;
 pub mod priority;
 pub mod replay;
 pub mod scored;
-pub mod pool;
 pub mod stream;
 pub mod view;
 

@@ -357,8 +357,7 @@ impl Verifier {
     /// decodes some row groups (the out-of-core pool) pays for.
     pub fn check_row_groups(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
         let Some(sums) = &self.sums else { return Ok(()) };
-        let chunks: Vec<(usize, usize)> =
-            groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
+        let chunks: Vec<(usize, usize)> = groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
         let bad = chunks
             .par_iter()
             .map(|&(rg, c)| {

@@ -537,7 +537,8 @@ pub fn resume_point(cell: &Cell) -> Result<Option<u64>> {
     if !cell.out.exists() {
         return Ok(None);
     }
-    let (mut agent, _) = checked_checkpoint(&cell.out, &cell.cfg, &crate::trajectory::folder::digest(&cell.data)?, Device::flex())?;
+    let (mut agent, _) =
+        checked_checkpoint(&cell.out, &cell.cfg, &crate::trajectory::folder::digest(&cell.data)?, Device::flex())?;
     // The resume state must load too, so a stack never starts on a cell it cannot continue.
     checkpoint::load_resume(&mut agent, &checkpoint::resume_path(&cell.out))?;
     Ok(Some(agent.updates))

@@ -38,7 +38,10 @@ fn folder(dir: &Path) -> PathBuf {
         let d = coded(first, n);
         let file = format!("coded-{i}.parquet");
         let footer = Footer::new(&d.task, FloatType::Float32, n, "test".into());
-        pgser::sampler::replay::stage_table(&d, &out.join(&file), GROUP_EPISODES * T, &footer).unwrap().commit().unwrap();
+        pgser::sampler::replay::stage_table(&d, &out.join(&file), GROUP_EPISODES * T, &footer)
+            .unwrap()
+            .commit()
+            .unwrap();
         files.push(file);
         first += n;
     }
@@ -80,11 +83,13 @@ fn config(swap: Swap, swap_ratio: f64, her_ratio: f64, seed: u64) -> StreamConfi
 /// The shard holding the folder's episode `e`.
 fn shard_of(e: usize) -> usize {
     let mut end = 0;
-    SHARDS.iter().position(|&n| {
-        end += n;
-        e < end
-    })
-    .unwrap()
+    SHARDS
+        .iter()
+        .position(|&n| {
+            end += n;
+            e < end
+        })
+        .unwrap()
 }
 
 /// (episode, step) a coded value names.

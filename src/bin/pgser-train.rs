@@ -268,7 +268,14 @@ pub(crate) fn main() -> ExitCode {
             }
             Some(Command::Batches { data, count, output, config, json }) => {
                 let cmd = cli::command_line();
-                let r = pgser::sampler::dump::write_batches(&data, &config.stream(), config.budget(), count, &output, &cmd)?;
+                let r = pgser::sampler::dump::write_batches(
+                    &data,
+                    &config.stream(),
+                    config.budget(),
+                    count,
+                    &output,
+                    &cmd,
+                )?;
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
                 } else {

@@ -11,8 +11,8 @@ use arrow_array::{ArrayRef, Float32Array, Int32Array, Int64Array, RecordBatch};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use serde::Serialize;
 
-use super::view::Budget;
 use super::stream::{BatchSource, StreamConfig};
+use super::view::Budget;
 use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
 use crate::task::Task;
 

@@ -529,8 +529,7 @@ impl Pool {
                 queue.push_back(id);
             }
         }
-        let resident: VecDeque<Block> =
-            queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
+        let resident: VecDeque<Block> = queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
         let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
         let mut pool = Pool {
             layout: layout.clone(),
@@ -580,10 +579,8 @@ impl Pool {
             out
         };
         let resident: std::collections::BTreeMap<usize, &Block> = self.resident.iter().map(|b| (b.id, b)).collect();
-        let mut entries: Vec<Entries> = by_block
-            .iter()
-            .filter_map(|(id, slots)| resident.get(id).map(|b| take(b, slots)))
-            .collect();
+        let mut entries: Vec<Entries> =
+            by_block.iter().filter_map(|(id, slots)| resident.get(id).map(|b| take(b, slots))).collect();
         let others: Vec<(&usize, &Vec<usize>)> = by_block.iter().filter(|(id, _)| !resident.contains_key(id)).collect();
         entries.extend(
             others
@@ -631,7 +628,11 @@ impl Pool {
     /// fits its normalizer on, a uniform sample of the table's blocks.
     pub fn resident_arrays(&self) -> (Vec<&[f32]>, Vec<&[f32]>, Vec<&[f32]>) {
         let r = &self.resident;
-        (r.iter().map(|b| &b.obs[..]).collect(), r.iter().map(|b| &b.g[..]).collect(), r.iter().map(|b| &b.ag[..]).collect())
+        (
+            r.iter().map(|b| &b.obs[..]).collect(),
+            r.iter().map(|b| &b.g[..]).collect(),
+            r.iter().map(|b| &b.ag[..]).collect(),
+        )
     }
 
     fn reindex(&mut self) {
@@ -783,6 +784,11 @@ impl View for Pool {
 impl std::fmt::Debug for Pool {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let ids: Vec<usize> = self.resident.iter().map(|b| b.id).collect();
-        write!(f, "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}", self.layout.task.name, self.goal_at.len())
+        write!(
+            f,
+            "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}",
+            self.layout.task.name,
+            self.goal_at.len()
+        )
     }
 }

@@ -239,7 +239,9 @@ pub fn stage_table(d: &Episodes, path: &Path, row_group_rows: usize, footer: &Fo
         let bytes: Vec<Vec<u8>> = [&d.obs, &d.ag, &d.u, &d.g]
             .iter()
             .zip(dims)
-            .map(|(v, (steps, dim))| v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect())
+            .map(|(v, (steps, dim))| {
+                v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect()
+            })
             .collect();
         let arrays = std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
         let src = EpisodeArrays {

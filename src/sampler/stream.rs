@@ -13,9 +13,9 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
+use super::pool::{Beta, Pool};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
-use super::pool::{Beta, Pool};
 use super::view::{Budget, View};
 use super::{RowKey, SamplerConfig, Swap};
 use crate::agent::{Batch, Rows};
@@ -131,15 +131,9 @@ impl BatchSource {
     pub fn resume(self, cfg: &StreamConfig, rng: NpRandom, first: u64) -> Result<BatchStream> {
         let k_aug = if self.scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
         let aug = match (self.scored, &self.data) {
-            (Some(t), Beta::Whole(data)) => Some(ScoredSampler::start(
-                t,
-                data.clone(),
-                &cfg.priority,
-                k_aug,
-                cfg.seed,
-                first,
-                cfg.aug_in_memory,
-            )?),
+            (Some(t), Beta::Whole(data)) => {
+                Some(ScoredSampler::start(t, data.clone(), &cfg.priority, k_aug, cfg.seed, first, cfg.aug_in_memory)?)
+            }
             (Some(_), Beta::Pool(_)) => unreachable!("a scored table's β is held whole (open_within)"),
             (None, _) => None,
         };

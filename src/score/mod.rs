@@ -343,7 +343,10 @@ fn check_compatible(ckpt: &Task, ckpt_path: &Path, table: &trajectory::Footer, d
 }
 
 fn file_ref(input: &Path, output: &Path) -> Result<FileRef> {
-    Ok(FileRef { path: relative_to_folder_of(input, output)?.display().to_string(), sha256: crate::trajectory::folder::digest(input)? })
+    Ok(FileRef {
+        path: relative_to_folder_of(input, output)?.display().to_string(),
+        sha256: crate::trajectory::folder::digest(input)?,
+    })
 }
 
 /// Swap, score and lay out one chunk (chunk `index`, episodes `first ..` of the table).

@@ -132,9 +132,7 @@ fn append_file(path: &Path, out: &mut Option<[Vec<f32>; 4]>, episodes: Option<us
     let steps = [t, t, t - 1, t - 1];
     let n = episodes.unwrap_or(footer.episodes);
     let out = out.get_or_insert_with(|| {
-        std::array::from_fn(|k| {
-            Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE))
-        })
+        std::array::from_fn(|k| Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE)))
     });
     let mut row = 0;
     for batch in reader {
