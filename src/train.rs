@@ -19,7 +19,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Rows, Shards, checkpoint};
 use crate::eval::{self, EvalReport};
-use crate::nprandom::NpRandom;
 use crate::output::AtomicFile;
 use crate::progress;
 use crate::sampler::SamplerConfig;
@@ -32,8 +31,11 @@ use rayon::prelude::*;
 mod bench;
 pub(crate) mod differ;
 pub mod online;
+mod resume;
 pub mod stop;
 pub use bench::{BenchReport, SamplerBenchReport, StreamBenchReport, bench_agents, bench_sampler, bench_stream};
+pub use resume::{StaleCheckpoint, resume_point};
+use resume::{continued_metrics, restore};
 
 /// The training job's settings; with the agent's, this is everything a run depends on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Args)]
@@ -81,7 +83,11 @@ pub struct TrainConfig {
     /// (the same batches as without), streamed from its row groups otherwise, with transitions
     /// and random goals from the whole table (docs/ogbench.md, "Datasets larger than memory").
     #[arg(long, value_name = "SIZE", value_parser = crate::sampler::view::parse_bytes)]
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "budget_setting")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::sampler::view::budget_setting"
+    )]
     pub memory_budget: Option<u64>,
 }
 
@@ -101,22 +107,6 @@ impl TrainConfig {
     /// `--memory-budget` as the sampler takes it.
     pub fn budget(&self) -> Budget {
         self.memory_budget.map_or(Budget::Unbounded, Budget::Bytes)
-    }
-}
-
-/// `memory_budget` as a pipeline's `[train]` or a checkpoint's settings give it: bytes, or a
-/// size with a unit ("8GB"), as `--memory-budget` takes it.
-fn budget_setting<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<u64>, D::Error> {
-    #[derive(Deserialize)]
-    #[serde(untagged)]
-    enum Size {
-        Bytes(u64),
-        Text(String),
-    }
-    match Option::<Size>::deserialize(d)? {
-        None => Ok(None),
-        Some(Size::Bytes(b)) => Ok(Some(b)),
-        Some(Size::Text(t)) => crate::sampler::view::parse_bytes(&t).map(Some).map_err(serde::de::Error::custom),
     }
 }
 
@@ -465,33 +455,6 @@ fn saved_line(runs: &[Run], u: u64, of: u64, (done, took): (u64, std::time::Dura
     s + &progress::last_evaluation(&last, by_success)
 }
 
-/// The metrics of a checkpoint at update `u` as an uninterrupted run would have them there: a run
-/// that ended at `u` recorded its final evaluation as a line of its own, which a longer run has
-/// on its loss line when `u` is on the evaluation schedule and does not have at all otherwise.
-/// Returns them with the evaluation at `u`, if one stays.
-fn continued_metrics(mut metrics: Vec<MetricsLine>, u: u64, eval_every: u64) -> (Vec<MetricsLine>, Option<EvalReport>) {
-    let is_final = |m: &MetricsLine| m.updates == u && m.eval.is_some() && m.critic_loss.is_none();
-    let Some(pos) = metrics.iter().position(is_final) else {
-        let last = metrics.iter().rev().find_map(|m| m.eval.clone().filter(|_| m.updates == u));
-        return (metrics, last);
-    };
-    let report = metrics.remove(pos).eval;
-    if eval_every == 0 || !u.is_multiple_of(eval_every) {
-        return (metrics, None);
-    }
-    match metrics.iter_mut().find(|m| m.updates == u) {
-        Some(line) => line.eval = report.clone(),
-        None => metrics.push(MetricsLine {
-            updates: u,
-            critic_loss: None,
-            actor_loss: None,
-            q_mean: None,
-            eval: report.clone(),
-        }),
-    }
-    (metrics, report)
-}
-
 /// A cell's data, sampler and agent (a stack of one): fresh, or restored from its checkpoint.
 fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let (data_path, out, cfg) = (&cell.data, &cell.out, &cell.cfg);
@@ -520,83 +483,6 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     };
     let (metrics, last_eval) = continued_metrics(metrics, agent.updates, cfg.eval_every);
     Ok((Run { cell: cell.clone(), batches, metrics, extra, last_eval }, agent))
-}
-
-/// `--resume` refused because the checkpoint belongs to another run: other settings, other data,
-/// or more updates than asked for. Only this refusal lets a pipeline start the step over (it keeps
-/// the old checkpoint aside); any other failure while resuming is reported and the checkpoint
-/// left as it is, so no progress is thrown away by an I/O error or a bad read.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct StaleCheckpoint(pub String);
-
-/// Where `cell` would start: `None` without a checkpoint, `Some(updates)` when its checkpoint can
-/// be continued, a `StaleCheckpoint` error when it belongs to another run. What a pipeline asks
-/// before it stacks cells, which must start from the same update.
-pub fn resume_point(cell: &Cell) -> Result<Option<u64>> {
-    if !cell.out.exists() {
-        return Ok(None);
-    }
-    let (mut agent, _) =
-        checked_checkpoint(&cell.out, &cell.cfg, &crate::trajectory::folder::digest(&cell.data)?, Device::flex())?;
-    // The resume state must load too, so a stack never starts on a cell it cannot continue.
-    checkpoint::load_resume(&mut agent, &checkpoint::resume_path(&cell.out))?;
-    Ok(Some(agent.updates))
-}
-
-/// The checkpoint at `out`, if it is one `cfg` on the data of `data_sha` may continue: same
-/// settings (the number of updates may grow), same data.
-fn checked_checkpoint(
-    out: &Path,
-    cfg: &TrainConfig,
-    data_sha: &str,
-    device: Device,
-) -> Result<(Agent, std::collections::HashMap<String, String>)> {
-    let at = out.display();
-    if !out.exists() {
-        bail!("{at}: --resume given but there is no checkpoint to resume");
-    }
-    let (agent, meta) = checkpoint::load(out, device)?;
-    let saved: TrainConfig = serde_json::from_str(meta.get("train").context("no train config in metadata")?)
-        .with_context(|| format!("{at}: the checkpoint's train config is not readable"))?;
-    let comparable = TrainConfig { updates: cfg.updates, ..saved.clone() };
-    let stale = |why: String| Err(StaleCheckpoint(why).into());
-    if &comparable != cfg {
-        return stale(format!(
-            "{at}: --resume with settings that differ from the checkpoint's (only --updates may change): {}",
-            differ::differing_settings(&comparable, cfg)?
-        ));
-    }
-    if agent.updates > cfg.updates {
-        return stale(format!(
-            "{at}: --resume with --updates {} but the checkpoint already has {} updates (a run cannot be shortened)",
-            cfg.updates, agent.updates
-        ));
-    }
-    if meta.get("data_sha256").map(String::as_str) != Some(data_sha) {
-        return stale(format!(
-            "{at}: --resume with a different data file than the checkpoint was trained on (sha256 differs)"
-        ));
-    }
-    Ok((agent, meta))
-}
-
-/// Loads checkpoint, resume state and metrics of an interrupted run and checks that it is the
-/// same run.
-fn restore(
-    out: &Path,
-    cfg: &TrainConfig,
-    data_sha: &str,
-    device: Device,
-) -> Result<(Agent, NpRandom, Vec<MetricsLine>)> {
-    let at = out.display();
-    let (mut agent, _) = checked_checkpoint(out, cfg, data_sha, device)?;
-    let resume_meta = checkpoint::load_resume(&mut agent, &checkpoint::resume_path(out))?;
-    let words = resume_meta.get("batch_rng").with_context(|| format!("{at}.resume: batch_rng missing"))?;
-    let batches = NpRandom::from_words(serde_json::from_str(words)?);
-    let metrics =
-        read_metrics::<MetricsLine>(&metrics_path(out))?.into_iter().filter(|m| m.updates <= agent.updates).collect();
-    Ok((agent, batches, metrics))
 }
 
 /// A metrics file (one JSON line per record), staged for the caller to commit.

@@ -23,7 +23,7 @@
 //!   loader's timing, so the same seed gives the same batches at any speed; the loader reads
 //!   ahead while the current blocks are drawn from, and a batch waits only when reading a block
 //!   takes longer than drawing the previous block's transitions (counted in [`PoolStats`]).
-//!   Every pass starts with the same first blocks ([`permutation`] says why), which makes each
+//!   Every pass starts with the same first blocks (`schedule::permutation` says why), which makes each
 //!   pass of draws give every block exactly its share of turns.
 //! - **Random goals** (`--swap random`, OGBench's `p_randomgoal`) come from a **reservoir** of
 //!   achieved goals and observations, refreshed from every block as it enters: a block of `r`
@@ -45,34 +45,24 @@
 //! ones, number for number.
 
 use std::collections::VecDeque;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, anyhow, bail};
-use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
+use anyhow::{Result, anyhow};
 use rayon::prelude::*;
 
-use super::view::{GoalSource, InMemory, View};
+mod layout;
+mod schedule;
+
+use super::view::{GoalSource, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
-use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
-use crate::trajectory::read::{append, check_keys};
-use crate::trajectory::{Episodes, Footer};
-
-/// Spawn keys of the pool's generators: the loader's permutations (with the pass number) and the
-/// reservoir's draws. The batch streams use 1–4 and OGBench's layout its own.
-const KEY_PERMUTATION: u64 = 5;
-const KEY_RESERVOIR: u64 = 6;
-/// The share of the budget the goal reservoir may take.
-const RESERVOIR_SHARE: f64 = 0.125;
-/// Blocks held beyond the resident ones: one waiting in the channel, and one being decoded (its
-/// Arrow arrays and its float32 copy side by side).
-const IN_FLIGHT: u64 = 3;
-/// The columns a block reads.
-const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "action"];
+use crate::trajectory::Episodes;
+use layout::Block;
+pub use layout::{Layout, Plan};
+use schedule::{Entries, Keys};
 
 /// Options of a pool besides its budget.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,15 +73,6 @@ pub struct PoolConfig {
     /// keeps each block twice as long (half the reading, for samplers faster than the disk).
     pub draws_per_row: f64,
     pub seed: u64,
-}
-
-/// Opens `path` within `budget` bytes: the whole table in memory when it fits (the in-memory
-/// sampler's batches, number for number), the pool otherwise.
-pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Box<dyn View>> {
-    Ok(match Beta::open(path, budget, seed)? {
-        Beta::Whole(data) => Box::new(InMemory(data)),
-        Beta::Pool(pool) => pool,
-    })
 }
 
 /// β for a sampler within a budget: whole, or a pool.
@@ -134,309 +115,6 @@ impl Beta {
     }
 }
 
-/// Bytes of a table held whole (what [`Layout::bytes`] plans with).
-pub fn bytes_of(data: &Episodes) -> u64 {
-    4 * (data.obs.len() + data.ag.len() + data.g.len() + data.u.len()) as u64
-}
-
-/// One shard of the table, as the pool reads it.
-struct Shard {
-    path: PathBuf,
-    /// The shard's own footer (its own rows and episodes): what `check_keys` checks rows against.
-    footer: Footer,
-    meta: ArrowReaderMetadata,
-}
-
-/// One block: a row group of a shard, holding whole episodes.
-#[derive(Debug, Clone, Copy)]
-struct BlockInfo {
-    shard: usize,
-    group: usize,
-    /// The block's first row in its shard.
-    first_row: usize,
-    episodes: usize,
-    /// The table-wide number of its first episode.
-    first_episode: u64,
-}
-
-/// Where every block of a table is, read from footers and Parquet metadata only.
-pub struct Layout {
-    task: Task,
-    t: usize,
-    episodes: u64,
-    shards: Vec<Shard>,
-    blocks: Vec<BlockInfo>,
-}
-
-impl Layout {
-    /// The blocks of a table file or table folder; a row group that does not hold whole
-    /// episodes is refused, naming the shard and row group.
-    pub fn open(path: &Path) -> Result<Layout> {
-        let (footer, shards): (Footer, Vec<(PathBuf, Footer, u64)>) = if is_folder(path) {
-            let folder = TableFolder::open(path)?;
-            let shards = folder
-                .manifest
-                .shards
-                .iter()
-                .map(|s| {
-                    let p = folder.dir.join(&s.file);
-                    Ok((p.clone(), shard_footer(&p)?, s.first_episode as u64))
-                })
-                .collect::<Result<_>>()?;
-            (folder.footer().clone(), shards)
-        } else {
-            let f = shard_footer(path)?;
-            (f.clone(), vec![(path.to_path_buf(), f, 0)])
-        };
-        let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
-        if t < 2 {
-            bail!("{}: episodes of {t} step(s) hold no transition", path.display());
-        }
-        for (i, (p, f, first_episode)) in shards.into_iter().enumerate() {
-            let file = crate::output::open_input(&p)?;
-            let meta = ArrowReaderMetadata::load(&file, ArrowReaderOptions::new())
-                .with_context(|| format!("{}: not a readable Parquet file", p.display()))?;
-            let mut row = 0usize;
-            for (g, rg) in meta.metadata().row_groups().iter().enumerate() {
-                let rows = rg.num_rows() as usize;
-                if row % t != 0 || rows % t != 0 {
-                    bail!(
-                        "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
-                         groups between episodes; convert the data again)",
-                        p.display(),
-                        row + rows
-                    );
-                }
-                let first = first_episode + (row / t) as u64;
-                blocks.push(BlockInfo { shard: i, group: g, first_row: row, episodes: rows / t, first_episode: first });
-                row += rows;
-            }
-            if row != f.rows {
-                bail!("{}: its row groups hold {row} rows but its footer says {}", p.display(), f.rows);
-            }
-            opened.push(Shard { path: p, footer: f, meta });
-        }
-        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks })
-    }
-
-    /// Float32 bytes of one episode as a block holds it.
-    fn episode_bytes(&self) -> u64 {
-        let (t, task) = (self.t as u64, &self.task);
-        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64)
-    }
-
-    /// Float32 bytes of the whole table in memory.
-    pub fn bytes(&self) -> u64 {
-        self.episodes * self.episode_bytes()
-    }
-
-    /// Bytes of one reservoir entry: an achieved goal, an observation, and where they came from.
-    fn entry_bytes(&self) -> u64 {
-        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16
-    }
-
-    /// Reads block `id`: its chunks checked against the shard's checksums, every row checked as
-    /// `Episodes::load` checks them, decoded to float32.
-    fn read(&self, id: usize) -> Result<Block> {
-        self.read_columns(id, &[true; 4])
-    }
-
-    /// Reads the columns of block `id` that `which` marks (in [`VECTORS`] order); the others
-    /// stay empty. The reservoir's first fill reads observations and achieved goals only.
-    fn read_columns(&self, id: usize, which: &[bool; 4]) -> Result<Block> {
-        let b = self.blocks[id];
-        let shard = &self.shards[b.shard];
-        let at = format!("{} (row group {})", shard.path.display(), b.group);
-        let file = crate::output::open_input(&shard.path)?;
-        let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
-        let mut names = vec!["episode", "step"];
-        names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
-        verifier.check_row_groups(&[b.group], &verifier.columns_of(&names))?;
-        let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
-        let schema = builder.schema().clone();
-        let roots = names
-            .iter()
-            .map(|n| schema.index_of(n).map_err(|_| anyhow!("{at}: no `{n}` column")))
-            .collect::<Result<Vec<_>>>()?;
-        let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
-        let t = self.t;
-        let reader = builder
-            .with_projection(mask)
-            .with_row_groups(vec![b.group])
-            .with_batch_size(64 * t)
-            .build()
-            .with_context(|| format!("{at}: cannot read"))?;
-        let task = &self.task;
-        let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
-        let steps = [t, t, t - 1, t - 1];
-        let mut out: [Vec<f32>; 4] =
-            std::array::from_fn(|k| Vec::with_capacity(if which[k] { b.episodes * steps[k] * dims[k] } else { 0 }));
-        let mut row = b.first_row;
-        for batch in reader {
-            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
-            check_keys(&at, &batch, row, &shard.footer)?;
-            for (k, v) in out.iter_mut().enumerate().filter(|(k, _)| which[*k]) {
-                let col = batch.column_by_name(VECTORS[k]).expect("projected");
-                append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow!("{at}: {e}"))?;
-            }
-            row += batch.num_rows();
-        }
-        if row != b.first_row + b.episodes * t {
-            bail!("{at}: {} rows read where the row group holds {}", row - b.first_row, b.episodes * t);
-        }
-        let [obs, ag, g, u] = out;
-        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u })
-    }
-}
-
-/// How a table meets a budget.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Plan {
-    /// The table fits: held whole.
-    Whole,
-    /// `slots` resident blocks and a reservoir of `reservoir` goals.
-    Pool { slots: usize, reservoir: usize },
-}
-
-impl Plan {
-    /// The budget's split: the reservoir takes an eighth (at most one entry per observation of the
-    /// table) and as much again while it is first filled, [`IN_FLIGHT`] blocks are set aside, and
-    /// the rest holds blocks of the largest size.
-    /// Refused, saying what would do, when fewer than two blocks fit. The budget is β's: the
-    /// process's own memory (code, networks, batches, Parquet metadata) comes on top of it, and
-    /// BENCHMARKS.md measures the whole.
-    pub fn of(layout: &Layout, budget: u64) -> Result<Plan> {
-        if layout.bytes() <= budget {
-            return Ok(Plan::Whole);
-        }
-        let block = layout.blocks.iter().map(|b| b.episodes as u64).max().unwrap_or(0) * layout.episode_bytes();
-        let observations = layout.episodes * layout.t as u64;
-        let reservoir =
-            ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
-        // The reservoir twice: its first fill gathers every block's entries before they are placed.
-        let fixed = 2 * reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
-        let slots = budget.saturating_sub(fixed) / block.max(1);
-        if slots < 2 {
-            let need = fixed + 2 * block;
-            bail!(
-                "a memory budget of {} holds fewer than two of the table's row groups ({} each as float32, {} more \
-                 for reading and the goal reservoir); give at least {}, or convert with a smaller --row-group-rows",
-                crate::progress::bytes(budget),
-                crate::progress::bytes(block),
-                crate::progress::bytes(fixed),
-                crate::progress::bytes(need)
-            );
-        }
-        if slots as usize >= layout.blocks.len() {
-            return Ok(Plan::Whole);
-        }
-        Ok(Plan::Pool { slots: slots as usize, reservoir })
-    }
-}
-
-/// A resident block.
-struct Block {
-    id: usize,
-    n: usize,
-    first_episode: u64,
-    obs: Vec<f32>,
-    ag: Vec<f32>,
-    g: Vec<f32>,
-    u: Vec<f32>,
-}
-
-impl Block {
-    fn obs(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
-        &self.obs[(e * t + s) * d..][..d]
-    }
-    fn ag(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
-        &self.ag[(e * t + s) * d..][..d]
-    }
-}
-
-/// The order blocks enter in, as one sequence over the passes: entry i is block
-/// `permutation(.., i / B)[i % B]`. Computed, never stored beyond the current pass, so both the
-/// loader and a resumed pool can find entry i without reading anything.
-struct Entries {
-    blocks: usize,
-    head: usize,
-    seed: u64,
-    pass: u64,
-    order: Vec<usize>,
-}
-
-impl Entries {
-    fn new(blocks: usize, head: usize, seed: u64) -> Entries {
-        Entries { blocks, head, seed, pass: 0, order: permutation(blocks, head, seed, 0) }
-    }
-
-    fn get(&mut self, i: u64) -> usize {
-        let pass = i / self.blocks as u64;
-        if pass != self.pass {
-            self.order = permutation(self.blocks, self.head, self.seed, pass);
-            self.pass = pass;
-        }
-        self.order[(i % self.blocks as u64) as usize]
-    }
-}
-
-/// The reservoir's entries as (block, episode in it, step): what the pool's random numbers decide
-/// alone, before any data is read. Vectors are filled in from the blocks afterwards
-/// ([`Pool::materialize`], [`Pool::swap`]).
-struct Keys {
-    slots: Vec<(u32, u32, u32)>,
-    /// Next slot to replace (the oldest).
-    next: usize,
-    /// The fraction of an entry owed to the next block.
-    carry: f64,
-    rng: NpRandom,
-}
-
-impl Keys {
-    /// The first fill: every block gives its share of entries (carry-rounded, so they sum to
-    /// `len`), uniform over its observations, each block's from a generator of its own; then the
-    /// entries are put in a random order, since they are replaced oldest first and in block order
-    /// the first shards' entries would all go before any of the last ones'.
-    fn first(layout: &Layout, len: usize, seed: u64) -> Keys {
-        let mut slots = Vec::with_capacity(len);
-        let mut carry = 0.0;
-        for (id, b) in layout.blocks.iter().enumerate() {
-            carry += len as f64 * b.episodes as f64 / layout.episodes as f64;
-            let mut k = carry.floor() as usize;
-            carry -= k as f64;
-            if id + 1 == layout.blocks.len() {
-                k = len - slots.len();
-            }
-            let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR, 1 + id as u64]);
-            for _ in 0..k {
-                slots.push((id as u32, rng.below(b.episodes) as u32, rng.below(layout.t) as u32));
-            }
-        }
-        let mut rng = NpRandom::spawned(seed, &[KEY_RESERVOIR]);
-        for i in (1..slots.len()).rev() {
-            slots.swap(i, rng.below(i + 1));
-        }
-        Keys { slots, next: 0, carry: 0.0, rng }
-    }
-
-    /// Block `id` enters: it replaces its share of entries, `R · r / N` for its `r` observations
-    /// (the fraction carried), oldest first. Returns the slots it wrote.
-    fn feed(&mut self, layout: &Layout, id: usize) -> std::ops::Range<usize> {
-        let b = layout.blocks[id];
-        let len = self.slots.len();
-        self.carry += len as f64 * b.episodes as f64 / layout.episodes as f64;
-        let k = (self.carry.floor() as usize).min(len);
-        self.carry -= k as f64;
-        let from = self.next;
-        for j in 0..k {
-            let (e, s) = (self.rng.below(b.episodes), self.rng.below(layout.t));
-            self.slots[(from + j) % len] = (id as u32, e as u32, s as u32);
-        }
-        self.next = (from + k) % len;
-        from..from + k
-    }
-}
-
 /// What waiting for the disk cost, so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PoolStats {
@@ -471,30 +149,6 @@ pub struct Pool {
     stats: PoolStats,
 }
 
-/// The order blocks enter in pass `pass`: every block once. Pass 0 is a seeded permutation;
-/// every later pass starts with the same `head` blocks (pass 0's first ones, the first fill) and
-/// shuffles the rest afresh.
-///
-/// Why the fixed head: a block is resident for `S` swaps. The first fill's block k leaves at swap
-/// k + 1, having had k + 1 of its S turns; as the pass ends, the same block enters again as the
-/// next pass's k-th and has S − 1 − k turns before the pass's last swap. So within every pass of
-/// draws each block is resident for exactly S turns, and each shard's share of the draws is its
-/// share of the rows, up to sampling noise, with no block half-drawn at a pass's edges.
-fn permutation(blocks: usize, head: usize, seed: u64, pass: u64) -> Vec<usize> {
-    let shuffle = |p: &mut [usize], pass: u64| {
-        let mut rng = NpRandom::spawned(seed, &[KEY_PERMUTATION, pass]);
-        for i in (1..p.len()).rev() {
-            p.swap(i, rng.below(i + 1));
-        }
-    };
-    let mut p: Vec<usize> = (0..blocks).collect();
-    shuffle(&mut p, 0);
-    if pass > 0 {
-        shuffle(&mut p[head..], pass);
-    }
-    p
-}
-
 impl Pool {
     /// The pool after `batches` batches of `rows` draws each (0 for a fresh one): the swaps and
     /// reservoir refreshes those draws made are replayed on block sizes alone, then the resident
@@ -517,7 +171,7 @@ impl Pool {
         for _ in 0..batches {
             drawn += rows as f64;
             loop {
-                let due = cfg.draws_per_row * (layout.blocks[queue[0]].episodes * (layout.t - 1)) as f64;
+                let due = due(&layout, &cfg, queue[0]);
                 if drawn < due {
                     break;
                 }
@@ -590,9 +244,7 @@ impl Pool {
         );
         for (slots, at, ag, obs) in entries {
             for (i, slot) in slots.into_iter().enumerate() {
-                self.goal_at[slot] = at[i];
-                self.goal_ag[slot * gd..][..gd].copy_from_slice(&ag[i * gd..][..gd]);
-                self.goal_obs[slot * od..][..od].copy_from_slice(&obs[i * od..][..od]);
+                self.set_goal(slot, at[i], &ag[i * gd..][..gd], &obs[i * od..][..od]);
             }
         }
         Ok(())
@@ -670,19 +322,30 @@ impl Pool {
             let slot = j % len;
             let (_, e, s) = self.keys.slots[slot];
             let (e, s) = (e as usize, s as usize);
-            self.goal_at[slot] = (next.first_episode + e as u64, s as u32);
-            self.goal_ag[slot * gd..][..gd].copy_from_slice(next.ag(e, s, t, gd));
-            self.goal_obs[slot * od..][..od].copy_from_slice(next.obs(e, s, t, od));
+            self.set_goal(slot, (next.first_episode + e as u64, s as u32), next.ag(e, s, t, gd), next.obs(e, s, t, od));
         }
         self.resident.push_back(next);
         self.reindex();
         Ok(())
     }
 
+    /// Reservoir slot `slot` now holds the goal of table-wide (episode, step) `at`.
+    fn set_goal(&mut self, slot: usize, at: (u64, u32), ag: &[f32], obs: &[f32]) {
+        self.goal_at[slot] = at;
+        self.goal_ag[slot * ag.len()..][..ag.len()].copy_from_slice(ag);
+        self.goal_obs[slot * obs.len()..][..obs.len()].copy_from_slice(obs);
+    }
+
     fn block(&self, e: usize) -> (&Block, usize) {
         let (slot, local) = self.index[e];
         (&self.resident[slot as usize], local as usize)
     }
+}
+
+/// The draws after which block `id`, the oldest resident, leaves: as many as it has transitions,
+/// times `draws_per_row`. The live pool and its replay on resume both swap by this.
+fn due(layout: &Layout, cfg: &PoolConfig, id: usize) -> f64 {
+    cfg.draws_per_row * (layout.blocks[id].episodes * (layout.t - 1)) as f64
 }
 
 /// Makes glibc give large buffers (a block's arrays, a row group's decoded pages) back to the
@@ -771,7 +434,7 @@ impl View for Pool {
         self.drawn += rows as f64;
         loop {
             let leaving = self.resident.front().expect("at least two blocks resident");
-            let due = self.cfg.draws_per_row * (leaving.n * (self.layout.t - 1)) as f64;
+            let due = due(&self.layout, &self.cfg, leaving.id);
             if self.drawn < due {
                 return Ok(());
             }

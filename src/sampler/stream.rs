@@ -86,9 +86,12 @@ impl BatchSource {
                 if !(0.0..=1.0).contains(&cfg.aug_ratio) {
                     bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
                 }
-                let data = beta_of(table)?;
-                if let Budget::Bytes(b) = budget {
-                    let need = super::pool::bytes_of(&data);
+                // Planned from the footers before anything is loaded: a β too large is refused
+                // without reading it.
+                if let Budget::Bytes(b) = budget
+                    && table.trajectory().0.exists()
+                {
+                    let need = super::pool::Layout::open(&table.trajectory().0)?.bytes();
                     if need > b {
                         bail!(
                             "{at}: its original data take {} in memory, more than --memory-budget {}: a scored \
@@ -98,6 +101,7 @@ impl BatchSource {
                         );
                     }
                 }
+                let data = beta_of(table)?;
                 Beta::Whole(Arc::new(data))
             }
             None => match budget {

@@ -159,7 +159,10 @@ pub enum Budget {
 pub fn open(path: &Path, budget: Budget, seed: u64) -> Result<Box<dyn View>> {
     match budget {
         Budget::Unbounded => Ok(Box::new(InMemory(Arc::new(Episodes::load(path)?)))),
-        Budget::Bytes(b) => super::pool::open(path, b, seed),
+        Budget::Bytes(b) => Ok(match super::pool::Beta::open(path, b, seed)? {
+            super::pool::Beta::Whole(data) => Box::new(InMemory(data)),
+            super::pool::Beta::Pool(pool) => pool,
+        }),
     }
 }
 
@@ -187,6 +190,22 @@ pub fn parse_bytes(s: &str) -> std::result::Result<u64, String> {
         return Err(format!("{s:?}: not a size of at least one byte"));
     }
     Ok(b as u64)
+}
+
+/// `memory_budget` as a pipeline's `[train]` or a checkpoint's settings give it: bytes, or a
+/// size with a unit ("8GB"), as `--memory-budget` takes it.
+pub fn budget_setting<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<u64>, D::Error> {
+    #[derive(serde::Deserialize)]
+    #[serde(untagged)]
+    enum Size {
+        Bytes(u64),
+        Text(String),
+    }
+    match <Option<Size> as serde::Deserialize>::deserialize(d)? {
+        None => Ok(None),
+        Some(Size::Bytes(b)) => Ok(Some(b)),
+        Some(Size::Text(t)) => parse_bytes(&t).map(Some).map_err(serde::de::Error::custom),
+    }
 }
 
 #[cfg(test)]

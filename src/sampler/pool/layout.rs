@@ -1,0 +1,237 @@
+//! Where every block of a table is (read from footers and Parquet metadata alone), how a budget
+//! splits between resident blocks, blocks in flight and the goal reservoir ([`Plan`]), and reading
+//! one block, checked, as float32.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, anyhow, bail};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
+
+use crate::task::Task;
+use crate::trajectory::Footer;
+use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
+use crate::trajectory::read::{append, check_keys};
+
+/// The share of the budget the goal reservoir may take.
+pub(super) const RESERVOIR_SHARE: f64 = 0.125;
+/// Blocks held beyond the resident ones: one waiting in the channel, and one being decoded (its
+/// Arrow arrays and its float32 copy side by side).
+pub(super) const IN_FLIGHT: u64 = 3;
+/// The columns a block reads.
+pub(super) const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "action"];
+
+/// One shard of the table, as the pool reads it.
+pub(super) struct Shard {
+    pub(super) path: PathBuf,
+    /// The shard's own footer (its own rows and episodes): what `check_keys` checks rows against.
+    pub(super) footer: Footer,
+    pub(super) meta: ArrowReaderMetadata,
+}
+
+/// One block: a row group of a shard, holding whole episodes.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct BlockInfo {
+    pub(super) shard: usize,
+    pub(super) group: usize,
+    /// The block's first row in its shard.
+    pub(super) first_row: usize,
+    pub(super) episodes: usize,
+    /// The table-wide number of its first episode.
+    pub(super) first_episode: u64,
+}
+
+/// Where every block of a table is, read from footers and Parquet metadata only.
+pub struct Layout {
+    pub(super) task: Task,
+    pub(super) t: usize,
+    pub(super) episodes: u64,
+    pub(super) shards: Vec<Shard>,
+    pub(super) blocks: Vec<BlockInfo>,
+}
+
+impl Layout {
+    /// The blocks of a table file or table folder; a row group that does not hold whole
+    /// episodes is refused, naming the shard and row group.
+    pub fn open(path: &Path) -> Result<Layout> {
+        let (footer, shards): (Footer, Vec<(PathBuf, Footer, u64)>) = if is_folder(path) {
+            let folder = TableFolder::open(path)?;
+            let shards = folder
+                .manifest
+                .shards
+                .iter()
+                .map(|s| {
+                    let p = folder.dir.join(&s.file);
+                    Ok((p.clone(), shard_footer(&p)?, s.first_episode as u64))
+                })
+                .collect::<Result<_>>()?;
+            (folder.footer().clone(), shards)
+        } else {
+            let f = shard_footer(path)?;
+            (f.clone(), vec![(path.to_path_buf(), f, 0)])
+        };
+        let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
+        if t < 2 {
+            bail!("{}: episodes of {t} step(s) hold no transition", path.display());
+        }
+        for (i, (p, f, first_episode)) in shards.into_iter().enumerate() {
+            let file = crate::output::open_input(&p)?;
+            let meta = ArrowReaderMetadata::load(&file, ArrowReaderOptions::new())
+                .with_context(|| format!("{}: not a readable Parquet file", p.display()))?;
+            let mut row = 0usize;
+            for (g, rg) in meta.metadata().row_groups().iter().enumerate() {
+                let rows = rg.num_rows() as usize;
+                if row % t != 0 || rows % t != 0 {
+                    bail!(
+                        "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
+                         groups between episodes; convert the data again)",
+                        p.display(),
+                        row + rows
+                    );
+                }
+                let first = first_episode + (row / t) as u64;
+                blocks.push(BlockInfo { shard: i, group: g, first_row: row, episodes: rows / t, first_episode: first });
+                row += rows;
+            }
+            if row != f.rows {
+                bail!("{}: its row groups hold {row} rows but its footer says {}", p.display(), f.rows);
+            }
+            opened.push(Shard { path: p, footer: f, meta });
+        }
+        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks })
+    }
+
+    /// Float32 bytes of one episode as a block holds it.
+    pub(super) fn episode_bytes(&self) -> u64 {
+        let (t, task) = (self.t as u64, &self.task);
+        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64)
+    }
+
+    /// Float32 bytes of the whole table in memory.
+    pub fn bytes(&self) -> u64 {
+        self.episodes * self.episode_bytes()
+    }
+
+    /// Bytes of one reservoir entry: an achieved goal, an observation, and where they came from.
+    pub(super) fn entry_bytes(&self) -> u64 {
+        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16
+    }
+
+    /// Reads block `id`: its chunks checked against the shard's checksums, every row checked as
+    /// `Episodes::load` checks them, decoded to float32.
+    pub(super) fn read(&self, id: usize) -> Result<Block> {
+        self.read_columns(id, &[true; 4])
+    }
+
+    /// Reads the columns of block `id` that `which` marks (in [`VECTORS`] order); the others
+    /// stay empty. The reservoir's first fill reads observations and achieved goals only.
+    pub(super) fn read_columns(&self, id: usize, which: &[bool; 4]) -> Result<Block> {
+        let b = self.blocks[id];
+        let shard = &self.shards[b.shard];
+        let at = format!("{} (row group {})", shard.path.display(), b.group);
+        let file = crate::output::open_input(&shard.path)?;
+        let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
+        let mut names = vec!["episode", "step"];
+        names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
+        verifier.check_row_groups(&[b.group], &verifier.columns_of(&names))?;
+        let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
+        let schema = builder.schema().clone();
+        let roots = names
+            .iter()
+            .map(|n| schema.index_of(n).map_err(|_| anyhow!("{at}: no `{n}` column")))
+            .collect::<Result<Vec<_>>>()?;
+        let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
+        let t = self.t;
+        let reader = builder
+            .with_projection(mask)
+            .with_row_groups(vec![b.group])
+            .with_batch_size(64 * t)
+            .build()
+            .with_context(|| format!("{at}: cannot read"))?;
+        let task = &self.task;
+        let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
+        let steps = [t, t, t - 1, t - 1];
+        let mut out: [Vec<f32>; 4] =
+            std::array::from_fn(|k| Vec::with_capacity(if which[k] { b.episodes * steps[k] * dims[k] } else { 0 }));
+        let mut row = b.first_row;
+        for batch in reader {
+            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+            check_keys(&at, &batch, row, &shard.footer)?;
+            for (k, v) in out.iter_mut().enumerate().filter(|(k, _)| which[*k]) {
+                let col = batch.column_by_name(VECTORS[k]).expect("projected");
+                append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow!("{at}: {e}"))?;
+            }
+            row += batch.num_rows();
+        }
+        if row != b.first_row + b.episodes * t {
+            bail!("{at}: {} rows read where the row group holds {}", row - b.first_row, b.episodes * t);
+        }
+        let [obs, ag, g, u] = out;
+        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u })
+    }
+}
+
+/// How a table meets a budget.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Plan {
+    /// The table fits: held whole.
+    Whole,
+    /// `slots` resident blocks and a reservoir of `reservoir` goals.
+    Pool { slots: usize, reservoir: usize },
+}
+
+impl Plan {
+    /// The budget's split: the reservoir takes an eighth (at most one entry per observation of the
+    /// table) and as much again while it is first filled, `IN_FLIGHT` blocks are set aside, and
+    /// the rest holds blocks of the largest size.
+    /// Refused, saying what would do, when fewer than two blocks fit. The budget is β's: the
+    /// process's own memory (code, networks, batches, Parquet metadata) comes on top of it, and
+    /// BENCHMARKS.md measures the whole.
+    pub fn of(layout: &Layout, budget: u64) -> Result<Plan> {
+        if layout.bytes() <= budget {
+            return Ok(Plan::Whole);
+        }
+        let block = layout.blocks.iter().map(|b| b.episodes as u64).max().unwrap_or(0) * layout.episode_bytes();
+        let observations = layout.episodes * layout.t as u64;
+        let reservoir =
+            ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
+        // The reservoir twice: its first fill gathers every block's entries before they are placed.
+        let fixed = 2 * reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
+        let slots = budget.saturating_sub(fixed) / block.max(1);
+        if slots < 2 {
+            let need = fixed + 2 * block;
+            bail!(
+                "a memory budget of {} holds fewer than two of the table's row groups ({} each as float32, {} more \
+                 for reading and the goal reservoir); give at least {}, or convert with a smaller --row-group-rows",
+                crate::progress::bytes(budget),
+                crate::progress::bytes(block),
+                crate::progress::bytes(fixed),
+                crate::progress::bytes(need)
+            );
+        }
+        if slots as usize >= layout.blocks.len() {
+            return Ok(Plan::Whole);
+        }
+        Ok(Plan::Pool { slots: slots as usize, reservoir })
+    }
+}
+
+/// A resident block.
+pub(super) struct Block {
+    pub(super) id: usize,
+    pub(super) n: usize,
+    pub(super) first_episode: u64,
+    pub(super) obs: Vec<f32>,
+    pub(super) ag: Vec<f32>,
+    pub(super) g: Vec<f32>,
+    pub(super) u: Vec<f32>,
+}
+
+impl Block {
+    pub(super) fn obs(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
+        &self.obs[(e * t + s) * d..][..d]
+    }
+    pub(super) fn ag(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
+        &self.ag[(e * t + s) * d..][..d]
+    }
+}
