@@ -8,66 +8,12 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-
+use common::coded::{
+    BATCH, BUDGET, EPISODES, GROUP_EPISODES, PASS_BATCHES, T, chi_square, decode, folder, worst_share_gap,
+};
 use pgser::sampler::stream::{BatchSource, StreamConfig};
 use pgser::sampler::view::Budget;
 use pgser::sampler::{SamplerConfig, Swap};
-use pgser::trajectory::folder::Manifest;
-use pgser::trajectory::{Episodes, FloatType, Footer};
-
-const SHARDS: [usize; 4] = [120, 75, 180, 105];
-const EPISODES: usize = 480;
-/// FetchReach's T.
-const T: usize = 50;
-const GROUP_EPISODES: usize = 5;
-/// Holds 6 blocks of 5 episodes beside the reservoir and the blocks in flight (pool.rs `Plan`).
-const BUDGET: u64 = 240_000;
-const BATCH: usize = 98;
-/// One pass: as many draws as the table has transitions.
-const PASS_BATCHES: usize = EPISODES * (T - 1) / BATCH;
-
-/// The coded folder, written once per test into `dir`.
-fn folder(dir: &Path) -> PathBuf {
-    let out = dir.join("coded");
-    std::fs::create_dir_all(&out).unwrap();
-    let mut first = 0;
-    let mut files = Vec::new();
-    for (i, &n) in SHARDS.iter().enumerate() {
-        // Desired goals are never reached (−1), so rewards say nothing here; the values do.
-        let d = coded(first, n);
-        let file = format!("coded-{i}.parquet");
-        let footer = Footer::new(&d.task, FloatType::Float32, n, "test".into());
-        pgser::sampler::replay::stage_table(&d, &out.join(&file), GROUP_EPISODES * T, &footer)
-            .unwrap()
-            .commit()
-            .unwrap();
-        files.push(file);
-        first += n;
-    }
-    Manifest::of_shards(&out, &files, "test", false, None).unwrap().write(&out).unwrap();
-    out
-}
-
-/// FetchReach-shaped episodes whose observations and achieved goals of (episode e, step s) are
-/// (first + e)·1000 + s, actions that over 10⁵, and desired goals −1 (never reached).
-fn coded(first: usize, n: usize) -> Episodes {
-    let task = pgser::task::Task::known("FetchReach").unwrap();
-    let code = |e: usize, s: usize| ((first + e) * 1000 + s) as f32;
-    let (mut obs, mut ag, mut g, mut u) = (vec![], vec![], vec![], vec![]);
-    for e in 0..n {
-        for s in 0..T {
-            obs.extend(std::iter::repeat_n(code(e, s), task.obs_dim));
-            ag.extend(std::iter::repeat_n(code(e, s), task.goal_dim));
-            if s + 1 < T {
-                g.extend(std::iter::repeat_n(-1.0, task.goal_dim));
-                u.extend(std::iter::repeat_n(code(e, s) / 1e5, task.act_dim));
-            }
-        }
-    }
-    let footer = Footer::new(&task, FloatType::Float32, n, "test".into());
-    Episodes { footer, task, n, t: T, obs, ag, g, u }
-}
 
 fn config(swap: Swap, swap_ratio: f64, her_ratio: f64, seed: u64) -> StreamConfig {
     StreamConfig {
@@ -78,48 +24,6 @@ fn config(swap: Swap, swap_ratio: f64, her_ratio: f64, seed: u64) -> StreamConfi
         aug_in_memory: false,
         seed,
     }
-}
-
-/// The shard holding the folder's episode `e`.
-fn shard_of(e: usize) -> usize {
-    let mut end = 0;
-    SHARDS
-        .iter()
-        .position(|&n| {
-            end += n;
-            e < end
-        })
-        .unwrap()
-}
-
-/// (episode, step) a coded value names.
-fn decode(v: f32) -> (usize, usize) {
-    let v = v as usize;
-    (v / 1000, v % 1000)
-}
-
-/// Pearson's statistic of `counts` against equal expectation, and the bound a uniform draw
-/// exceeds with probability about 1e-4 (Wilson–Hilferty).
-fn chi_square(counts: &[u64]) -> (f64, f64) {
-    let total: u64 = counts.iter().sum();
-    let e = total as f64 / counts.len() as f64;
-    let stat = counts.iter().map(|&c| (c as f64 - e).powi(2) / e).sum();
-    let k = (counts.len() - 1) as f64;
-    let z = 3.72;
-    let bound = k * (1.0 - 2.0 / (9.0 * k) + z * (2.0 / (9.0 * k)).sqrt()).powi(3);
-    (stat, bound)
-}
-
-/// Shares of shards in `episodes` against their shares of rows: the largest gap, in points.
-fn worst_share_gap(episodes: impl Iterator<Item = usize>) -> f64 {
-    let mut counts = [0u64; 4];
-    for e in episodes {
-        counts[shard_of(e)] += 1;
-    }
-    let total: u64 = counts.iter().sum();
-    (0..4)
-        .map(|i| (100.0 * counts[i] as f64 / total as f64 - 100.0 * SHARDS[i] as f64 / EPISODES as f64).abs())
-        .fold(0.0, f64::max)
 }
 
 #[test]

@@ -258,6 +258,7 @@ fn score<'py>(
         device: pgser::agent::Backend::Cpu,
         chunk_episodes,
         threads,
+        shard: None,
         command,
     };
     let s = interruptible(py, |bar| pgser::score::score(&o, bar))?;

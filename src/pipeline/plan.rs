@@ -150,6 +150,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
             device: Backend::Cpu,
             chunk_episodes: s.chunk_episodes,
             threads: 0,
+            shard: None,
             command: cmd("score"),
         }),
     });

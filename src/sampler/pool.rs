@@ -34,6 +34,28 @@
 //!   (one read of the observation and achieved-goal columns at start), so it is a sample of the
 //!   whole table from the first batch on.
 //!
+//! # PGSER within a budget (`-mem` from a scored table or scored folder)
+//! - **Each block carries its scored rows.** The scored rows of a transition sit at a fixed place
+//!   in a scored table (`per` rows per transition, in episode and step order, episodes numbered
+//!   across the folder), so a block reads the scored rows of its own episodes beside them: their
+//!   stored goals (from anywhere in the table: `score` draws them from every shard) and their q,
+//!   checked row by row to be the block's transitions. β's rows rebuild the rest (s, a, s′) and
+//!   the reward is recomputed, as in memory. The plan counts these rows in the block's size.
+//! - **Priorities are the block's own.** When a block enters, its rows' priorities are computed
+//!   from their q within the block (`--priority rank` ranks them among the block's rows), and a
+//!   prioritized draw picks a resident block in proportion to its transitions, then a row of it
+//!   in proportion to its priority. Nothing table-wide stays in memory: the priorities of N
+//!   scored rows cost nothing until their block is resident, where they take 4 bytes a row, and
+//!   a 1B-transition table's 4B scored rows need no 16 GB sum tree.
+//! - **What that changes.** In memory, a row's probability is its priority over the whole table's;
+//!   here it is its priority over its block's, times its block's share of transitions. Every block
+//!   thus gets its share of prioritized draws over a pass, and within a block the draws prefer
+//!   what the critic calls reachable exactly as in memory. With `--priority q`, a block whose rows
+//!   score higher on average no longer gets more draws than its size; with `rank`, rank 1 is the
+//!   block's best row rather than the table's (for α = 1 the top tenth of a block of n rows draws
+//!   H(n/10)/H(n) of its draws: 0.69 for n = 980, where the table of N rows gives H(N/10)/H(N)).
+//!   `--is-beta` needs table-wide probabilities and is refused within a budget.
+//!
 //! # How it differs from drawing in memory
 //! In memory, each row's transition and random goal are uniform over the whole table, every row
 //! independently. In the pool they are uniform over the resident episodes and the reservoir, which
@@ -115,6 +137,17 @@ impl Beta {
     }
 }
 
+/// A row drawn by priority from a resident block's scored rows ([`Pool::draw_scored`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScoredDraw {
+    /// The transition's resident episode and step.
+    pub e: usize,
+    pub step: usize,
+    /// The block's position among the resident ones, and the row among its scored rows.
+    slot: usize,
+    row: usize,
+}
+
 /// What waiting for the disk cost, so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PoolStats {
@@ -138,6 +171,8 @@ pub struct Pool {
     resident: VecDeque<Block>,
     /// Resident episode → (position in `resident`, episode within it).
     index: Vec<(u32, u32)>,
+    /// The first resident episode number of each position in `resident`.
+    starts: Vec<usize>,
     keys: Keys,
     /// The reservoir's vectors, slot by slot, and the table-wide (episode, step) of each.
     goal_at: Vec<(u64, u32)>,
@@ -193,6 +228,7 @@ impl Pool {
             next_entry,
             resident,
             index: Vec::new(),
+            starts: Vec::new(),
             keys,
             goal_at: vec![(0, 0); reservoir],
             goal_ag: vec![0.0; reservoir * gd],
@@ -289,9 +325,44 @@ impl Pool {
 
     fn reindex(&mut self) {
         self.index.clear();
+        self.starts.clear();
         for (slot, b) in self.resident.iter().enumerate() {
+            self.starts.push(self.index.len());
             self.index.extend((0..b.n).map(|e| (slot as u32, e as u32)));
         }
+    }
+
+    /// Whether the blocks carry a scored table's rows (`-mem`).
+    pub fn is_scored(&self) -> bool {
+        self.layout.scored.is_some()
+    }
+
+    /// `k` rows drawn by priority from the resident blocks' scored rows: a block in proportion
+    /// to its transitions (through a uniform resident episode), then one of its rows in
+    /// proportion to its priority within the block. Panics without a scored table.
+    pub fn draw_scored(&self, k: usize, rng: &mut NpRandom) -> Vec<ScoredDraw> {
+        let per = self.layout.scored.as_ref().expect("the pool carries scored rows").per;
+        let steps = self.layout.t - 1;
+        (0..k)
+            .map(|_| {
+                let (slot, _) = self.index[rng.below(self.index.len())];
+                let aug = self.resident[slot as usize].aug.as_ref().expect("every block carries its scored rows");
+                let row = aug.tree.find(rng.random() * aug.tree.total());
+                let (local, step) = (row / (steps * per), (row / per) % steps);
+                ScoredDraw { e: self.starts[slot as usize] + local, step, slot: slot as usize, row }
+            })
+            .collect()
+    }
+
+    /// The scored table's number of a drawn row.
+    pub fn scored_row(&self, d: &ScoredDraw) -> u64 {
+        self.resident[d.slot].aug.as_ref().expect("scored").first_row + d.row as u64
+    }
+
+    /// The goal a drawn row was scored with.
+    pub fn scored_goal(&self, d: &ScoredDraw) -> &[f32] {
+        let gd = self.layout.task.goal_dim;
+        &self.resident[d.slot].aug.as_ref().expect("scored").goal[d.row * gd..][..gd]
     }
 
     /// Takes the next block from the loader in place of the oldest, and feeds the reservoir.

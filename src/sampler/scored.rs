@@ -25,9 +25,9 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, bail};
-use arrow_array::RecordBatch;
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float32Type, Int32Type, Int64Type};
+use arrow_array::{Array, RecordBatch};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{
     ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
@@ -50,41 +50,74 @@ const STREAM_AUG: u64 = 4;
 /// The columns that name a row's transition and goal.
 const COLUMNS: [&str; 4] = ["episode", "step", "goal_episode", "goal_step"];
 
-/// A scored transition table: its footer and the shape of its row groups.
+/// A scored transition table (one file, or a scored folder's shards as one table): its footer and
+/// the shape of its row groups.
 pub struct ScoredTable {
+    /// The file or the scored folder.
     pub path: PathBuf,
     pub footer: crate::score::Footer,
     pub task: Task,
     pub gamma: f64,
     pub rows: usize,
-    /// First row of each row group, plus the total at the end.
+    /// First row of each row group (numbered across the files), plus the total at the end.
     pub group_starts: Vec<usize>,
-    /// The Parquet metadata, parsed once: every block reads many row groups, and re-parsing the
-    /// footer of a large file per row group would cost as much as the reads.
+    /// The files in order, with their parsed metadata.
+    files: Vec<ScoredFile>,
+    /// Row group → (file, its row group within the file).
+    group_at: Vec<(u32, u32)>,
+    /// The trajectory table the rows were made from.
+    source: PathBuf,
+}
+
+/// One file of a scored table. The Parquet metadata is parsed once: every block reads many row
+/// groups, and re-parsing the footer of a large file per row group would cost as much as the reads.
+struct ScoredFile {
+    path: PathBuf,
     metadata: ArrowReaderMetadata,
+    /// The table's number of the file's first row.
+    first_row: usize,
 }
 
 impl ScoredTable {
+    /// Opens a scored file, or a scored folder (`score::folder`) as the one table of its shards.
     pub fn open(path: &Path) -> Result<ScoredTable> {
-        let at = path.display();
-        let footer = crate::score::read_footer(path)?;
-        let file = crate::output::open_input(path)?;
-        let metadata = ArrowReaderMetadata::load(&file, ArrowReaderOptions::default())
-            .with_context(|| format!("{at}: not a Parquet file"))?;
+        let (footer, paths, source) = if crate::score::folder::is_scored_folder(path) {
+            let folder = crate::score::folder::ScoredFolder::open(path)?;
+            let source = folder.source_table();
+            (folder.manifest.footer.clone(), folder.shard_paths(), source)
+        } else {
+            let footer = crate::score::read_footer(path)?;
+            let source = footer.source_table(path);
+            (footer, vec![path.to_path_buf()], source)
+        };
         let mut group_starts = vec![0usize];
-        for (g, rg) in metadata.metadata().row_groups().iter().enumerate() {
-            let Ok(n) = usize::try_from(rg.num_rows()) else {
-                bail!("{at}: row group {g} has a negative row count: the file is corrupt");
-            };
-            group_starts.push(group_starts.last().unwrap() + n);
+        let mut files = Vec::with_capacity(paths.len());
+        let mut group_at = Vec::new();
+        for (i, p) in paths.into_iter().enumerate() {
+            let at = p.display();
+            let first_row = *group_starts.last().unwrap();
+            let file = crate::output::open_input(&p)?;
+            let metadata = ArrowReaderMetadata::load(&file, ArrowReaderOptions::default())
+                .with_context(|| format!("{at}: not a Parquet file"))?;
+            for (g, rg) in metadata.metadata().row_groups().iter().enumerate() {
+                let Ok(n) = usize::try_from(rg.num_rows()) else {
+                    bail!("{at}: row group {g} has a negative row count: the file is corrupt");
+                };
+                group_starts.push(group_starts.last().unwrap() + n);
+                group_at.push((i as u32, g as u32));
+            }
+            // The sampler reads these columns only: their chunks are checked once, here.
+            let verifier = crate::table::Verifier::new(&p, metadata.metadata())?;
+            verifier.check(&verifier.columns_of(&["q", "episode", "step", "goal_episode", "goal_step"]))?;
+            files.push(ScoredFile { path: p, metadata, first_row });
         }
         let rows = *group_starts.last().unwrap();
         if rows == 0 {
-            bail!("{at}: the table has no rows");
+            bail!("{}: the table has no rows", path.display());
         }
-        // The sampler reads these columns only: their chunks are checked once, here.
-        let verifier = crate::table::Verifier::new(path, metadata.metadata())?;
-        verifier.check(&verifier.columns_of(&["q", "episode", "step", "goal_episode", "goal_step"]))?;
+        if rows != footer.rows {
+            bail!("{}: {rows} rows where the footer says {}", path.display(), footer.rows);
+        }
         Ok(ScoredTable {
             path: path.to_path_buf(),
             task: footer.task(),
@@ -92,45 +125,146 @@ impl ScoredTable {
             footer,
             rows,
             group_starts,
-            metadata,
+            files,
+            group_at,
+            source,
         })
     }
 
     /// The trajectory table β this one was made from, and its recorded sha256.
     pub fn trajectory(&self) -> (PathBuf, String) {
-        (self.footer.source_table(&self.path), self.footer.source.sha256.clone())
+        (self.source.clone(), self.footer.source.sha256.clone())
     }
 
-    fn builder(&self) -> Result<ParquetRecordBatchReaderBuilder<File>> {
-        let file = File::open(&self.path).with_context(|| format!("{}: cannot open", self.path.display()))?;
-        Ok(ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone()))
+    fn builder(&self, file: &ScoredFile) -> Result<ParquetRecordBatchReaderBuilder<File>> {
+        let f = File::open(&file.path).with_context(|| format!("{}: cannot open", file.path.display()))?;
+        Ok(ParquetRecordBatchReaderBuilder::new_with_metadata(f, file.metadata.clone()))
     }
 
-    /// The `q` column, streamed.
+    /// The `q` column, streamed, file after file.
     pub fn read_q(&self) -> Result<Vec<f32>> {
-        let b = self.builder()?;
-        let mask = ProjectionMask::columns(b.parquet_schema(), ["q"]);
         let mut q: Vec<f32> = Vec::with_capacity(self.rows);
-        for batch in b.with_projection(mask).with_batch_size(65_536).build()? {
-            let batch = batch.with_context(|| format!("{}: cannot read column q", self.path.display()))?;
-            let col = batch.column_by_name("q").with_context(|| format!("{}: no column q", self.path.display()))?;
-            let col = col
-                .as_primitive_opt::<Float32Type>()
-                .with_context(|| format!("{}: q is not float32", self.path.display()))?;
-            q.extend(col.values().iter());
-        }
-        for (i, v) in q.iter().enumerate() {
-            if !v.is_finite() {
-                bail!("{}: row {i}: q is {v}", self.path.display());
+        for file in &self.files {
+            let at = file.path.display();
+            let b = self.builder(file)?;
+            let mask = ProjectionMask::columns(b.parquet_schema(), ["q"]);
+            let before = q.len();
+            for batch in b.with_projection(mask).with_batch_size(65_536).build()? {
+                let batch = batch.with_context(|| format!("{at}: cannot read column q"))?;
+                let col = batch.column_by_name("q").with_context(|| format!("{at}: no column q"))?;
+                let col = col.as_primitive_opt::<Float32Type>().with_context(|| format!("{at}: q is not float32"))?;
+                q.extend(col.values().iter());
+            }
+            for (i, v) in q[before..].iter().enumerate() {
+                if !v.is_finite() {
+                    bail!("{at}: row {i}: q is {v}");
+                }
             }
         }
         Ok(q)
     }
 
+    /// The stored goals and q of rows `r0..r1`, which must be the scored rows of whole episodes
+    /// from table-wide episode `first_episode` on, `per` rows per transition of T = `t`, in order:
+    /// what the out-of-core pool holds beside a block of β (`pool.rs`). Every row's episode and step
+    /// are checked against that, so a scored table that is not the block's is refused, naming the
+    /// file and row.
+    pub fn read_goals(
+        &self,
+        (r0, r1): (usize, usize),
+        first_episode: u64,
+        t: usize,
+        per: usize,
+    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        let gd = self.task.goal_dim;
+        let (mut goal, mut q) = (Vec::with_capacity((r1 - r0) * gd), Vec::with_capacity(r1 - r0));
+        let first = self.group_starts.partition_point(|&s| s <= r0) - 1;
+        let mut row = r0;
+        for rg in first..self.group_starts.len() - 1 {
+            let (start, end) = (self.group_starts[rg], self.group_starts[rg + 1]);
+            if start >= r1 {
+                break;
+            }
+            let (f, local) = self.group_at[rg];
+            let file = &self.files[f as usize];
+            let at = format!("{} (row group {local})", file.path.display());
+            let (a, b) = (row - start, r1.min(end) - start);
+            let builder = self.builder(file)?;
+            let mask = ProjectionMask::columns(builder.parquet_schema(), ["episode", "step", "goal", "q"]);
+            let mut selectors = Vec::new();
+            if a > 0 {
+                selectors.push(RowSelector::skip(a));
+            }
+            selectors.push(RowSelector::select(b - a));
+            let reader = builder
+                .with_row_groups(vec![local as usize])
+                .with_projection(mask)
+                .with_row_selection(RowSelection::from(selectors))
+                .with_batch_size(65_536)
+                .build()
+                .with_context(|| format!("{at}: cannot read"))?;
+            for batch in reader {
+                let batch =
+                    batch.with_context(|| format!("{at}: cannot read the rows after row {}", row - file.first_row))?;
+                let col = |name: &str| batch.column_by_name(name).with_context(|| format!("{at}: no column {name}"));
+                let (Some(ep), Some(st), Some(qs)) = (
+                    col("episode")?.as_primitive_opt::<Int64Type>(),
+                    col("step")?.as_primitive_opt::<Int32Type>(),
+                    col("q")?.as_primitive_opt::<Float32Type>(),
+                ) else {
+                    bail!("{at}: episode must be int64, step int32 and q float32");
+                };
+                for i in 0..batch.num_rows() {
+                    let k = row + i - r0;
+                    let want = (first_episode + (k / ((t - 1) * per)) as u64, (k / per) % (t - 1));
+                    let (e, s, v) = (ep.value(i), st.value(i), qs.value(i));
+                    if (e, s as i64) != (want.0 as i64, want.1 as i64) || !v.is_finite() {
+                        bail!(
+                            "{}: row {}: (episode {e}, step {s}, q {v}) where its original data's block holds episode {} step \
+                             {} here with a finite q: the scored table does not match its original data",
+                            file.path.display(),
+                            row + i - file.first_row,
+                            want.0,
+                            want.1
+                        );
+                    }
+                }
+                let list = col("goal")?.as_fixed_size_list_opt().filter(|l| l.value_length() as usize == gd);
+                let values = list.and_then(|l| l.values().as_primitive_opt::<Float32Type>());
+                let Some(values) = values.filter(|v| v.null_count() == 0) else {
+                    bail!("{at}: `goal` must be {gd} non-null float32 values per row");
+                };
+                let vals =
+                    &values.values()[list.expect("checked").value_offset_at(0) as usize..][..batch.num_rows() * gd];
+                if let Some(j) = vals.iter().position(|v| !v.is_finite()) {
+                    bail!(
+                        "{}: row {}: `goal`[{}] is {}",
+                        file.path.display(),
+                        row + j / gd - file.first_row,
+                        j % gd,
+                        vals[j]
+                    );
+                }
+                goal.extend_from_slice(vals);
+                q.extend_from_slice(qs.values());
+                row += batch.num_rows();
+            }
+        }
+        if row != r1 {
+            bail!(
+                "{}: rows {row}..{r1} are missing: the table ends before its original data does",
+                self.path.display()
+            );
+        }
+        Ok((goal, q))
+    }
+
     /// The keys of `rows` (sorted, unique, within row group `rg`), in that order, checked
     /// against β's shape so a row can never index outside it.
     fn read_rows(&self, rg: usize, rows: &[usize], beta: &Episodes) -> Result<Vec<RowKey>> {
-        let b = self.builder()?;
+        let (f, local) = self.group_at[rg];
+        let file = &self.files[f as usize];
+        let b = self.builder(file)?;
         let mask = ProjectionMask::columns(b.parquet_schema(), COLUMNS);
         let start = self.group_starts[rg];
         let mut selectors = Vec::new();
@@ -143,22 +277,30 @@ impl ScoredTable {
             at = r + 1;
         }
         let whole = rows.len() == self.group_starts[rg + 1] - start;
-        let mut b = b.with_row_groups(vec![rg]).with_projection(mask).with_batch_size(rows.len().max(1));
+        let mut b = b.with_row_groups(vec![local as usize]).with_projection(mask).with_batch_size(rows.len().max(1));
         if !whole {
             b = b.with_row_selection(RowSelection::from(selectors));
         }
         let reader = b.build()?;
         let mut out = Vec::with_capacity(rows.len());
         for batch in reader {
-            let batch = batch.with_context(|| format!("{}: row group {rg}: read failed", self.path.display()))?;
-            append_keys(&self.path, &batch, beta, rows, &mut out)?;
+            let batch = batch.with_context(|| format!("{}: row group {local}: read failed", file.path.display()))?;
+            append_keys(&file.path, &batch, beta, rows, file.first_row, &mut out)?;
         }
         Ok(out)
     }
 }
 
-/// Appends a record batch's row keys to `out`; `rows` are the table rows being read (for errors).
-fn append_keys(path: &Path, batch: &RecordBatch, beta: &Episodes, rows: &[usize], out: &mut Vec<RowKey>) -> Result<()> {
+/// Appends a record batch's row keys to `out`; `rows` are the table rows being read, of the file
+/// whose first row is the table's `first_row` (for errors, which name the file's row).
+fn append_keys(
+    path: &Path,
+    batch: &RecordBatch,
+    beta: &Episodes,
+    rows: &[usize],
+    first_row: usize,
+    out: &mut Vec<RowKey>,
+) -> Result<()> {
     let at = path.display();
     let col = |name: &str| batch.column_by_name(name).with_context(|| format!("{at}: no column {name}"));
     let (ep, st) = (col("episode")?.as_primitive_opt::<Int64Type>(), col("step")?.as_primitive_opt::<Int32Type>());
@@ -174,7 +316,7 @@ fn append_keys(path: &Path, batch: &RecordBatch, beta: &Episodes, rows: &[usize]
             && (0..beta.n as i64).contains(&ge)
             && (-1..beta.t as i32).contains(&gs);
         if !ok {
-            let row = rows.get(out.len()).copied().unwrap_or_default();
+            let row = rows.get(out.len()).copied().unwrap_or_default().saturating_sub(first_row);
             bail!(
                 "{at}: row {row}: (episode {e}, step {s}, goal_episode {ge}, goal_step {gs}) is outside its original data ({} episodes of {} steps)",
                 beta.n,

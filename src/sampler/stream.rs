@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::pool::{Beta, Pool};
+use super::pool::{Beta, Layout, Plan, Pool, PoolConfig, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
 use super::view::{Budget, View};
@@ -73,51 +73,68 @@ impl BatchSource {
         cfg.priority.validate()?;
         let scored = match crate::table::read_footer(path) {
             Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(path)?),
+            _ if crate::score::folder::is_scored_folder(path) => Some(ScoredTable::open(path)?),
             _ => None,
         };
-        let data = match &scored {
-            Some(table) => {
-                let at = path.display();
-                if cfg.sampler.swap != Swap::None {
-                    bail!(
-                        "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
-                    );
-                }
-                if !(0.0..=1.0).contains(&cfg.aug_ratio) {
-                    bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
-                }
-                // Planned from the footers before anything is loaded: a β too large is refused
-                // without reading it.
-                if let Budget::Bytes(b) = budget
-                    && table.trajectory().0.exists()
-                {
-                    let need = super::pool::Layout::open(&table.trajectory().0)?.bytes();
-                    if need > b {
-                        bail!(
-                            "{at}: its original data take {} in memory, more than --memory-budget {}: a scored \
-                             table's prioritized rows are drawn from its original data held whole",
-                            crate::progress::bytes(need),
-                            crate::progress::bytes(b)
-                        );
-                    }
-                }
-                let data = beta_of(table)?;
-                Beta::Whole(Arc::new(data))
-            }
-            None => match budget {
-                Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
-                Budget::Bytes(b) => Beta::open(path, b, cfg.seed)?,
+        let source = match scored {
+            Some(table) => BatchSource::open_scored(path, table, cfg, budget)?,
+            None => BatchSource {
+                data: match budget {
+                    Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
+                    Budget::Bytes(b) => Beta::open(path, b, cfg.seed)?,
+                },
+                scored: None,
             },
         };
-        if data.view().t() < 2 {
-            bail!("{}: episodes of {} step(s) hold no transition", path.display(), data.view().t());
+        if source.data.view().t() < 2 {
+            bail!("{}: episodes of {} step(s) hold no transition", path.display(), source.data.view().t());
         }
-        Ok(BatchSource { data, scored })
+        Ok(source)
+    }
+
+    /// A scored table and its original data: β whole with the prioritized rows drawn from the
+    /// whole scored table when both fit `budget`, else a pool whose blocks carry their scored rows
+    /// (`pool.rs`, "PGSER within a budget").
+    fn open_scored(path: &Path, table: ScoredTable, cfg: &StreamConfig, budget: Budget) -> Result<BatchSource> {
+        let at = path.display();
+        if cfg.sampler.swap != Swap::None {
+            bail!(
+                "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
+            );
+        }
+        if !(0.0..=1.0).contains(&cfg.aug_ratio) {
+            bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
+        }
+        let source = checked_source(&table)?;
+        let table = match budget {
+            Budget::Unbounded => table,
+            Budget::Bytes(b) => {
+                // Planned from the footers before anything is loaded.
+                let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
+                match Plan::of(&layout, b)? {
+                    Plan::Whole => layout.into_scored().expect("attached"),
+                    Plan::Pool { slots, reservoir } => {
+                        if let Some(beta) = cfg.priority.is_beta {
+                            bail!(
+                                "{at}: --is-beta {beta} within --memory-budget: a pool ranks swapped rows within each \
+                                 block, so their probabilities over the whole table, which the weights need, are not \
+                                 known; leave --is-beta unset, or give a budget that holds the data"
+                            );
+                        }
+                        let pool_cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed: cfg.seed };
+                        let pool = Pool::start(Arc::new(layout), pool_cfg, slots, reservoir, (0, 0))?;
+                        return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
+                    }
+                }
+            }
+        };
+        let data = beta_of(&table)?;
+        Ok(BatchSource { data: Beta::Whole(Arc::new(data)), scored: Some(table) })
     }
 
     /// Whether the data is a scored table (batches then mix in prioritized swapped rows).
     pub fn is_scored(&self) -> bool {
-        self.scored.is_some()
+        self.scored.is_some() || matches!(&self.data, Beta::Pool(p) if p.is_scored())
     }
 
     /// The task of the data.
@@ -133,16 +150,16 @@ impl BatchSource {
     /// The stream from batch `first` on, with the original data's generator as it was after
     /// batch `first − 1` (a resumed run's saved state): the batches an uninterrupted run draws.
     pub fn resume(self, cfg: &StreamConfig, rng: NpRandom, first: u64) -> Result<BatchStream> {
-        let k_aug = if self.scored.is_some() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
+        let k_aug = if self.is_scored() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
         let aug = match (self.scored, &self.data) {
             (Some(t), Beta::Whole(data)) => {
                 Some(ScoredSampler::start(t, data.clone(), &cfg.priority, k_aug, cfg.seed, first, cfg.aug_in_memory)?)
             }
-            (Some(_), Beta::Pool(_)) => unreachable!("a scored table's β is held whole (open_within)"),
+            (Some(_), Beta::Pool(_)) => unreachable!("a pool carries its scored rows in its blocks (open_scored)"),
             (None, _) => None,
         };
         let data = match self.data {
-            // Every batch of a pool's stream draws `batch_size` rows (no scored rows).
+            // Every batch of a pool's stream draws `batch_size` rows, its scored ones included.
             Beta::Pool(pool) if first > 0 => Beta::Pool(Box::new(pool.resumed(first, cfg.batch_size)?)),
             data => data,
         };
@@ -191,13 +208,22 @@ impl BatchStream {
             }
             Beta::Pool(pool) => {
                 pool.refresh(self.cfg.batch_size)?;
-                let drawn = super::draw(pool.as_ref(), &self.cfg.sampler, &mut self.rng, self.cfg.batch_size);
-                let ids = RowIds {
+                let n = self.cfg.batch_size - self.k_aug;
+                let drawn = super::draw(pool.as_ref(), &self.cfg.sampler, &mut self.rng, n);
+                let mut ids = RowIds {
                     episode: drawn.iter().map(|r| pool.episode_number(r.0) as u32).collect(),
                     step: drawn.iter().map(|r| r.1 as u32).collect(),
                     scored_row: vec![-1; drawn.len()],
                 };
-                Ok((super::gather(pool.as_ref(), &drawn), ids))
+                let mut batch = super::gather(pool.as_ref(), &drawn);
+                if self.k_aug > 0 {
+                    let aug = pool.draw_scored(self.k_aug, &mut self.rng);
+                    ids.episode.extend(aug.iter().map(|d| pool.episode_number(d.e) as u32));
+                    ids.step.extend(aug.iter().map(|d| d.step as u32));
+                    ids.scored_row.extend(aug.iter().map(|d| pool.scored_row(d) as i64));
+                    batch.append(&gather_scored(pool, &aug));
+                }
+                Ok((batch, ids))
             }
         }
     }
@@ -237,6 +263,16 @@ impl BatchStream {
 
 /// The trajectory table a scored table names, checked: present, unchanged, same task.
 pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
+    let path = checked_source(table)?;
+    let data = Episodes::load(&path)?;
+    if data.task != table.task {
+        bail!("{}: its task differs from that of its original data {}", table.path.display(), path.display());
+    }
+    Ok(data)
+}
+
+/// Where the trajectory table a scored table names is, checked present and unchanged.
+fn checked_source(table: &ScoredTable) -> Result<std::path::PathBuf> {
     let at = table.path.display();
     let (path, sha) = table.trajectory();
     if !path.exists() {
@@ -248,9 +284,23 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
     if crate::trajectory::folder::digest(&path)? != sha {
         bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
     }
-    let data = Episodes::load(&path)?;
-    if data.task != table.task {
-        bail!("{at}: its task differs from that of its original data {}", path.display());
+    Ok(path)
+}
+
+/// The batch of prioritized rows `drawn` from a pool's blocks: the transition from β, the goal
+/// it was scored with, the reward recomputed as [`super::gather`] does.
+fn gather_scored(pool: &Pool, drawn: &[ScoredDraw]) -> Batch {
+    let task = pool.task();
+    let mut b = Batch { n: drawn.len(), ..Batch::default() };
+    let mut next_ag = Vec::with_capacity(drawn.len() * task.goal_dim);
+    for d in drawn {
+        b.obs.extend_from_slice(pool.obs(d.e, d.step));
+        b.next_obs.extend_from_slice(pool.obs(d.e, d.step + 1));
+        b.action.extend_from_slice(pool.action(d.e, d.step));
+        b.goal.extend_from_slice(pool.scored_goal(d));
+        next_ag.extend_from_slice(pool.ag(d.e, d.step + 1));
     }
-    Ok(data)
+    b.reward = vec![0.0; b.n];
+    task.rewards(&next_ag, &b.goal, &mut b.reward);
+    b
 }

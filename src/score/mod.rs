@@ -12,6 +12,7 @@
 //!   thread's identity, so the file's bytes depend on (inputs, seed, chunk size) and on the
 //!   backend that runs the critic, never on the thread count.
 
+pub mod folder;
 mod read;
 mod stats;
 
@@ -35,7 +36,7 @@ use crate::table::{SCHEMA_VERSION, TableWriter, f32_vectors};
 use crate::task::{GoalMetric, Task};
 use crate::trajectory::{self, Episodes, FloatType, vector_field};
 
-pub use stats::{BINS, Histogram, QStats};
+pub use stats::{BINS, Histogram, QStats, merged};
 
 /// Footer `kind` of a transition table.
 pub const KIND: &str = "transition";
@@ -95,7 +96,8 @@ pub struct Footer {
     pub goal_metric: GoalMetric,
     pub success_threshold: f64,
     pub float_type: FloatType,
-    /// Episodes of the source table; `transitions` = episodes × (T − 1).
+    /// Episodes of the source table (of its shard, in a scored folder's shard); `transitions` =
+    /// episodes × (T − 1).
     pub episodes: usize,
     pub transitions: usize,
     /// transitions × (swaps + include_original).
@@ -110,6 +112,10 @@ pub struct Footer {
     pub include_original: bool,
     pub chunk_episodes: usize,
     pub q: QStats,
+    /// Set in a scored folder's shards (`folder.rs`): which shard of the table folder this one
+    /// scored. Its `episodes`, `transitions` and `rows` are then the shard's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<folder::ShardOf>,
     pub command: String,
     pub pgser_version: String,
 }
@@ -176,6 +182,9 @@ pub struct ScoreOptions {
     pub chunk_episodes: Option<usize>,
     /// Worker threads; 0: rayon's default (`RAYON_NUM_THREADS`, else one per core).
     pub threads: usize,
+    /// With a table folder scored into a scored folder: score only this shard (one array task of
+    /// a cluster job) and leave the manifest to a run without it (`folder.rs`).
+    pub shard: Option<usize>,
     pub command: String,
 }
 
@@ -216,112 +225,195 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
         bail!("--chunk-episodes must be at least 1");
     }
     check_not_an_input(&o.output, &[o.data.clone(), o.checkpoint.clone()])?;
-    let table = read::footer(&o.data)?;
-    let (agent, _) = checkpoint::load(&o.checkpoint, o.device.device()?)?;
-    check_compatible(&agent.task, &o.checkpoint, &table, &o.data)?;
-    let task = table.task();
-    let pool = read::goal_pool(&o.data)?;
-    let transitions = table.episodes * (table.t - 1);
-    let per = o.swaps + o.include_original as usize;
-    let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
-    let schema = schema(&task);
-    bar.set_length(transitions as u64);
+    if folder::scores_into_a_folder(o) {
+        return folder::score(o, bar, start);
+    }
+    if let Some(i) = o.shard {
+        bail!(
+            "{}: --shard {i} scores one shard of a table folder into a scored folder; give a table folder as --data \
+             and an output without .parquet",
+            o.output.display()
+        );
+    }
+    let job = Job::open(o)?;
+    bar.set_length(job.transitions() as u64);
+    let mut writer = TableWriter::create(&o.output, job.schema.clone())?;
+    let blocks = read::Blocks::open(&o.data, job.chunk_episodes, o.include_original)?;
+    let (rows, q) = job.score_blocks(blocks, &[STREAM_SWAP], &mut writer, bar)?;
+    assert_eq!(rows, job.transitions() * job.per, "every transition was scored");
+    let footer = job.footer(job.table.episodes, rows, q.finish(), &o.output)?;
+    let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
+    Ok(job.summary(&footer, bytes, rows, start))
+}
 
-    let mut writer = TableWriter::create(&o.output, schema.clone())?;
-    let threads = rayon::current_num_threads();
-    let window = 2 * threads;
-    let mut q = stats::QAccumulator::new(agent.config.gamma);
-    let mut rows = 0;
-    let blocks = read::Blocks::open(&o.data, chunk_episodes, o.include_original)?;
-    std::thread::scope(|s| -> Result<()> {
-        // The reader runs ahead by one window, overlapping decoding with scoring.
-        let (tx, rx) = sync_channel(window);
-        let reader = s.spawn(move || {
-            for (index, block) in blocks.enumerate() {
-                if tx.send(block.map(|(first, b)| (index, first, b))).is_err() {
-                    break;
-                }
-            }
-        });
-        let scored = (|| -> Result<()> {
-            loop {
-                let mut pending = Vec::with_capacity(window);
-                while pending.len() < window {
-                    match rx.recv() {
-                        Ok(block) => pending.push(block?),
-                        Err(_) => break,
+/// What scoring a table needs besides its rows: the critic, the task, the goal pool of the whole
+/// table and the layout of the output. Shared by a single output file and a scored folder's shards.
+struct Job<'a> {
+    o: &'a ScoreOptions,
+    table: trajectory::Footer,
+    agent: Agent,
+    task: Task,
+    pool: GoalPool,
+    /// Output rows per transition: swaps, plus its own goal with `include_original`.
+    per: usize,
+    chunk_episodes: usize,
+    schema: SchemaRef,
+}
+
+impl<'a> Job<'a> {
+    fn open(o: &'a ScoreOptions) -> Result<Job<'a>> {
+        let table = read::footer(&o.data)?;
+        let (agent, _) = checkpoint::load(&o.checkpoint, o.device.device()?)?;
+        check_compatible(&agent.task, &o.checkpoint, &table, &o.data)?;
+        let task = table.task();
+        let pool = read::goal_pool(&o.data)?;
+        let per = o.swaps + o.include_original as usize;
+        let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
+        let schema = schema(&task);
+        Ok(Job { o, table, agent, task, pool, per, chunk_episodes, schema })
+    }
+
+    /// Transitions of the whole input table.
+    fn transitions(&self) -> usize {
+        self.table.episodes * (self.table.t - 1)
+    }
+
+    /// Swaps and scores `blocks` into `writer`, a window of 2 × threads chunks at a time, chunk
+    /// `c` drawing from the stream spawned from (seed, `key`…, c). Returns the rows written and
+    /// their q statistics.
+    fn score_blocks(
+        &self,
+        blocks: impl Iterator<Item = Result<(usize, Episodes)>> + Send,
+        key: &[u64],
+        writer: &mut TableWriter,
+        bar: &ProgressBar,
+    ) -> Result<(usize, stats::QAccumulator)> {
+        let window = 2 * rayon::current_num_threads();
+        let mut q = stats::QAccumulator::new(self.agent.config.gamma);
+        let mut rows = 0;
+        std::thread::scope(|s| -> Result<()> {
+            // The reader runs ahead by one window, overlapping decoding with scoring.
+            let (tx, rx) = sync_channel(window);
+            let reader = s.spawn(move || {
+                for (index, block) in blocks.enumerate() {
+                    if tx.send(block.map(|(first, b)| (index, first, b))).is_err() {
+                        break;
                     }
                 }
-                if pending.is_empty() {
-                    return Ok(());
+            });
+            let scored = (|| -> Result<()> {
+                loop {
+                    let mut pending = Vec::with_capacity(window);
+                    while pending.len() < window {
+                        match rx.recv() {
+                            Ok(block) => pending.push(block?),
+                            Err(_) => break,
+                        }
+                    }
+                    if pending.is_empty() {
+                        return Ok(());
+                    }
+                    let scored: Vec<(RecordBatch, stats::QAccumulator)> = pending
+                        .par_iter()
+                        .map(|(index, first, block)| {
+                            let key: Vec<u64> = key.iter().copied().chain([*index as u64]).collect();
+                            self.score_block(&key, *first, block)
+                        })
+                        .collect::<Result<_>>()?;
+                    let (batches, accumulators): (Vec<_>, Vec<_>) = scored.into_iter().unzip();
+                    accumulators.iter().for_each(|a| q.merge(a));
+                    let n: usize = batches.iter().map(|b| b.num_rows()).sum();
+                    writer.write_row_groups(&batches)?;
+                    rows += n;
+                    crate::progress::advance(bar, (n / self.per) as u64)?;
                 }
-                let scored: Vec<(RecordBatch, stats::QAccumulator)> = pending
-                    .par_iter()
-                    .map(|(index, first, block)| score_block(o, &agent, &pool, &task, &schema, *index, *first, block))
-                    .collect::<Result<_>>()?;
-                let (batches, accumulators): (Vec<_>, Vec<_>) = scored.into_iter().unzip();
-                accumulators.iter().for_each(|a| q.merge(a));
-                let n: usize = batches.iter().map(|b| b.num_rows()).sum();
-                writer.write_row_groups(&batches)?;
-                rows += n;
-                crate::progress::advance(bar, (n / per) as u64)?;
+            })();
+            // Joined on every path, errors included: the scope waits for the reader's closure but
+            // not for its OS thread, which would still be exiting after score returned (the leak
+            // LeakSanitizer found in convert's hashing thread). Dropping the receiver first ends a
+            // reader blocked on a full window.
+            drop(rx);
+            if let Err(panic) = reader.join() {
+                std::panic::resume_unwind(panic);
             }
-        })();
-        // Joined on every path, errors included: the scope waits for the reader's closure but
-        // not for its OS thread, which would still be exiting after score returned (the leak
-        // LeakSanitizer found in convert's hashing thread). Dropping the receiver first ends a
-        // reader blocked on a full window.
-        drop(rx);
-        if let Err(panic) = reader.join() {
-            std::panic::resume_unwind(panic);
-        }
-        scored
-    })?;
-    assert_eq!(rows, transitions * per, "every transition was scored");
+            scored
+        })?;
+        Ok((rows, q))
+    }
 
-    let q = q.finish();
-    let footer = Footer {
-        schema_version: SCHEMA_VERSION,
-        kind: KIND.to_string(),
-        task: task.name.clone(),
-        t: task.t,
-        obs_dim: task.obs_dim,
-        goal_dim: task.goal_dim,
-        act_dim: task.act_dim,
-        goal_metric: task.metric,
-        success_threshold: task.threshold,
-        float_type: FloatType::Float32,
-        episodes: table.episodes,
-        transitions,
-        rows,
-        source: file_ref(&o.data, &o.output)?,
-        checkpoint: file_ref(&o.checkpoint, &o.output)?,
-        gamma: agent.config.gamma,
-        seed: o.seed,
-        swaps: o.swaps,
-        include_original: o.include_original,
-        chunk_episodes,
-        q: q.clone(),
-        command: o.command.clone(),
-        pgser_version: env!("CARGO_PKG_VERSION").to_string(),
-    };
-    let bytes = writer.finish(&serde_json::to_value(&footer)?)?;
-    let seconds = start.elapsed().as_secs_f64();
-    Ok(ScoreSummary {
-        output: o.output.clone(),
-        episodes: table.episodes,
-        transitions,
-        rows,
-        swaps: o.swaps,
-        include_original: o.include_original,
-        q_min: q.min,
-        q_mean: q.mean,
-        q_max: q.max,
-        bytes,
-        threads,
-        seconds,
-        rows_per_sec: rows as f64 / seconds,
-    })
+    /// Swap, score and lay out one chunk (episodes `first ..` of the table), drawing its goals
+    /// from the stream spawned from (seed, `key`).
+    fn score_block(&self, key: &[u64], first: usize, block: &Episodes) -> Result<(RecordBatch, stats::QAccumulator)> {
+        let (o, task) = (self.o, &self.task);
+        let mut rng = NpRandom::spawned(o.seed, key);
+        let rows = swap::swap_block(block, first, &self.pool, task, o.swaps, o.include_original, &mut rng);
+        let q = critic_scores(&self.agent, task, &rows);
+        if let Some(i) = q.iter().position(|v| !v.is_finite()) {
+            bail!(
+                "{}: the critic gives Q = {} for episode {} step {} with the goal of episode {} step {}; the checkpoint \
+                 is damaged",
+                o.checkpoint.display(),
+                q[i],
+                rows.episode[i],
+                rows.step[i],
+                rows.goal_episode[i],
+                rows.goal_step[i]
+            );
+        }
+        let mut acc = stats::QAccumulator::new(self.agent.config.gamma);
+        acc.add(&q);
+        Ok((record_batch(&self.schema, task, rows, q)?, acc))
+    }
+
+    /// The footer of an output at `output` holding `rows` rows of `episodes` episodes.
+    fn footer(&self, episodes: usize, rows: usize, q: QStats, output: &Path) -> Result<Footer> {
+        let (o, task) = (self.o, &self.task);
+        Ok(Footer {
+            schema_version: SCHEMA_VERSION,
+            kind: KIND.to_string(),
+            task: task.name.clone(),
+            t: task.t,
+            obs_dim: task.obs_dim,
+            goal_dim: task.goal_dim,
+            act_dim: task.act_dim,
+            goal_metric: task.metric,
+            success_threshold: task.threshold,
+            float_type: FloatType::Float32,
+            episodes,
+            transitions: episodes * (task.t - 1),
+            rows,
+            source: file_ref(&o.data, output)?,
+            checkpoint: file_ref(&o.checkpoint, output)?,
+            gamma: self.agent.config.gamma,
+            seed: o.seed,
+            swaps: o.swaps,
+            include_original: o.include_original,
+            chunk_episodes: self.chunk_episodes,
+            q,
+            shard: None,
+            command: o.command.clone(),
+            pgser_version: env!("CARGO_PKG_VERSION").to_string(),
+        })
+    }
+
+    fn summary(&self, f: &Footer, bytes: u64, scored_rows: usize, start: Instant) -> ScoreSummary {
+        let seconds = start.elapsed().as_secs_f64();
+        ScoreSummary {
+            output: self.o.output.clone(),
+            episodes: f.episodes,
+            transitions: f.transitions,
+            rows: f.rows,
+            swaps: f.swaps,
+            include_original: f.include_original,
+            q_min: f.q.min,
+            q_mean: f.q.mean,
+            q_max: f.q.max,
+            bytes,
+            threads: rayon::current_num_threads(),
+            seconds,
+            rows_per_sec: scored_rows as f64 / seconds,
+        }
+    }
 }
 
 /// The checkpoint must have been trained for the table's task: same name, T and dimensions.
@@ -347,38 +439,6 @@ fn file_ref(input: &Path, output: &Path) -> Result<FileRef> {
         path: relative_to_folder_of(input, output)?.display().to_string(),
         sha256: crate::trajectory::folder::digest(input)?,
     })
-}
-
-/// Swap, score and lay out one chunk (chunk `index`, episodes `first ..` of the table).
-#[allow(clippy::too_many_arguments)]
-fn score_block(
-    o: &ScoreOptions,
-    agent: &Agent,
-    pool: &GoalPool,
-    task: &Task,
-    schema: &SchemaRef,
-    index: usize,
-    first: usize,
-    block: &Episodes,
-) -> Result<(RecordBatch, stats::QAccumulator)> {
-    let mut rng = NpRandom::spawned(o.seed, &[STREAM_SWAP, index as u64]);
-    let rows = swap::swap_block(block, first, pool, task, o.swaps, o.include_original, &mut rng);
-    let q = critic_scores(agent, task, &rows);
-    if let Some(i) = q.iter().position(|v| !v.is_finite()) {
-        bail!(
-            "{}: the critic gives Q = {} for episode {} step {} with the goal of episode {} step {}; the checkpoint is \
-             damaged",
-            o.checkpoint.display(),
-            q[i],
-            rows.episode[i],
-            rows.step[i],
-            rows.goal_episode[i],
-            rows.goal_step[i]
-        );
-    }
-    let mut acc = stats::QAccumulator::new(agent.config.gamma);
-    acc.add(&q);
-    Ok((record_batch(schema, task, rows, q)?, acc))
 }
 
 /// min(Q1, Q2) of every row, [`Q_BATCH`] rows per critic call (no autodiff, no per-row tensor).

@@ -103,6 +103,32 @@ impl QAccumulator {
     }
 }
 
+/// The statistics of several parts' rows together, from each part's statistics and row count (a
+/// scored folder's shards, scored by different processes): min and max of theirs, the mean
+/// weighted by rows, the histograms summed. Parts are taken in order, so the result does not
+/// depend on which shard finished first.
+pub fn merged<'a>(parts: impl Iterator<Item = (&'a QStats, u64)>) -> QStats {
+    let mut out: Option<QStats> = None;
+    let (mut sum, mut count) = (0.0, 0u64);
+    for (q, rows) in parts {
+        sum += q.mean * rows as f64;
+        count += rows;
+        match out.as_mut() {
+            None => out = Some(q.clone()),
+            Some(m) => {
+                m.min = m.min.min(q.min);
+                m.max = m.max.max(q.max);
+                m.histogram.counts.iter_mut().zip(&q.histogram.counts).for_each(|(a, b)| *a += b);
+                m.histogram.below += q.histogram.below;
+                m.histogram.above += q.histogram.above;
+            }
+        }
+    }
+    let mut m = out.expect("at least one part");
+    m.mean = if count == 0 { 0.0 } else { sum / count as f64 };
+    m
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -133,6 +159,25 @@ mod tests {
             merged.merge(&part);
         }
         let (a, b) = (whole.finish(), merged.finish());
+        assert_eq!(a.histogram, b.histogram);
+        assert_eq!((a.min, a.max), (b.min, b.max));
+        assert!((a.mean - b.mean).abs() < 1e-9);
+    }
+
+    #[test]
+    fn merged_parts_equal_one_pass() {
+        let q: Vec<f32> = (0..1000).map(|i| -((i as f32 * 0.61).cos().abs() * 52.0)).collect();
+        let mut whole = QAccumulator::new(0.98);
+        whole.add(&q);
+        let parts: Vec<(QStats, u64)> = q
+            .chunks(301)
+            .map(|c| {
+                let mut a = QAccumulator::new(0.98);
+                a.add(c);
+                (a.finish(), c.len() as u64)
+            })
+            .collect();
+        let (a, b) = (whole.finish(), merged(parts.iter().map(|(q, n)| (q, *n))));
         assert_eq!(a.histogram, b.histogram);
         assert_eq!((a.min, a.max), (b.min, b.max));
         assert!((a.mean - b.mean).abs() < 1e-9);

@@ -137,8 +137,16 @@ fn difference(a: &Footer, b: &Footer) -> Option<String> {
 /// hundreds of GB, which no training run should read twice before it starts.
 pub fn digest(path: &Path) -> Result<String> {
     if is_folder(path) {
-        TableFolder::open(path)?;
-        crate::output::sha256_file(&path.join(MANIFEST))
+        // Other folders with a manifest (a scored folder) are checked by their own readers.
+        let manifest = path.join(MANIFEST);
+        let format = std::fs::read_to_string(&manifest)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .map(|j| j["format"].clone());
+        if format.is_none_or(|f| f == FORMAT) {
+            TableFolder::open(path)?;
+        }
+        crate::output::sha256_file(&manifest)
     } else {
         crate::output::sha256_file(path)
     }

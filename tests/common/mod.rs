@@ -2,6 +2,7 @@
 //! the tiny pipeline, a single-node Slurm (`slurm.rs`).
 #![allow(dead_code)]
 
+pub mod coded;
 pub mod kill;
 pub mod slurm;
 

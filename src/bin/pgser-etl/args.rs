@@ -91,7 +91,12 @@ pub enum Command {
         Each transition (s, a, s') gets K goals drawn uniformly from the achieved goals of the whole table \
         (goal_episode, goal_step), reward R(next_achieved_goal, goal) and q = min(Q1, Q2)(s, goal, a). With \
         --include-original its own desired goal comes first, marked goal_step = -1. The output depends on the \
-        inputs, --seed and --chunk-episodes, not on the thread count.")]
+        inputs, --seed and --chunk-episodes, not on the thread count.\n\n\
+        A table folder scored to an output without .parquet gives a scored folder: one scored shard per shard \
+        (goals from every shard), then its manifest. Shards already scored with the same inputs and settings are \
+        kept; --shard I scores one, as a task of a cluster's array job:\n  \
+        pgser-etl score --q q.ckpt --data pm100m/ -o scored/ --shard 7\n  \
+        pgser-etl score --q q.ckpt --data pm100m/ -o scored/")]
     Score {
         /// The pre-trained checkpoint (`pgser-train -o model.ckpt`) whose twin critics score the rows.
         #[arg(long = "q", value_name = "CKPT")]
@@ -121,6 +126,11 @@ pub enum Command {
         /// Worker threads (0: RAYON_NUM_THREADS, else one per core). Does not change the output.
         #[arg(long, default_value_t = 0)]
         threads: usize,
+        /// With a table folder scored into a folder (-o without .parquet): score only shard I (0-based), as
+        /// one task of a cluster's array job; a run without --shard then scores what is missing and writes
+        /// the manifest.
+        #[arg(long, value_name = "I")]
+        shard: Option<usize>,
         /// Also print the summary as one JSON line on stdout.
         #[arg(long)]
         json: bool,

@@ -95,6 +95,7 @@ pub(crate) fn main() -> ExitCode {
             device,
             chunk_episodes,
             threads,
+            shard,
             json,
         } => {
             let opts = score::ScoreOptions {
@@ -107,6 +108,7 @@ pub(crate) fn main() -> ExitCode {
                 device,
                 chunk_episodes,
                 threads,
+                shard,
                 command: cli::command_line(),
             };
             let bar = progress::bar("score", "transitions");
@@ -115,7 +117,7 @@ pub(crate) fn main() -> ExitCode {
             eprintln!(
                 "wrote {}: {} rows ({} transitions × {}{}), q min/mean/max {:.3}/{:.3}/{:.3}, {:.1} MB; {:.2} s, \
                  {:.0} rows/s on {} threads",
-                opts.output.display(),
+                s.output.display(),
                 s.rows,
                 s.transitions,
                 s.swaps,

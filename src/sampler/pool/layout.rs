@@ -8,6 +8,8 @@ use anyhow::{Context, Result, anyhow, bail};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
 
+use crate::sampler::priority::{PriorityConfig, SumTree};
+use crate::sampler::scored::ScoredTable;
 use crate::task::Task;
 use crate::trajectory::Footer;
 use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
@@ -48,6 +50,17 @@ pub struct Layout {
     pub(super) episodes: u64,
     pub(super) shards: Vec<Shard>,
     pub(super) blocks: Vec<BlockInfo>,
+    /// With `-mem`: the scored table whose rows each block carries.
+    pub(super) scored: Option<Scored>,
+}
+
+/// A scored table read beside β's blocks (`-mem` within a budget): each block carries the scored
+/// rows of its transitions, their stored goals and their priorities.
+pub(super) struct Scored {
+    pub(super) table: ScoredTable,
+    /// Scored rows per transition.
+    pub(super) per: usize,
+    pub(super) priority: PriorityConfig,
 }
 
 impl Layout {
@@ -98,13 +111,40 @@ impl Layout {
             }
             opened.push(Shard { path: p, footer: f, meta });
         }
-        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks })
+        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks, scored: None })
     }
 
-    /// Float32 bytes of one episode as a block holds it.
+    /// The layout with `table`'s rows carried by each block: refused unless `table` scored every
+    /// transition of this one, with the same task.
+    pub fn with_scored(mut self, table: ScoredTable, priority: PriorityConfig) -> Result<Layout> {
+        let f = &table.footer;
+        let at = table.path.display();
+        let transitions = self.episodes as usize * (self.t - 1);
+        if table.task != self.task || f.transitions != transitions || f.rows % transitions.max(1) != 0 {
+            bail!(
+                "{at}: scores {} transitions of {} where its original data holds {transitions} of {}: it is not this \
+                 table's scored table",
+                f.transitions,
+                f.task,
+                self.task.name
+            );
+        }
+        let per = f.rows / transitions;
+        self.scored = Some(Scored { table, per, priority });
+        Ok(self)
+    }
+
+    /// The scored table `with_scored` attached, taken back (to draw from β held whole).
+    pub fn into_scored(self) -> Option<ScoredTable> {
+        self.scored.map(|s| s.table)
+    }
+
+    /// Float32 bytes of one episode as a block holds it, with its scored rows (a goal and a
+    /// priority each) when it carries them.
     pub(super) fn episode_bytes(&self) -> u64 {
         let (t, task) = (self.t as u64, &self.task);
-        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64)
+        let scored = self.scored.as_ref().map_or(0, |s| (t - 1) * s.per as u64 * 4 * (task.goal_dim as u64 + 1));
+        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64) + scored
     }
 
     /// Float32 bytes of the whole table in memory.
@@ -167,7 +207,25 @@ impl Layout {
             bail!("{at}: {} rows read where the row group holds {}", row - b.first_row, b.episodes * t);
         }
         let [obs, ag, g, u] = out;
-        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u })
+        let aug = match &self.scored {
+            Some(s) if which.iter().all(|w| *w) => Some(self.read_scored(s, &b)?),
+            _ => None,
+        };
+        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u, aug })
+    }
+
+    /// The scored rows of block `b`'s transitions: their goals, and their priorities ranked or
+    /// computed within the block (`pool.rs` says why).
+    fn read_scored(&self, s: &Scored, b: &BlockInfo) -> Result<ScoredRows> {
+        let per_episode = (self.t - 1) * s.per;
+        let first = b.first_episode as usize * per_episode;
+        let rows = (first, first + b.episodes * per_episode);
+        let (goal, q) = s.table.read_goals(rows, b.first_episode, self.t, s.per)?;
+        let priorities = s
+            .priority
+            .priorities(q, s.table.gamma)
+            .with_context(|| format!("{}: rows {}..{}", s.table.path.display(), rows.0, rows.1))?;
+        Ok(ScoredRows { first_row: first as u64, goal, tree: SumTree::new(priorities) })
     }
 }
 
@@ -225,6 +283,17 @@ pub(super) struct Block {
     pub(super) ag: Vec<f32>,
     pub(super) g: Vec<f32>,
     pub(super) u: Vec<f32>,
+    /// With `-mem`: the scored rows of its transitions.
+    pub(super) aug: Option<ScoredRows>,
+}
+
+/// A block's scored rows, `per` per transition in (episode, step) order.
+pub(super) struct ScoredRows {
+    /// The scored table's number of the first.
+    pub(super) first_row: u64,
+    /// Each row's goal, as scored.
+    pub(super) goal: Vec<f32>,
+    pub(super) tree: SumTree,
 }
 
 impl Block {
