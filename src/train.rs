@@ -89,6 +89,13 @@ pub struct TrainConfig {
         deserialize_with = "crate::sampler::view::budget_setting"
     )]
     pub memory_budget: Option<u64>,
+    /// Emulate Horizon Reduction's one-shard-at-a-time loading, for comparison: hold one shard of
+    /// a table folder, move to the next (in folder order) every N updates, and draw every goal,
+    /// random and prioritized ones included, from the held shard (docs/ogbench.md, "One shard at a
+    /// time"). Horizon Reduction reloads every 1000 updates (4000 for humanoidmaze).
+    #[arg(long, value_name = "N", conflicts_with = "memory_budget")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard_window: Option<u64>,
 }
 
 impl TrainConfig {
@@ -106,7 +113,10 @@ impl TrainConfig {
 
     /// `--memory-budget` as the sampler takes it.
     pub fn budget(&self) -> Budget {
-        self.memory_budget.map_or(Budget::Unbounded, Budget::Bytes)
+        match (self.shard_window, self.memory_budget) {
+            (Some(updates), _) => Budget::ShardWindow(updates.saturating_mul(self.batch_size as u64)),
+            (None, bytes) => bytes.map_or(Budget::Unbounded, Budget::Bytes),
+        }
     }
 }
 
@@ -265,7 +275,21 @@ pub fn train_stack(cells: &[Cell], backend: Backend, commands: &[String], bar: &
     // Both cores busy, the same bits at any thread count (agent/shards.rs, agent/fused.rs).
     let mut agent = Shards::new(agents, backend)?;
     for run in &runs {
-        if let Some(pool) = run.batches.pool() {
+        if let Some(pool) = run.batches.pool()
+            && pool.is_window()
+        {
+            let (_, shards) = pool.blocks();
+            progress::note(
+                bar,
+                &format!(
+                    "{}: one of {shards} shards at a time (--shard-window {}: the next every {} updates), every goal \
+                     from the held shard",
+                    run.cell.out.display(),
+                    run.cell.cfg.shard_window.unwrap_or(0),
+                    run.cell.cfg.shard_window.unwrap_or(0)
+                ),
+            );
+        } else if let Some(pool) = run.batches.pool() {
             let (resident, blocks) = pool.blocks();
             progress::note(
                 bar,

@@ -9,7 +9,8 @@
 mod common;
 
 use common::coded::{
-    BATCH, BUDGET, EPISODES, GROUP_EPISODES, PASS_BATCHES, T, chi_square, decode, folder, worst_share_gap,
+    BATCH, BUDGET, EPISODES, GROUP_EPISODES, PASS_BATCHES, SHARDS, T, chi_square, decode, folder, shard_of,
+    worst_share_gap,
 };
 use pgser::sampler::stream::{BatchSource, StreamConfig};
 use pgser::sampler::view::Budget;
@@ -256,4 +257,49 @@ fn pgser_train_resumes_a_pool_run_to_the_uninterrupted_weights() {
     assert_ne!(common::checkpoint_weights(&straight), common::checkpoint_weights(&split));
     train("split.ckpt", "300", true);
     assert_eq!(common::checkpoint_weights(&straight), common::checkpoint_weights(&split));
+}
+
+#[test]
+fn a_shard_window_holds_one_shard_in_folder_order_and_draws_every_goal_from_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    // Every row swapped or HER: random goals must come from the held shard too.
+    let cfg = config(Swap::Random, 0.5, 1.0, 3);
+    let window = 40u64;
+    let open = || BatchSource::open_within(&data, &cfg, Budget::ShardWindow(window * BATCH as u64)).unwrap();
+    let mut s = open().start(&cfg).unwrap();
+    assert!(s.pool().unwrap().is_window());
+    let mut goal_shards = std::collections::BTreeSet::new();
+    for k in 0..(window * 6) as usize {
+        let (b, ids) = s.next_batch().unwrap();
+        // As in Horizon Reduction's loop (a reload before update i when i % N == 0, i from 1), the
+        // first shard serves N − 1 batches and every later one N.
+        let held = ((k + 1) / window as usize) % SHARDS.len();
+        for i in 0..b.n {
+            assert_eq!(shard_of(ids.episode[i] as usize), held, "batch {k}: a transition outside shard {held}");
+            let (ge, gs) = decode(b.goal[i * 3]);
+            assert_eq!(shard_of(ge), held, "batch {k}: a goal outside shard {held}");
+            assert!(gs < T);
+            goal_shards.insert(shard_of(ge));
+        }
+    }
+    assert_eq!(goal_shards.len(), SHARDS.len(), "over 6 windows every shard was held");
+    // A resumed window draws what an uninterrupted one does.
+    let stop = 97;
+    let mut whole = open().start(&cfg).unwrap();
+    for _ in 0..stop {
+        whole.next_batch().unwrap();
+    }
+    let mut resumed = open().resume(&cfg, whole.rng().clone(), stop).unwrap();
+    for _ in 0..100 {
+        assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
+    }
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .arg("--data")
+        .arg(&data)
+        .args(["-o", "x.ckpt", "--shard-window", "10", "--memory-budget", "1GB"])
+        .output()
+        .unwrap();
+    let e = common::text(&o.stderr);
+    assert!(!o.status.success() && e.contains("--shard-window") && e.contains("--memory-budget"), "{e}");
 }

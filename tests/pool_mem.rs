@@ -326,3 +326,27 @@ fn the_cli_scores_a_shard_and_draws_mem_batches_within_a_budget_alike_at_any_thr
     };
     assert!(batches("1") == batches("2"), "other batches on one thread than on two");
 }
+
+#[test]
+fn mem_in_a_shard_window_draws_scored_rows_of_the_held_shard_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, q) = data_and_critic(dir.path());
+    let out = dir.path().join("scored");
+    score(&options(&data, &q, &out, 5, 2, None)).unwrap();
+    let rows = scored_rows(&out);
+    let cfg = config(0.5, 2);
+    let mut s =
+        BatchSource::open_within(&out, &cfg, Budget::ShardWindow(30 * BATCH as u64)).unwrap().start(&cfg).unwrap();
+    let first_episode = |i: usize| SHARDS[..i].iter().sum::<usize>();
+    for k in 0..150 {
+        let held = ((k + 1) / 30) % SHARDS.len();
+        let (b, ids) = s.next_batch().unwrap();
+        let held_episodes = first_episode(held)..first_episode(held + 1);
+        for i in 0..b.n {
+            assert!(held_episodes.contains(&(ids.episode[i] as usize)), "batch {k}: a row outside shard {held}");
+            if ids.scored_row[i] >= 0 {
+                assert_eq!(b.goal[i * 3], rows[ids.scored_row[i] as usize].1);
+            }
+        }
+    }
+}

@@ -95,6 +95,8 @@ pub struct PoolConfig {
     /// keeps each block twice as long (half the reading, for samplers faster than the disk).
     pub draws_per_row: f64,
     pub seed: u64,
+    /// A shard window: one shard resident, the next in table order after this many draws.
+    pub window: Option<u64>,
 }
 
 /// β for a sampler within a budget: whole, or a pool.
@@ -126,7 +128,7 @@ impl Beta {
 
     /// Plans `path` against `budget` and opens it.
     pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Beta> {
-        let cfg = PoolConfig { budget, draws_per_row: 1.0, seed };
+        let cfg = PoolConfig { budget, draws_per_row: 1.0, seed, window: None };
         let layout = Layout::open(path)?;
         Ok(match Plan::of(&layout, budget)? {
             Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
@@ -198,7 +200,7 @@ impl Pool {
         (batches, rows): (u64, usize),
     ) -> Result<Pool> {
         keep_large_buffers_returnable();
-        let mut entries = Entries::new(layout.blocks.len(), slots, cfg.seed);
+        let mut entries = entries(&layout, &cfg, slots);
         let mut queue: VecDeque<usize> = (0..slots as u64).map(|i| entries.get(i)).collect();
         let mut next_entry = slots as u64;
         let mut keys = Keys::first(&layout, reservoir, cfg.seed);
@@ -234,7 +236,7 @@ impl Pool {
             goal_ag: vec![0.0; reservoir * gd],
             goal_obs: vec![0.0; reservoir * od],
             drawn,
-            loader: Mutex::new(spawn_loader(layout, cfg.seed, slots, next_entry)),
+            loader: Mutex::new(spawn_loader(layout, cfg, slots, next_entry)),
             stats: PoolStats::default(),
         };
         pool.reindex();
@@ -284,6 +286,25 @@ impl Pool {
             }
         }
         Ok(())
+    }
+
+    /// Horizon Reduction's reload scheme, emulated (`--shard-window`): one shard of `layout` (with
+    /// its scored rows, when it carries them) resident at a time, shard 0 first, the next in table
+    /// order after `rows` draws (counted with the batch about to be drawn, so, as in Horizon
+    /// Reduction's loop, shard 0 serves one batch less than the others), no reservoir: every goal, random ones included, comes from the
+    /// held shard. Loading still runs ahead in the loader thread, so this emulates what the scheme
+    /// draws, not its pauses (bench/ogbench_peer.py measures those).
+    pub fn window(layout: Layout, rows: u64, seed: u64) -> Result<Pool> {
+        if rows == 0 {
+            anyhow::bail!("--shard-window must be at least 1 update");
+        }
+        let cfg = PoolConfig { budget: 0, draws_per_row: 1.0, seed, window: Some(rows) };
+        Pool::start(Arc::new(layout.by_shard()), cfg, 1, 0, (0, 0))
+    }
+
+    /// Whether this is a shard window (`Pool::window`).
+    pub fn is_window(&self) -> bool {
+        self.cfg.window.is_some()
     }
 
     /// The same pool as it is after `batches` batches of `rows` draws: what a resumed run
@@ -416,7 +437,18 @@ impl Pool {
 /// The draws after which block `id`, the oldest resident, leaves: as many as it has transitions,
 /// times `draws_per_row`. The live pool and its replay on resume both swap by this.
 fn due(layout: &Layout, cfg: &PoolConfig, id: usize) -> f64 {
-    cfg.draws_per_row * (layout.blocks[id].episodes * (layout.t - 1)) as f64
+    match cfg.window {
+        Some(draws) => draws as f64,
+        None => cfg.draws_per_row * (layout.blocks[id].episodes * (layout.t - 1)) as f64,
+    }
+}
+
+/// The order blocks enter in: shards in table order for a window, else seeded passes.
+fn entries(layout: &Layout, cfg: &PoolConfig, head: usize) -> Entries {
+    match cfg.window {
+        Some(_) => Entries::in_order(layout.blocks.len()),
+        None => Entries::new(layout.blocks.len(), head, cfg.seed),
+    }
 }
 
 /// Makes glibc give large buffers (a block's arrays, a row group's decoded pages) back to the
@@ -436,12 +468,12 @@ fn keep_large_buffers_returnable() {
 
 /// The loader: entries `from` on ([`Entries`]), each block read and sent through a channel of
 /// one. It stops when the pool is dropped (the send fails) or after a read error, which it sends.
-fn spawn_loader(layout: Arc<Layout>, seed: u64, head: usize, from: u64) -> Receiver<Result<Block>> {
+fn spawn_loader(layout: Arc<Layout>, cfg: PoolConfig, head: usize, from: u64) -> Receiver<Result<Block>> {
     let (tx, rx) = sync_channel(1);
     std::thread::Builder::new()
         .name("pgser-pool-loader".into())
         .spawn(move || {
-            let mut entries = Entries::new(layout.blocks.len(), head, seed);
+            let mut entries = entries(&layout, &cfg, head);
             for i in from.. {
                 let block = layout.read(entries.get(i));
                 let failed = block.is_err();
@@ -489,15 +521,29 @@ impl View for Pool {
         b.first_episode + l as u64
     }
     fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+        if self.goal_at.is_empty() {
+            // A shard window: uniform over the held shard's observations; the slot is the row.
+            let (e, s) = (rng.below(self.index.len()), rng.below(self.layout.t));
+            let (episode, slot) = (self.episode_number(e), (e * self.layout.t + s) as u64);
+            return GoalSource { episode, step: s as u32, slot };
+        }
         let i = rng.below(self.goal_at.len());
         let (episode, step) = self.goal_at[i];
         GoalSource { episode, step, slot: i as u64 }
     }
     fn goal_ag(&self, g: GoalSource) -> &[f32] {
+        if self.goal_at.is_empty() {
+            let t = self.layout.t as u64;
+            return self.ag((g.slot / t) as usize, (g.slot % t) as usize);
+        }
         let d = self.layout.task.goal_dim;
         &self.goal_ag[g.slot as usize * d..][..d]
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
+        if self.goal_at.is_empty() {
+            let t = self.layout.t as u64;
+            return self.obs((g.slot / t) as usize, (g.slot % t) as usize);
+        }
         let d = self.layout.task.obs_dim;
         &self.goal_obs[g.slot as usize * d..][..d]
     }

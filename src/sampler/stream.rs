@@ -82,6 +82,9 @@ impl BatchSource {
                 data: match budget {
                     Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
                     Budget::Bytes(b) => Beta::open(path, b, cfg.seed)?,
+                    Budget::ShardWindow(rows) => {
+                        Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, cfg.seed)?))
+                    }
                 },
                 scored: None,
             },
@@ -108,6 +111,14 @@ impl BatchSource {
         let source = checked_source(&table)?;
         let table = match budget {
             Budget::Unbounded => table,
+            Budget::ShardWindow(rows) => {
+                if let Some(beta) = cfg.priority.is_beta {
+                    bail!("{at}: --is-beta {beta} with --shard-window: priorities are the held shard's own");
+                }
+                let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
+                let pool = Pool::window(layout, rows, cfg.seed)?;
+                return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
+            }
             Budget::Bytes(b) => {
                 // Planned from the footers before anything is loaded.
                 let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
@@ -121,7 +132,7 @@ impl BatchSource {
                                  known; leave --is-beta unset, or give a budget that holds the data"
                             );
                         }
-                        let pool_cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed: cfg.seed };
+                        let pool_cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed: cfg.seed, window: None };
                         let pool = Pool::start(Arc::new(layout), pool_cfg, slots, reservoir, (0, 0))?;
                         return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
                     }

@@ -153,6 +153,10 @@ pub enum Budget {
     Unbounded,
     /// At most this many bytes: the whole table when it fits, an out-of-core pool otherwise.
     Bytes(u64),
+    /// One shard at a time, the next (in folder order) after this many drawn rows, with every
+    /// goal from the held shard: Horizon Reduction's reload scheme, emulated to measure what
+    /// drawing from the whole table changes (`--shard-window`).
+    ShardWindow(u64),
 }
 
 /// Opens a trajectory table (a file or a table folder) as a view within `budget`.
@@ -163,6 +167,9 @@ pub fn open(path: &Path, budget: Budget, seed: u64) -> Result<Box<dyn View>> {
             super::pool::Beta::Whole(data) => Box::new(InMemory(data)),
             super::pool::Beta::Pool(pool) => pool,
         }),
+        Budget::ShardWindow(rows) => {
+            Ok(Box::new(super::pool::Pool::window(super::pool::Layout::open(path)?, rows, seed)?))
+        }
     }
 }
 

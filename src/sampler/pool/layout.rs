@@ -35,7 +35,9 @@ pub(super) struct Shard {
 #[derive(Debug, Clone, Copy)]
 pub(super) struct BlockInfo {
     pub(super) shard: usize,
+    /// Its first row group, and how many it spans (one, or a whole shard in a shard window).
     pub(super) group: usize,
+    pub(super) groups: usize,
     /// The block's first row in its shard.
     pub(super) first_row: usize,
     pub(super) episodes: usize,
@@ -103,7 +105,14 @@ impl Layout {
                     );
                 }
                 let first = first_episode + (row / t) as u64;
-                blocks.push(BlockInfo { shard: i, group: g, first_row: row, episodes: rows / t, first_episode: first });
+                blocks.push(BlockInfo {
+                    shard: i,
+                    group: g,
+                    groups: 1,
+                    first_row: row,
+                    episodes: rows / t,
+                    first_episode: first,
+                });
                 row += rows;
             }
             if row != f.rows {
@@ -132,6 +141,22 @@ impl Layout {
         let per = f.rows / transitions;
         self.scored = Some(Scored { table, per, priority });
         Ok(self)
+    }
+
+    /// The layout with one block per shard, all its row groups: a shard window's unit.
+    pub fn by_shard(mut self) -> Layout {
+        let mut merged: Vec<BlockInfo> = Vec::with_capacity(self.shards.len());
+        for b in self.blocks {
+            match merged.last_mut() {
+                Some(m) if m.shard == b.shard => {
+                    m.groups += 1;
+                    m.episodes += b.episodes;
+                }
+                _ => merged.push(b),
+            }
+        }
+        self.blocks = merged;
+        self
     }
 
     /// The scored table `with_scored` attached, taken back (to draw from β held whole).
@@ -168,12 +193,16 @@ impl Layout {
     pub(super) fn read_columns(&self, id: usize, which: &[bool; 4]) -> Result<Block> {
         let b = self.blocks[id];
         let shard = &self.shards[b.shard];
-        let at = format!("{} (row group {})", shard.path.display(), b.group);
+        let at = match b.groups {
+            1 => format!("{} (row group {})", shard.path.display(), b.group),
+            n => format!("{} (row groups {}..{})", shard.path.display(), b.group, b.group + n),
+        };
+        let groups: Vec<usize> = (b.group..b.group + b.groups).collect();
         let file = crate::output::open_input(&shard.path)?;
         let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
         let mut names = vec!["episode", "step"];
         names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
-        verifier.check_row_groups(&[b.group], &verifier.columns_of(&names))?;
+        verifier.check_row_groups(&groups, &verifier.columns_of(&names))?;
         let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
         let schema = builder.schema().clone();
         let roots = names
@@ -184,7 +213,7 @@ impl Layout {
         let t = self.t;
         let reader = builder
             .with_projection(mask)
-            .with_row_groups(vec![b.group])
+            .with_row_groups(groups)
             .with_batch_size(64 * t)
             .build()
             .with_context(|| format!("{at}: cannot read"))?;

@@ -12,6 +12,8 @@ pub(super) const KEY_RESERVOIR: u64 = 6;
 /// `permutation(.., i / B)[i % B]`. Computed, never stored beyond the current pass, so both the
 /// loader and a resumed pool can find entry i without reading anything.
 pub(super) struct Entries {
+    /// A shard window's entries: the blocks in table order, over and over.
+    pub(super) in_order: bool,
     pub(super) blocks: usize,
     pub(super) head: usize,
     pub(super) seed: u64,
@@ -21,10 +23,18 @@ pub(super) struct Entries {
 
 impl Entries {
     pub(super) fn new(blocks: usize, head: usize, seed: u64) -> Entries {
-        Entries { blocks, head, seed, pass: 0, order: permutation(blocks, head, seed, 0) }
+        Entries { in_order: false, blocks, head, seed, pass: 0, order: permutation(blocks, head, seed, 0) }
+    }
+
+    /// Block after block in table order (a shard window).
+    pub(super) fn in_order(blocks: usize) -> Entries {
+        Entries { in_order: true, blocks, head: 0, seed: 0, pass: 0, order: Vec::new() }
     }
 
     pub(super) fn get(&mut self, i: u64) -> usize {
+        if self.in_order {
+            return (i % self.blocks as u64) as usize;
+        }
         let pass = i / self.blocks as u64;
         if pass != self.pass {
             self.order = permutation(self.blocks, self.head, self.seed, pass);
@@ -78,6 +88,9 @@ impl Keys {
     pub(super) fn feed(&mut self, layout: &Layout, id: usize) -> std::ops::Range<usize> {
         let b = layout.blocks[id];
         let len = self.slots.len();
+        if len == 0 {
+            return 0..0;
+        }
         self.carry += len as f64 * b.episodes as f64 / layout.episodes as f64;
         let k = (self.carry.floor() as usize).min(len);
         self.carry -= k as f64;
