@@ -126,25 +126,45 @@ pub fn draw(data: &dyn View, cfg: &SamplerConfig, rng: &mut NpRandom, n: usize) 
 
 /// The batch of rows `drawn` from `data`, built on the host: what a view that no engine holds
 /// (the out-of-core pool) trains on. Rewards are the task's, of s′'s achieved goal and the goal
-/// each row is trained on, as in [`rows`].
+/// each row is trained on, as in [`rows`]. Vectors are copied in parallel ([`gather_rows`]).
 pub fn gather(data: &dyn View, drawn: &[(usize, usize, GoalSource)]) -> Batch {
     let task = data.task();
-    let mut b = Batch { n: drawn.len(), ..Batch::default() };
-    let mut next_ag = Vec::with_capacity(drawn.len() * task.goal_dim);
-    for &(e, t, source) in drawn {
-        b.obs.extend_from_slice(data.obs(e, t));
-        b.next_obs.extend_from_slice(data.obs(e, t + 1));
-        b.action.extend_from_slice(data.action(e, t));
-        b.goal.extend_from_slice(match source {
-            GoalSource::Original => data.goal(e, t),
-            GoalSource::Future(f) => data.ag(e, f),
-            GoalSource::Swapped(g) => data.goal_ag(g),
-        });
-        next_ag.extend_from_slice(data.ag(e, t + 1));
-    }
+    let (od, gd, ad) = (task.obs_dim, task.goal_dim, task.act_dim);
+    let goal = |&(e, t, source): &(usize, usize, GoalSource)| match source {
+        GoalSource::Original => data.goal(e, t),
+        GoalSource::Future(f) => data.ag(e, f),
+        GoalSource::Swapped(g) => data.goal_ag(g),
+    };
+    let mut b = Batch {
+        n: drawn.len(),
+        obs: gather_rows(drawn, od, |r| data.obs(r.0, r.1)),
+        next_obs: gather_rows(drawn, od, |r| data.obs(r.0, r.1 + 1)),
+        action: gather_rows(drawn, ad, |r| data.action(r.0, r.1)),
+        goal: gather_rows(drawn, gd, goal),
+        ..Batch::default()
+    };
+    let next_ag = gather_rows(drawn, gd, |r| data.ag(r.0, r.1 + 1));
     b.reward = vec![0.0; b.n];
     task.rewards(&next_ag, &b.goal, &mut b.reward);
     b
+}
+
+/// Rows per parallel copy: enough that a task's overhead is small against its copies.
+const GATHER_CHUNK: usize = 128;
+
+/// The vectors `of` each row gives, `dim` wide, concatenated in row order (copied in parallel).
+pub(crate) fn gather_rows<'a, R: Sync>(rows: &[R], dim: usize, of: impl Fn(&R) -> &'a [f32] + Sync) -> Vec<f32> {
+    use rayon::prelude::*;
+    let mut out = vec![0.0f32; rows.len() * dim];
+    if dim == 0 {
+        return out;
+    }
+    out.par_chunks_mut(GATHER_CHUNK * dim).zip(rows.par_chunks(GATHER_CHUNK)).for_each(|(o, rs)| {
+        for (k, r) in rs.iter().enumerate() {
+            o[k * dim..][..dim].copy_from_slice(of(r));
+        }
+    });
+    out
 }
 
 /// β as an engine holds it (`Engine::hold`).

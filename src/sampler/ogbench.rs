@@ -240,45 +240,36 @@ impl OgbenchStream {
     }
 }
 
-/// `n` rows of OGBench's layout from `view` (the module doc).
+/// `n` rows of OGBench's layout from `view` (the module doc). The rows and goals are drawn in
+/// turn from `rng`; their vectors are then copied in parallel, in chunks of rows (copying is most
+/// of a batch's time on wide observations, and it does not touch the generator, so the batch is
+/// the same at any thread count).
 pub fn draw(view: &dyn View, cfg: &OgbenchConfig, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
     let (t, od, ad) = (view.t(), view.task().obs_dim, view.task().act_dim);
     let steps = t - 1;
-    let mut b = OgbenchBatch {
-        n,
-        obs_dim: od,
-        act_dim: ad,
-        observations: Vec::with_capacity(n * od),
-        next_observations: Vec::with_capacity(n * od),
-        actions: Vec::with_capacity(n * ad),
-        value_goals: Vec::with_capacity(n * od),
-        actor_goals: Vec::with_capacity(n * od),
-        ..OgbenchBatch::default()
-    };
     let value = (cfg.value_p_curgoal, cfg.value_p_trajgoal, cfg.value_geom_sample);
     let actor = (cfg.actor_p_curgoal, cfg.actor_p_trajgoal, cfg.actor_geom_sample);
     let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
-    for _ in 0..n {
-        let row = rng.below(view.episodes() * steps);
-        let (e, s) = (row / steps, row % steps);
+    let rows: Vec<(usize, usize, Goal, Goal)> = (0..n)
+        .map(|_| {
+            let row = rng.below(view.episodes() * steps);
+            let (e, s) = (row / steps, row % steps);
+            let vg = goal(view, cfg, rng, e, s, value);
+            let ag = goal(view, cfg, rng, e, s, actor);
+            (e, s, vg, ag)
+        })
+        .collect();
+    let mut b = OgbenchBatch { n, obs_dim: od, act_dim: ad, ..OgbenchBatch::default() };
+    for &(e, s, vg, ag) in &rows {
         let number = view.episode_number(e);
-        let vg = goal(view, cfg, rng, e, s, value);
-        let ag = goal(view, cfg, rng, e, s, actor);
-        b.observations.extend_from_slice(view.obs(e, s));
-        b.next_observations.extend_from_slice(view.obs(e, s + 1));
-        b.actions.extend_from_slice(view.action(e, s));
         b.terminals.push(if s + 2 == t { 1.0 } else { 0.0 });
         let success = if (vg.episode, vg.step) == (number, s) { 1.0 } else { 0.0 };
         b.masks.push(1.0 - success);
         b.rewards.push(success - offset);
-        for (g, out, ep, st, kind) in [
-            (vg, &mut b.value_goals, &mut b.value_goal_episode, &mut b.value_goal_step, &mut b.value_goal_kind),
-            (ag, &mut b.actor_goals, &mut b.actor_goal_episode, &mut b.actor_goal_step, &mut b.actor_goal_kind),
+        for (g, ep, st, kind) in [
+            (vg, &mut b.value_goal_episode, &mut b.value_goal_step, &mut b.value_goal_kind),
+            (ag, &mut b.actor_goal_episode, &mut b.actor_goal_step, &mut b.actor_goal_kind),
         ] {
-            out.extend_from_slice(match g.at {
-                At::Resident(e, s) => view.obs(e, s),
-                At::Source(src) => view.goal_obs(src),
-            });
             ep.push(g.episode as i64);
             st.push(g.step as i64);
             kind.push(g.kind);
@@ -286,6 +277,15 @@ pub fn draw(view: &dyn View, cfg: &OgbenchConfig, rng: &mut NpRandom, n: usize) 
         b.episode.push(number as i64);
         b.step.push(s as i64);
     }
+    let goal_obs = |g: &Goal| match g.at {
+        At::Resident(e, s) => view.obs(e, s),
+        At::Source(src) => view.goal_obs(src),
+    };
+    b.observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1));
+    b.next_observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1 + 1));
+    b.actions = super::gather_rows(&rows, ad, |r| view.action(r.0, r.1));
+    b.value_goals = super::gather_rows(&rows, od, |r| goal_obs(&r.2));
+    b.actor_goals = super::gather_rows(&rows, od, |r| goal_obs(&r.3));
     b
 }
 

@@ -407,7 +407,10 @@ impl Pool {
         assert_eq!(next.id, want, "the loader and the pool agree on the order of entries");
         self.next_entry += 1;
         self.stats.swaps += 1;
-        self.resident.pop_front();
+        let leaving = self.resident.pop_front();
+        // Freeing a block returns its pages to the system (`keep_large_buffers_returnable`),
+        // milliseconds for a large one: done off the drawing thread, so no batch waits for it.
+        std::thread::spawn(move || drop(leaving));
         let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
         let len = self.goal_at.len();
         for j in self.keys.feed(&self.layout, next.id) {
