@@ -151,14 +151,24 @@ pub fn gather(data: &dyn View, drawn: &[(usize, usize, GoalSource)]) -> Batch {
 
 /// Rows per parallel copy: enough that a task's overhead is small against its copies.
 const GATHER_CHUNK: usize = 128;
+/// Floats below which a vector is copied on the calling thread: on PointMaze's 2-float rows a
+/// batch's copies take microseconds, and handing them to the thread pool cost more than it saved
+/// (1,480 against 2,050 batches/s of 1024 on 2 cores, bench/bench_scale.py's pgser side).
+const PARALLEL_FLOATS: usize = 1 << 16;
 
-/// The vectors `of` each row gives, `dim` wide, concatenated in row order (copied in parallel).
+/// The vectors `of` each row gives, `dim` wide, concatenated in row order; copied in parallel when
+/// they are many (wide observations: copying is then most of a batch's time). The same values at
+/// any thread count.
 pub(crate) fn gather_rows<'a, R: Sync>(rows: &[R], dim: usize, of: impl Fn(&R) -> &'a [f32] + Sync) -> Vec<f32> {
     use rayon::prelude::*;
-    let mut out = vec![0.0f32; rows.len() * dim];
-    if dim == 0 {
+    if rows.len() * dim < PARALLEL_FLOATS {
+        let mut out = Vec::with_capacity(rows.len() * dim);
+        for r in rows {
+            out.extend_from_slice(of(r));
+        }
         return out;
     }
+    let mut out = vec![0.0f32; rows.len() * dim];
     out.par_chunks_mut(GATHER_CHUNK * dim).zip(rows.par_chunks(GATHER_CHUNK)).for_each(|(o, rs)| {
         for (k, r) in rs.iter().enumerate() {
             o[k * dim..][..dim].copy_from_slice(of(r));
