@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Footer, Job, STREAM_SWAP, ScoreOptions, ScoreSummary, read, stats};
 use crate::table::TableWriter;
-use crate::trajectory::folder::{MANIFEST, TableFolder, is_folder, write_json};
+use crate::trajectory::folder::{MANIFEST, TableFolder, is_folder, read_manifest, write_json};
 
 /// The manifest's `format`.
 pub const FORMAT: &str = "pgser-scored-folder";
@@ -263,26 +263,10 @@ impl ScoredFolder {
     pub fn open(dir: &Path) -> Result<ScoredFolder> {
         let path = dir.join(MANIFEST);
         let at = path.display();
-        if !path.is_file() {
-            bail!("{}: no {MANIFEST}: not a scored folder, or a score into it is unfinished", dir.display());
-        }
-        let text = crate::output::read_input_text(&path)?;
-        let json: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{at}: not valid JSON"))?;
-        if json["format"] != FORMAT {
-            bail!("{at}: format {}, not {FORMAT:?}: not a scored folder's manifest", json["format"]);
-        }
-        let m: Manifest = serde_json::from_value(json).with_context(|| format!("{at}: the manifest is corrupt"))?;
-        if m.version != VERSION {
-            bail!("{at}: manifest version {}; this pgser reads version {VERSION}", m.version);
-        }
-        if m.shards.is_empty() {
-            bail!("{at}: the manifest lists no shards");
-        }
+        let (m, _): (Manifest, _) =
+            read_manifest(dir, FORMAT, VERSION, "not a scored folder, or a score into it is unfinished")?;
         let mut rows = 0;
         for (i, s) in m.shards.iter().enumerate() {
-            if s.file.contains('/') || s.file.contains('\\') || s.file.starts_with('.') {
-                bail!("{at}: shard {i}: {:?} is not a file name inside the folder", s.file);
-            }
             let shard = dir.join(&s.file);
             let len = std::fs::metadata(&shard)
                 .with_context(|| format!("{at}: shard {i}: {} is missing", shard.display()))?

@@ -224,6 +224,50 @@ pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
     out.commit()
 }
 
+/// The manifest of folder `dir`, which must say `format` and `version`, parsed as `M`, with its
+/// shards' file names checked to be names inside the folder (no path, not hidden): shared by table
+/// folders and scored folders (`score/folder.rs`). `missing` says what a folder without one is.
+pub fn read_manifest<M: serde::de::DeserializeOwned>(
+    dir: &Path,
+    format: &str,
+    version: u32,
+    missing: &str,
+) -> Result<(M, Vec<String>)> {
+    let path = dir.join(MANIFEST);
+    let at = path.display();
+    if !dir.is_dir() {
+        bail!("{}: not a folder", dir.display());
+    }
+    if !path.is_file() {
+        bail!("{}: a folder without {MANIFEST}: {missing}", dir.display());
+    }
+    let text = crate::output::read_input_text(&path)?;
+    let json: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{at}: not valid JSON"))?;
+    match json.get("format").and_then(|f| f.as_str()) {
+        Some(f) if f == format => {}
+        other => bail!("{at}: format {other:?}, not {format:?}"),
+    }
+    match json.get("version").and_then(|v| v.as_u64()) {
+        Some(v) if v == version as u64 => {}
+        other => bail!("{at}: manifest version {other:?}; this pgser reads version {version}"),
+    }
+    let files: Vec<String> = json
+        .get("shards")
+        .and_then(|s| s.as_array())
+        .map(|a| a.iter().map(|s| s.get("file").and_then(|f| f.as_str()).unwrap_or("").to_string()).collect())
+        .unwrap_or_default();
+    if files.is_empty() {
+        bail!("{at}: the manifest lists no shards");
+    }
+    for (i, f) in files.iter().enumerate() {
+        if f.is_empty() || f.contains('/') || f.contains('\\') || f.starts_with('.') {
+            bail!("{at}: shard {i}: {f:?} is not a file name inside the folder");
+        }
+    }
+    let m: M = serde_json::from_value(json).with_context(|| format!("{at}: the manifest is corrupt"))?;
+    Ok((m, files))
+}
+
 impl TableFolder {
     /// Opens the table folder `dir`: its manifest read, and every shard there, of the size the
     /// manifest says, with a footer that agrees with it (counts, task, columns). The shards'
@@ -231,35 +275,15 @@ impl TableFolder {
     pub fn open(dir: &Path) -> Result<TableFolder> {
         let path = dir.join(MANIFEST);
         let at = path.display();
-        if !dir.is_dir() {
-            bail!("{}: not a folder", dir.display());
-        }
-        if !path.is_file() {
-            bail!(
-                "{}: a folder without {MANIFEST}: not a table folder, or a convert into it is unfinished (run it \
-                 again: finished shards are kept)",
-                dir.display()
-            );
-        }
-        let text = crate::output::read_input_text(&path)?;
-        let json: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{at}: not valid JSON"))?;
-        match json.get("format").and_then(|f| f.as_str()) {
-            Some(FORMAT) => {}
-            other => bail!("{at}: format {other:?}, not {FORMAT:?}: not a pgser table folder's manifest"),
-        }
-        let m: Manifest = serde_json::from_value(json).with_context(|| format!("{at}: the manifest is corrupt"))?;
-        if m.version != VERSION {
-            bail!("{at}: manifest version {}; this pgser reads version {VERSION}", m.version);
-        }
+        let (m, _): (Manifest, _) = read_manifest(
+            dir,
+            FORMAT,
+            VERSION,
+            "not a table folder, or a convert into it is unfinished (run it again: finished shards are kept)",
+        )?;
         let footer = Footer::from_json(&at.to_string(), serde_json::to_value(&m.footer).expect("serializes"))?;
-        if m.shards.is_empty() {
-            bail!("{at}: the manifest lists no shards");
-        }
         let (mut rows, mut episodes) = (0usize, 0usize);
         for (i, s) in m.shards.iter().enumerate() {
-            if s.file.contains('/') || s.file.contains('\\') || s.file.starts_with('.') {
-                bail!("{at}: shard {i}: {:?} is not a file name inside the folder", s.file);
-            }
             let shard = dir.join(&s.file);
             let len = std::fs::metadata(&shard)
                 .with_context(|| format!("{at}: shard {i}: {} is missing", shard.display()))?
