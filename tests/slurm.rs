@@ -15,7 +15,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use common::slurm::{Cluster, cluster};
-use common::{snapshot, step_statuses, text, tiny_pipeline};
+use common::{folder_pipeline, snapshot, step_statuses, text, tiny_pipeline};
 
 /// One cluster at a time: the machine has few cores, and each test's timing matters.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -49,9 +49,14 @@ fn ok(c: &Cluster, dir: &Path, o: Output, what: &str) -> Output {
 
 /// A local `pipeline run tiny.toml ARGS` in `dir`.
 fn local(dir: &Path, args: &[&str]) -> BTreeMap<String, String> {
+    local_file(dir, "tiny.toml", args)
+}
+
+/// A local `pipeline run FILE ARGS` in `dir`.
+fn local_file(dir: &Path, file: &str, args: &[&str]) -> BTreeMap<String, String> {
     let o = common::etl()
         .current_dir(dir)
-        .args(["pipeline", "run", "tiny.toml", "--json", "--threads", "2", "--no-measure"])
+        .args(["pipeline", "run", file, "--json", "--threads", "2", "--no-measure"])
         .args(args)
         .output()
         .unwrap();
@@ -428,4 +433,143 @@ fn a_job_past_its_time_limit_saves_and_a_resubmission_continues_it() {
         .collect();
     // Every 10 updates once (`log_every = 10`), across the stop.
     assert!(logged == (1..=updates / 10).map(|k| k * 10).collect::<Vec<_>>(), "{} loss lines", logged.len());
+}
+
+/// `pipeline run folder.toml --executor slurm --wait --json --array-parallelism 2` in the background.
+fn submit_folder(c: &Cluster, dir: &Path) -> std::process::Child {
+    c.etl()
+        .current_dir(dir)
+        .args(["pipeline", "run", "folder.toml", "--executor", "slurm", "--wait", "--json", "--array-parallelism", "2"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The jobs of `OUT/.pipeline/slurm.jsonl`, oldest first.
+fn submitted_jobs(out: &Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(out.join(".pipeline/slurm.jsonl")).unwrap_or_default();
+    text.lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
+/// `pipeline status folder.toml --json`: step name → its state object.
+fn folder_status(c: &Cluster, dir: &Path) -> BTreeMap<String, serde_json::Value> {
+    let st = ok(c, dir, etl(c, dir, &["pipeline", "status", "folder.toml", "--json"]), "status");
+    serde_json::from_slice::<Vec<serde_json::Value>>(&st.stdout)
+        .unwrap()
+        .into_iter()
+        .map(|s| (s["name"].as_str().unwrap().to_string(), s))
+        .collect()
+}
+
+/// `[data] table` over a table folder of 3 shards: the score step goes to Slurm as one job array
+/// of 3 elements (one per shard, `pipeline step FILE score --shard K`) and its own job after it,
+/// which `pipeline status` shows while they run; the run writes the bytes of a local run — the
+/// scored folder's shards and manifest, the agents, the report and the results.
+#[test]
+fn a_table_folder_is_scored_by_a_job_array_of_its_shards_into_the_bytes_of_a_local_run() {
+    let _one = serial();
+    let Some(c) = cluster("a_table_folder_is_scored_by_a_job_array_of_its_shards_into_the_bytes_of_a_local_run") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (d, out) = (dir.path(), dir.path().join("out"));
+    folder_pipeline(d, 20);
+    local_file(d, "folder.toml", &[]);
+    let want = snapshot(&out);
+    for f in ["scored/manifest.json", "scored/reach-0.parquet", "scored/reach-2.parquet", "results.csv"] {
+        assert!(want.contains_key(Path::new(f)), "the local run wrote no {f}");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+
+    let child = submit_folder(&c, d);
+    // Once the array is submitted (before its elements can have run: they wait for the Q's job),
+    // status shows it under the score step.
+    let array = job_of(&out, "score");
+    let st = folder_status(&c, d);
+    let shards = &st["score"]["shards"];
+    assert_eq!(shards["job"], array.as_str(), "{st:?}");
+    assert_eq!(shards["of"], 3, "{shards}");
+    let counted: u64 =
+        ["done", "running", "pending", "failed", "not_started"].iter().map(|k| shards[k].as_u64().unwrap()).sum();
+    assert_eq!(counted, 3, "{shards}");
+    let human = ok(&c, d, etl(&c, d, &["pipeline", "status", "folder.toml"]), "status");
+    assert!(text(&human.stdout).contains(&format!("shards (job array {array}): ")), "{}", text(&human.stdout));
+
+    let o = ok(&c, d, child.wait_with_output().unwrap(), "the Slurm run");
+    let s = step_statuses(&o);
+    assert_eq!(s.len(), 10, "{s:?}");
+    assert!(s.values().all(|v| v == "ran"), "{s:?}\n{}", job_logs(d));
+    let got = snapshot(&out);
+    assert_eq!(got.keys().collect::<Vec<_>>(), want.keys().collect::<Vec<_>>());
+    for (path, bytes) in &want {
+        assert!(&got[path] == bytes, "{} differs between the local and the Slurm run", path.display());
+    }
+
+    // The jobs: pretrain, the shard array (3 elements, each scoring its shard), score's own job
+    // after it, the agent array, report, results.
+    let jobs = submitted_jobs(&out);
+    assert_eq!(jobs.len(), 6, "{jobs:?}");
+    assert_eq!((jobs[1]["id"].as_str(), jobs[1]["shards"].as_bool()), (Some(array.as_str()), Some(true)));
+    assert_eq!(jobs[1]["elements"], serde_json::json!([["score"], ["score"], ["score"]]));
+    assert_eq!(jobs[2]["elements"], serde_json::json!([["score"]]));
+    assert!(jobs[2].get("shards").is_none() && jobs[2]["array"] == false, "{}", jobs[2]);
+    for k in 0..3 {
+        let log = std::fs::read_to_string(out.join(format!(".pipeline/logs/score_shards-{array}_{k}.log"))).unwrap();
+        assert!(log.contains(&format!("score shard {k} of 3: ran")), "element {k}: {log}");
+    }
+    // The step's own job found every shard scored: it wrote the manifest and the record only.
+    let own =
+        std::fs::read_to_string(out.join(format!(".pipeline/logs/score-{}.log", jobs[2]["id"].as_str().unwrap())));
+    assert!(own.unwrap().contains("score: ran"), "{}", job_logs(d));
+    let st = folder_status(&c, d);
+    assert!(st.values().all(|s| s["state"] == "up to date" && s.get("shards").is_none()), "{st:?}");
+}
+
+/// An element that fails (shard 1's path taken by a folder) fails the score step: its own job is
+/// cancelled, as is everything reading the scored folder; the run and `pipeline status` name the
+/// element's log; a resubmission after the fix scores the missing shard (the others are kept)
+/// and runs the rest, to the bytes of a local run.
+#[test]
+fn a_failed_shard_fails_the_score_step_with_its_log_and_a_resubmission_finishes_it() {
+    let _one = serial();
+    let Some(c) = cluster("a_failed_shard_fails_the_score_step_with_its_log_and_a_resubmission_finishes_it") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (d, out) = (dir.path(), dir.path().join("out"));
+    folder_pipeline(d, 20);
+    // The uninterrupted run's files, made here first: a checkpoint records its data's path, so
+    // the same folder is needed for the same bytes.
+    local_file(d, "folder.toml", &[]);
+    let want = snapshot(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+    let blocker = out.join("scored/reach-1.parquet/in_the_way");
+    std::fs::create_dir_all(&blocker).unwrap();
+    let o = submit_folder(&c, d).wait_with_output().unwrap();
+    let err = text(&o.stderr);
+    assert!(!o.status.success(), "a failed shard was not reported: {err}");
+    let s = step_statuses(&o);
+    assert_eq!(s["pretrain"], "ran", "{s:?}");
+    assert_eq!(s["score"], "failed", "{s:?}\n{}", job_logs(d));
+    for (step, status) in s.iter().filter(|(k, _)| !["pretrain", "score"].contains(&k.as_str())) {
+        assert_eq!(status, "not run", "{step}: {s:?}");
+    }
+    let array = job_of(&out, "score");
+    let log = format!(".pipeline/logs/score_shards-{array}_1.log");
+    assert!(err.contains(&log), "{err}");
+    let st = folder_status(&c, d);
+    assert_eq!(st["score"]["state"], "failed", "{st:?}");
+    assert!(st["score"]["log"].as_str().unwrap().ends_with(&log), "{st:?}");
+    let shards = &st["score"]["shards"];
+    assert_eq!((shards["done"].as_u64(), shards["failed"].as_u64()), (Some(2), Some(1)), "{shards}");
+    assert!(!out.join("scored/manifest.json").exists(), "a manifest with a shard missing");
+
+    std::fs::remove_dir_all(out.join("scored/reach-1.parquet")).unwrap();
+    let o = ok(&c, d, submit_folder(&c, d).wait_with_output().unwrap(), "the resubmission");
+    let s = step_statuses(&o);
+    for (step, status) in &s {
+        assert_eq!(status, if step == "pretrain" { "up to date" } else { "ran" }, "{step}: {s:?}");
+    }
+    assert_same_files(&snapshot(&out), &want);
 }

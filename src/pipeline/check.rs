@@ -43,6 +43,9 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
             Some((task, vec![(PathBuf::from("oracle"), *episodes)], 4))
         }
         Data::Pickles { .. } => None,
+        Data::Table { path } => Some(
+            check_table(path, &p.task).with_context(|| format!("[data] table = {:?}", path.display().to_string()))?,
+        ),
     };
     if let Some(q) = p.q_checkpoint.as_ref().filter(|q| q.exists()) {
         check_q(q, &p.task).with_context(|| format!("[pretrain] checkpoint = {:?}", q.display().to_string()))?;
@@ -81,10 +84,9 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
             Action::Convert(_) => {}
             Action::Train { data, cfg, .. } => {
                 let section = if name == "pretrain" { "[pretrain]".to_string() } else { format!("[agents] ({name})") };
-                let scored = data.file_name().is_some_and(|f| f == "scored.parquet");
-                check_train(cfg, scored).context(section)?;
+                check_train(cfg, *data == super::plan::scored_path(p)).context(section)?;
             }
-            Action::Score(o) => {
+            Action::Score(super::ScoreStep { opts: o, .. }) => {
                 if o.swaps == 0 && !o.include_original {
                     bail!("[score] swaps = 0 without include_original = true leaves the scored table empty");
                 }
@@ -103,8 +105,41 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
     if steps.iter().any(|s| matches!(&s.action, Action::Train { cfg, .. } if cfg.eval_episodes > 0)) {
         crate::env::make(&p.task).context("evaluation needs the task's environment")?;
     }
-    let (task, sources, float_bytes) = beta.expect("a plan of pickles starts with convert");
+    let (task, sources, float_bytes) = beta.expect("a plan of pickles starts with convert; the other data say β");
     Ok(Checked { task, episodes: sources.iter().map(|s| s.1).sum(), float_bytes })
+}
+
+/// What the checks know of β: its task (with the table's dimensions), its sources with the
+/// episodes taken from each, and bytes per value of its vectors.
+type Beta = (Task, Vec<(PathBuf, usize)>, usize);
+
+/// β given as a table (`[data] table`): a trajectory table of the pipeline's task, one file or a
+/// table folder (opened: every shard there, of its size, its footer agreeing with the manifest;
+/// a few KB a shard). Returns what the checks after it and the cost need: the task with the
+/// table's dimensions, its sources with the episodes taken from each (the report's default
+/// positives are the first source's, as for pickles; the whole table when its footer lists no
+/// sources that add up to it), and bytes per value.
+fn check_table(path: &Path, task: &str) -> Result<Beta> {
+    let footer = if crate::trajectory::folder::is_folder(path) {
+        crate::trajectory::folder::TableFolder::open(path)?.footer().clone()
+    } else if path.is_dir() {
+        bail!("a folder without {}: not a table folder", crate::trajectory::folder::MANIFEST);
+    } else {
+        crate::trajectory::folder::shard_footer(path)?
+    };
+    let want = crate::env::task(task)?;
+    let has = crate::env::task(&footer.task).map(|t| t.name).unwrap_or_else(|_| footer.task.clone());
+    if has != want.name {
+        bail!("a table of {}, not of the pipeline's task {}", footer.task, want.name);
+    }
+    let taken: usize = footer.sources.iter().map(|s| s.episodes_taken).sum();
+    let sources = if !footer.sources.is_empty() && taken == footer.episodes {
+        footer.sources.iter().map(|s| (PathBuf::from(&s.path), s.episodes_taken)).collect()
+    } else {
+        vec![(path.to_path_buf(), footer.episodes)]
+    };
+    let bytes = if footer.float_type == FloatType::Float32 { 4 } else { 8 };
+    Ok((footer.task(), sources, bytes))
 }
 
 /// The report's positives: the first `given` episodes of β, by default those of the first of
@@ -121,7 +156,7 @@ fn positive_episodes(given: Option<usize>, sources: &[(PathBuf, usize)]) -> Resu
         Some(n) => Ok(n),
         None if sources.len() >= 2 => Ok(sources[0].1),
         None => bail!(
-            "[report] positive_episodes is required: the data is one pickle ({}, {} episodes taken), so which \
+            "[report] positive_episodes is required: the data has one source ({}, {} episodes taken), so which \
              episodes are expert is unknown; set positive_episodes = N to make the first N the positives of \
              Fig. 5 and Table 1 (N = {} if all are expert)",
             sources[0].0.display(),

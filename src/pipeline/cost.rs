@@ -146,10 +146,10 @@ pub fn estimate(
                 let lines = c.updates / cfg.log_every.max(1) + evaluations(cfg, 0);
                 c.bytes = 4 * parameters(&cfg.agent, task) * 4 + lines * 160;
                 let agents = super::stack_of(step).map_or(1, |id| stack_sizes[&id]);
-                let scored = step.inputs[0].ends_with("scored.parquet");
+                let scored = step.inputs[0] == super::plan::scored_path(p);
                 trains.push(Priced { step: per_step.len(), cfg: cfg.as_ref().clone(), scored, agents });
             }
-            Action::Score(o) => {
+            Action::Score(super::ScoreStep { opts: o, .. }) => {
                 c.scored_rows = eps * (t - 1) * (o.swaps as u64 + o.include_original as u64);
                 let vectors = (2 * task.obs_dim + task.act_dim + 2 * task.goal_dim) as u64 * 4;
                 c.bytes = c.scored_rows * (32 + vectors);

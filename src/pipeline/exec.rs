@@ -270,9 +270,10 @@ fn execute(step: &Step, device: Backend, resume: bool) -> Result<&'static str> {
         Action::Convert(o) => drop(convert::convert(o, &bar)?),
         // The threads of the pool this unit runs on (all of `--threads` alone, its share with
         // `--jobs`); the scores do not depend on it.
-        Action::Score(o) => {
+        // Over a table folder, every shard not yet scored with these settings, then the manifest.
+        Action::Score(s) => {
             let threads = rayon::current_num_threads();
-            drop(score::score(&score::ScoreOptions { device, threads, ..o.clone() }, &bar)?)
+            drop(score::score(&score::ScoreOptions { device, threads, ..s.opts.clone() }, &bar)?)
         }
         Action::Report(o) => drop(report::q_report(o)?),
         Action::Results(runs) => drop(report::results(runs, step.outputs[0].parent().expect("in the out folder"))?),

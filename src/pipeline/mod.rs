@@ -45,7 +45,7 @@ mod status;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::json;
 
@@ -78,7 +78,7 @@ enum Action {
         cfg: Box<TrainConfig>,
         stack: Option<usize>,
     },
-    Score(score::ScoreOptions),
+    Score(ScoreStep),
     Report(report::QReportOptions),
     Results(Vec<report::Run>),
 }
@@ -99,6 +99,15 @@ impl CollectStep {
         }
         Ok(o)
     }
+}
+
+/// The `score` step. Over a table folder `shards` names β's shards in order (the scored folder's
+/// shards get the same names): locally the step scores them all, under Slurm each is one element
+/// of a job array (`pipeline step FILE score --shard I`, [`step_shard`]) and the step's own job
+/// then writes the manifest and the record. Empty for a single table.
+struct ScoreStep {
+    opts: score::ScoreOptions,
+    shards: Vec<String>,
 }
 
 /// One step of the plan.
@@ -285,6 +294,66 @@ pub fn step(p: &Pipeline, names: &[String], device: Backend, log: &(dyn Fn(&str)
             }
         })
         .collect())
+}
+
+/// `pgser-etl pipeline step FILE score --shard I`: one element of the score step's job array
+/// over a table folder (`slurm.rs`) — shard `shard` of β scored into the scored folder, as
+/// `pgser-etl score --shard I` does; a shard already scored with the same settings is kept. It
+/// writes no manifest and no record: the step's own job does both once every element has
+/// finished, so the step is never recorded with a shard missing. Under its own lock (`score
+/// shard I`), so two submissions score a shard once; a step already up to date is left alone.
+pub fn step_shard(
+    p: &Pipeline,
+    name: &str,
+    shard: usize,
+    device: Backend,
+    log: &(dyn Fn(&str) + Sync),
+) -> Result<StepReport> {
+    let steps = plan(p)?;
+    let Some(step) = steps.iter().find(|s| s.name == name) else {
+        let all: Vec<_> = steps.iter().map(|s| s.name.as_str()).collect();
+        bail!("pipeline {}: no step {name:?} (steps: {})", p.name, all.join(", "))
+    };
+    let Action::Score(ScoreStep { opts, shards }) = &step.action else {
+        bail!("pipeline {}: --shard is for the score step over a table folder, not for step {name}", p.name)
+    };
+    if shards.is_empty() {
+        bail!(
+            "pipeline {}: --shard {shard}: β ({}) is a single table, scored as one; --shard is for a table folder's shards",
+            p.name,
+            opts.data.display()
+        );
+    }
+    if shard >= shards.len() {
+        bail!("pipeline {}: --shard {shard}: β has {} shards (0 to {})", p.name, shards.len(), shards.len() - 1);
+    }
+    let head = format!("{name} shard {shard} of {}", shards.len());
+    let waiting = |holder: &str| log(&format!("{head}: waiting for its lock ({holder})"));
+    let _lock = lock::StepLock::acquire(&p.out, &format!("{name} shard {shard}"), &waiting)?;
+    let mut hashes = Hashes::default();
+    let Some(key) = hashes.key(step)? else {
+        let missing = step.inputs.iter().find(|f| !f.exists()).map(|f| f.display().to_string());
+        bail!(
+            "pipeline {}, step {head}: input {} is missing (the step that writes it has not finished)",
+            p.name,
+            missing.unwrap_or_default()
+        );
+    };
+    let outputs = vec![opts.output.join(&shards[shard])];
+    if state::up_to_date(&p.out, step, &key, &mut hashes) {
+        log(&format!("{head}: up to date"));
+        return Ok(StepReport { name: name.into(), status: "up to date".into(), seconds: 0.0, outputs, log: None });
+    }
+    log(&format!("{head}: running"));
+    let t0 = std::time::Instant::now();
+    let bar = crate::progress::bar("score", "transitions");
+    let o = score::ScoreOptions { device, threads: rayon::current_num_threads(), shard: Some(shard), ..opts.clone() };
+    score::score(&o, &bar).with_context(|| format!("pipeline {}, step {head}", p.name))?;
+    bar.finish_and_clear();
+    let seconds = t0.elapsed().as_secs_f64();
+    // What `slurm.rs` reads in the element's log to tell a finished element from a failed one.
+    log(&format!("{head}: ran in {seconds:.1} s"));
+    Ok(StepReport { name: name.into(), status: "ran".into(), seconds, outputs, log: None })
 }
 
 /// The report's one-screen summary: steps, then where the tables are.

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::exec::Outcome;
 use super::lock::StepLock;
 use super::state::{self, Hashes};
-use super::{Action, Pipeline, RunReport, Step, check, cost, stack_of};
+use super::{Action, Pipeline, RunReport, ScoreStep, Step, check, cost, stack_of};
 use crate::agent::Backend;
 
 /// `--executor slurm`'s settings.
@@ -51,16 +51,24 @@ pub struct SlurmOptions {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Job {
     pub id: String,
-    /// The steps of each element: one element for a step's job, one per stack for the array.
+    /// The steps of each element: one element for a step's job, one per stack for the agent
+    /// array, one per β shard (each `["score"]`) for the score step's shard array.
     pub elements: Vec<Vec<String>>,
     pub array: bool,
+    /// An array over a table folder's shards: element k scores shard k of its step
+    /// (`pipeline step FILE score --shard k`) and records nothing; the step's own job, submitted
+    /// after it, writes the manifest and the record. Absent (false) in every other job.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub shards: bool,
 }
 
 impl Job {
     /// The log of element `k`.
     pub fn log(&self, out: &Path, k: usize) -> PathBuf {
         let dir = out.join(".pipeline/logs");
-        if self.array {
+        if self.shards {
+            dir.join(format!("{}_shards-{}_{k}.log", self.elements[0][0].replace(' ', "_"), self.id))
+        } else if self.array {
             dir.join(format!("agents-{}_{k}.log", self.id))
         } else {
             dir.join(format!("{}-{}.log", self.elements[0][0].replace(' ', "_"), self.id))
@@ -137,10 +145,25 @@ pub fn submit(p: &Pipeline, file: &Path, o: &SlurmOptions, log: &dyn Fn(&str)) -
     if let Some(t) = o.threads {
         command += &format!(" --threads {t}");
     }
+    let sbatch = Sbatch { p, o, here: &here, logs: &logs, send: &|args, script| slurm("sbatch", args, Some(script)) };
+    let jobs = submit_steps(p, &steps, &runs, &command, &sbatch, log)?;
+    Ok(Submission { jobs, submitted, cost })
+}
 
+/// Submits `runs` (indices into the plan `steps`, in plan order) through `sbatch`, each job
+/// running `command STEP…`, each depending on the jobs that write its inputs; returns the jobs,
+/// each also appended to `OUT/.pipeline/slurm.jsonl`.
+fn submit_steps(
+    p: &Pipeline,
+    steps: &[Step],
+    runs: &[usize],
+    command: &str,
+    sbatch: &Sbatch,
+    log: &dyn Fn(&str),
+) -> Result<Vec<Job>> {
     // The agent cells to run, by stack: the array's elements.
     let mut stacks: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    for &i in &runs {
+    for &i in runs {
         if let Some(id) = stack_of(&steps[i]) {
             stacks.entry(id).or_default().push(i);
         }
@@ -150,32 +173,126 @@ pub fn submit(p: &Pipeline, file: &Path, o: &SlurmOptions, log: &dyn Fn(&str)) -
     let mut job_of: HashMap<usize, String> = HashMap::new();
     let mut jobs = Vec::new();
     let mut array_done = false;
-    for &i in &runs {
+    for &i in runs {
         let members: Vec<usize> = match stack_of(&steps[i]) {
             Some(_) if array_done => continue,
             Some(_) => stacks.values().flatten().copied().collect(),
             None => vec![i],
         };
-        let after: BTreeSet<&String> = members
+        let mut after: BTreeSet<String> = members
             .iter()
             .flat_map(|&m| steps[m].inputs.iter())
-            .filter_map(|input| writer.get(input).and_then(|w| job_of.get(w)))
+            .filter_map(|input| writer.get(input).and_then(|w| job_of.get(w)).cloned())
             .collect();
         let uses_device = members
             .iter()
-            .any(|&m| matches!(steps[m].action, Action::Train { .. } | Action::Score(_) | Action::Online { .. }));
+            .any(|&m| matches!(steps[m].action, Action::Train { .. } | Action::Score { .. } | Action::Online { .. }));
         let array = stack_of(&steps[i]).is_some();
-        let tag = if array { "agents".to_string() } else { steps[i].name.replace(' ', "_") };
+        let name = &steps[i].name;
+        // The score step over a table folder: first one job array, element k scoring shard k;
+        // then the step's own job (below), after every element, writes the manifest and records
+        // the step. The steps reading the scored folder wait for that one.
+        if let Action::Score(ScoreStep { shards, .. }) = &steps[i].action
+            && !shards.is_empty()
+        {
+            let elements: Vec<Vec<String>> = shards.iter().map(|_| vec![name.clone()]).collect();
+            let script = format!(
+                "#!/bin/sh\n# pgser pipeline {}: step {name} over {} shards of a table folder, one per element; \
+                 written by `pgser-etl pipeline run --executor slurm`.\n\
+                 exec srun --ntasks=1 {command} {} --shard \"$SLURM_ARRAY_TASK_ID\"\n",
+                p.name,
+                shards.len(),
+                quote(name)
+            );
+            let tag = format!("{}_shards", name.replace(' ', "_"));
+            let id = sbatch.submit(&tag, &after, Some(shards.len()), uses_device, &script)?;
+            let job = Job { id: id.clone(), elements, array: true, shards: true };
+            append_job(&p.out, &job)?;
+            log(&format!("{name}: job array {id} of {} shard(s){}", shards.len(), after_text(&after)));
+            jobs.push(job);
+            after.insert(id);
+        }
+        let tag = if array { "agents".to_string() } else { name.replace(' ', "_") };
+        let elements: Vec<Vec<String>> = if array {
+            stacks.values().map(|m| m.iter().map(|&j| steps[j].name.clone()).collect()).collect()
+        } else {
+            vec![vec![name.clone()]]
+        };
+        let mut script = format!(
+            "#!/bin/sh\n# pgser pipeline {}: {}; written by `pgser-etl pipeline run --executor slurm`.\n",
+            p.name,
+            if array { "the agent grid, one stack of cells per element".to_string() } else { format!("step {name}") }
+        );
+        if array {
+            script += "case \"$SLURM_ARRAY_TASK_ID\" in\n";
+            for (k, names) in elements.iter().enumerate() {
+                let q: Vec<String> = names.iter().map(|n| quote(n)).collect();
+                script += &format!("{k}) set -- {} ;;\n", q.join(" "));
+            }
+            script += "*) echo \"no element $SLURM_ARRAY_TASK_ID in this array\" >&2; exit 1 ;;\nesac\n";
+            script += &format!("exec srun --ntasks=1 {command} \"$@\"\n");
+        } else {
+            script += &format!("exec srun --ntasks=1 {command} {}\n", quote(name));
+        }
+        let id = sbatch.submit(&tag, &after, array.then_some(elements.len()), uses_device, &script)?;
+        let job = Job { id: id.clone(), elements, array, shards: false };
+        append_job(&p.out, &job)?;
+        if array {
+            log(&format!("agents: job array {id} of {} stack(s) of cells{}", job.elements.len(), after_text(&after)));
+            array_done = true;
+        } else {
+            log(&format!("{name}: job {id}{}", after_text(&after)));
+        }
+        for &m in &members {
+            job_of.insert(m, id.clone());
+        }
+        jobs.push(job);
+    }
+    Ok(jobs)
+}
+
+/// " after 12, 13", or nothing without dependencies.
+fn after_text(after: &BTreeSet<String>) -> String {
+    if after.is_empty() {
+        String::new()
+    } else {
+        format!(" after {}", after.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", "))
+    }
+}
+
+/// What every job of one submission shares: the pipeline, the options, the folder it runs in
+/// and where its logs go.
+struct Sbatch<'a> {
+    p: &'a Pipeline,
+    o: &'a SlurmOptions,
+    here: &'a Path,
+    logs: &'a Path,
+    /// Runs `sbatch ARGS` with the script on stdin; its stdout (`ID` or `ID;CLUSTER`).
+    send: &'a dyn Fn(&[String], &str) -> Result<String>,
+}
+
+impl Sbatch<'_> {
+    /// Submits `script` as job `pgser-NAME-TAG` (an array of `array` elements, throttled by
+    /// `--array-parallelism`, when given) depending (afterok) on `after`; returns its id.
+    fn submit(
+        &self,
+        tag: &str,
+        after: &BTreeSet<String>,
+        array: Option<usize>,
+        uses_device: bool,
+        script: &str,
+    ) -> Result<String> {
+        let o = self.o;
         let mut args: Vec<String> = vec![
             "--parsable".into(),
-            format!("--job-name=pgser-{}-{tag}", p.name),
-            format!("--chdir={}", here.display()),
+            format!("--job-name=pgser-{}-{tag}", self.p.name),
+            format!("--chdir={}", self.here.display()),
             "--kill-on-invalid-dep=yes".into(),
             // A requeued job (preemption, `--requeue`) adds to the log of its first attempt.
             "--open-mode=append".into(),
         ];
-        let log_name = if array { format!("{tag}-%A_%a.log") } else { format!("{tag}-%j.log") };
-        args.push(format!("--output={}", here.join(&logs).join(log_name).display()));
+        let log_name = if array.is_some() { format!("{tag}-%A_%a.log") } else { format!("{tag}-%j.log") };
+        args.push(format!("--output={}", self.here.join(self.logs).join(log_name).display()));
         if !after.is_empty() {
             let ids: Vec<&str> = after.iter().map(|s| s.as_str()).collect();
             args.push(format!("--dependency=afterok:{}", ids.join(":")));
@@ -186,58 +303,18 @@ pub fn submit(p: &Pipeline, file: &Path, o: &SlurmOptions, log: &dyn Fn(&str)) -
         if let (Some(g), true) = (o.gpus_per_task, uses_device) {
             args.push(format!("--gpus-per-task={g}"));
         }
-        let elements: Vec<Vec<String>> = if array {
-            stacks.values().map(|m| m.iter().map(|&j| steps[j].name.clone()).collect()).collect()
-        } else {
-            vec![vec![steps[i].name.clone()]]
-        };
-        let mut script = format!(
-            "#!/bin/sh\n# pgser pipeline {}: {}; written by `pgser-etl pipeline run --executor slurm`.\n",
-            p.name,
-            if array {
-                "the agent grid, one stack of cells per element".to_string()
-            } else {
-                format!("step {}", steps[i].name)
-            }
-        );
-        if array {
+        if let Some(n) = array {
             let throttle = o.array_parallelism.map(|n| format!("%{n}")).unwrap_or_default();
-            args.push(format!("--array=0-{}{throttle}", elements.len() - 1));
-            script += "case \"$SLURM_ARRAY_TASK_ID\" in\n";
-            for (k, names) in elements.iter().enumerate() {
-                let q: Vec<String> = names.iter().map(|n| quote(n)).collect();
-                script += &format!("{k}) set -- {} ;;\n", q.join(" "));
-            }
-            script += "*) echo \"no element $SLURM_ARRAY_TASK_ID in this array\" >&2; exit 1 ;;\nesac\n";
-            script += &format!("exec srun --ntasks=1 {command} \"$@\"\n");
-        } else {
-            script += &format!("exec srun --ntasks=1 {command} {}\n", quote(&steps[i].name));
+            args.push(format!("--array=0-{}{throttle}", n - 1));
         }
         args.extend(o.sbatch_args.iter().cloned());
-        let id = slurm("sbatch", &args, Some(&script))?;
+        let id = (self.send)(&args, script)?;
         let id = id.trim().split(';').next().unwrap_or_default().to_string();
         if id.is_empty() || !id.chars().all(|c| c.is_ascii_digit()) {
             bail!("sbatch printed {id:?} where a job id was expected");
         }
-        let job = Job { id: id.clone(), elements, array };
-        append_job(&p.out, &job)?;
-        let deps = if after.is_empty() {
-            String::new()
-        } else {
-            format!(" after {}", after.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", "))
-        };
-        if array {
-            log(&format!("agents: job array {id} of {} stack(s) of cells{deps}", job.elements.len()));
-            array_done = true;
-        } else {
-            log(&format!("{}: job {id}{deps}", steps[i].name));
-        }
-        for &m in &members {
-            job_of.insert(m, id.clone());
-        }
-        jobs.push(job);
+        Ok(id)
     }
-    Ok(Submission { jobs, submitted, cost })
 }
 
 /// Appends `job` to `OUT/.pipeline/slurm.jsonl`, under a lock (two submissions may append).
@@ -336,12 +413,216 @@ fn outcome(
             _ => Outcome { status: "up to date".into(), seconds: 0.0, log: None },
         });
     }
-    let log = sub.jobs.iter().find_map(|j| {
-        let k = j.elements.iter().position(|e| e.contains(&step.name))?;
-        Some(j.log(&p.out, k))
-    });
-    Ok(match log.filter(|l| l.exists()) {
+    Ok(match failed_log(&p.out, &sub.jobs, &step.name) {
         Some(l) => Outcome { status: "failed".into(), seconds: 0.0, log: Some(l) },
         None => Outcome { status: "not run".into(), seconds: 0.0, log: None },
     })
+}
+
+/// The log that says why step `name` did not finish, among `jobs` that have left the queue: its
+/// own (latest) job's, else — that job cancelled before it started, as a job it waited for
+/// failed — the first failed element's of its shard array.
+pub fn failed_log(out: &Path, jobs: &[Job], name: &str) -> Option<PathBuf> {
+    let holds = |j: &&Job| j.elements.iter().any(|e| e.iter().any(|s| s == name));
+    let own = jobs.iter().rev().filter(|j| !j.shards).find(holds).and_then(|j| {
+        let k = j.elements.iter().position(|e| e.iter().any(|s| s == name))?;
+        Some(j.log(out, k))
+    });
+    if let Some(l) = own.filter(|l| l.exists()) {
+        return Some(l);
+    }
+    let array = jobs.iter().rev().filter(|j| j.shards).find(holds)?;
+    let states = element_states(out, array, None);
+    states.iter().position(|s| s == "failed").map(|k| array.log(out, k))
+}
+
+/// Where each element of a shard array stands: `pending` or `running` while Slurm holds it
+/// (`queue`, by element id), else `done` when its log ends its work with the line
+/// [`super::step_shard`] writes on success (`score shard K of N: ran …` or `… up to date`),
+/// `failed` when it has a log without that line, and `not started` without a log (cancelled
+/// before it began). The log, not `sacct`, since many clusters keep no job accounting.
+pub fn element_states(out: &Path, job: &Job, queue: Option<&HashMap<String, String>>) -> Vec<String> {
+    let n = job.elements.len();
+    (0..n)
+        .map(|k| {
+            if let Some(state) = queue.and_then(|q| q.get(&job.element_id(k))) {
+                return if state == "PENDING" { "pending" } else { "running" }.to_string();
+            }
+            let Ok(text) = std::fs::read_to_string(job.log(out, k)) else { return "not started".to_string() };
+            let head = format!("{} shard {k} of {n}: ", job.elements[k][0]);
+            let finished = text
+                .lines()
+                .any(|l| l.split_once(&head).is_some_and(|(_, rest)| rest.starts_with("ran") || rest == "up to date"));
+            if finished { "done" } else { "failed" }.to_string()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use std::cell::RefCell;
+
+    use super::*;
+    use crate::pipeline::Data;
+    use crate::trajectory::folder::{FORMAT, MANIFEST, Manifest, Shard, VERSION};
+    use crate::trajectory::{FloatType, Footer};
+
+    /// A pipeline over a table folder of `n` FetchReach shards (`reach-I.parquet`, 4 episodes
+    /// each) in `dir`: only the manifest is written, all that planning reads.
+    fn folder_pipeline(dir: &Path, n: usize, agents: &str) -> Pipeline {
+        let folder = dir.join("reach");
+        std::fs::create_dir_all(&folder).unwrap();
+        let task = crate::task::Task::known("FetchReach").unwrap();
+        let shards: Vec<Shard> = (0..n)
+            .map(|i| Shard {
+                file: format!("reach-{i}.parquet"),
+                rows: 4 * task.t,
+                episodes: 4,
+                first_episode: 4 * i,
+                bytes: 1,
+                sha256: String::new(),
+            })
+            .collect();
+        let footer = Footer::new(&task, FloatType::Float32, 4 * n, "test".into());
+        let m = Manifest {
+            format: FORMAT.into(),
+            version: VERSION,
+            rows: 4 * n * task.t,
+            episodes: 4 * n,
+            footer,
+            shards,
+            validation: false,
+            settings: None,
+        };
+        m.write(&folder).unwrap();
+        assert!(folder.join(MANIFEST).is_file());
+        let text = format!(
+            "name = \"f\"\ntask = \"FetchReach\"\nout = \"out\"\n[data]\ntable = \"reach\"\n\
+             [report]\npositive_episodes = 4\n[agents]\nseeds = [0, 1]\nupdates = 10\n{agents}"
+        );
+        Pipeline::parse(&text, &dir.join("f.toml")).unwrap()
+    }
+
+    /// β a table folder: no convert step, β read where it is, the score step writing the scored
+    /// folder `out/scored/` by β's shard names; the -mem agents read the folder, the report its
+    /// first shard, and both are keyed by the folder (its manifest).
+    #[test]
+    fn a_table_folder_is_beta_as_it_is_and_scored_into_a_folder_of_its_shards() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = folder_pipeline(dir.path(), 3, "");
+        let steps = super::super::plan(&p).unwrap();
+        let names: Vec<&str> = steps.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names[..2], ["pretrain", "score"], "{names:?}");
+        let beta = dir.path().join("reach");
+        let scored = dir.path().join("out/scored");
+        assert_eq!(steps[0].inputs, std::slice::from_ref(&beta));
+        let score = &steps[1];
+        assert_eq!(score.outputs, std::slice::from_ref(&scored));
+        assert_eq!(score.params["table"], serde_json::json!(beta));
+        let Action::Score(ScoreStep { opts, shards }) = &score.action else { panic!("score scores") };
+        assert_eq!((&opts.data, &opts.output, opts.shard), (&beta, &scored, None));
+        assert_eq!(shards, &["reach-0.parquet", "reach-1.parquet", "reach-2.parquet"]);
+        for s in steps.iter().filter(|s| s.name.starts_with("agent ")) {
+            let Action::Train { data, .. } = &s.action else { panic!("agents train") };
+            let want = if s.name.contains("_mem_") { &scored } else { &beta };
+            assert_eq!(data, want, "{}", s.name);
+        }
+        let report = steps.iter().find(|s| s.name == "report").unwrap();
+        let Action::Report(r) = &report.action else { panic!("the report reports") };
+        assert_eq!(r.scored, scored.join("reach-0.parquet"));
+        assert!(report.inputs.contains(&scored) && report.inputs.contains(&beta), "{:?}", report.inputs);
+
+        // A single table: scored into one file, as before; a folder without its manifest refused.
+        let single = Pipeline { data: Data::Table { path: dir.path().join("t.parquet") }, ..p.clone() };
+        let steps = super::super::plan(&single).unwrap();
+        let Action::Score(ScoreStep { opts, shards }) = &steps[1].action else { panic!("score scores") };
+        assert_eq!((opts.output.clone(), shards.len()), (dir.path().join("out/scored.parquet"), 0));
+        std::fs::remove_file(beta.join(MANIFEST)).unwrap();
+        let e = format!("{:#}", super::super::plan(&p).err().expect("a folder without a manifest"));
+        assert!(e.contains("[data] table") && e.contains("manifest.json"), "{e}");
+    }
+
+    /// Under Slurm the score step over a folder is one job array of an element per shard, each
+    /// `pipeline step FILE score --shard K` after the Q's job, then the step's own job after the
+    /// array; what reads the scored folder (the -mem agents, the report) waits for that one.
+    #[test]
+    fn the_score_step_over_a_folder_is_a_job_array_of_its_shards_then_its_own_job() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = folder_pipeline(dir.path(), 3, "batch = 1\n");
+        let steps = super::super::plan(&p).unwrap();
+        let runs: Vec<usize> = (0..steps.len()).collect();
+        let o = SlurmOptions {
+            until: None,
+            device: Backend::Cpu,
+            threads: None,
+            partition: None,
+            sbatch_args: vec![],
+            array_parallelism: Some(2),
+            gpus_per_task: None,
+        };
+        let sent = RefCell::new(Vec::<(Vec<String>, String)>::new());
+        let send = |args: &[String], script: &str| {
+            sent.borrow_mut().push((args.to_vec(), script.to_string()));
+            Ok(format!("{}", 100 + sent.borrow().len()))
+        };
+        let logs = p.out.join(".pipeline/logs");
+        let sbatch = Sbatch { p: &p, o: &o, here: dir.path(), logs: &logs, send: &send };
+        std::fs::create_dir_all(&logs).unwrap();
+        let jobs = submit_steps(&p, &steps, &runs, "pgser-etl pipeline step 'f.toml'", &sbatch, &|_| {}).unwrap();
+        let sent = sent.into_inner();
+        let ids: Vec<&str> = jobs.iter().map(|j| j.id.as_str()).collect();
+        // pretrain, the shard array, score, the agent array, report, results.
+        assert_eq!(ids, ["101", "102", "103", "104", "105", "106"]);
+        let arg = |k: usize, flag: &str| sent[k].0.iter().find(|a| a.starts_with(flag)).cloned();
+        assert_eq!(
+            (jobs[1].shards, jobs[1].array, jobs[1].elements.clone()),
+            (true, true, vec![vec!["score".to_string()]; 3])
+        );
+        assert_eq!(arg(1, "--array=").as_deref(), Some("--array=0-2%2"));
+        assert_eq!(arg(1, "--dependency=").as_deref(), Some("--dependency=afterok:101"));
+        assert!(sent[1].1.contains("'score' --shard \"$SLURM_ARRAY_TASK_ID\""), "{}", sent[1].1);
+        assert!(arg(1, "--output=").unwrap().ends_with("score_shards-%A_%a.log"));
+        assert_eq!(jobs[1].log(&p.out, 2), p.out.join(".pipeline/logs/score_shards-102_2.log"));
+        // The step's own job: after the Q and every element; no array.
+        assert_eq!(
+            (jobs[2].shards, jobs[2].array, jobs[2].elements.clone()),
+            (false, false, vec![vec!["score".into()]])
+        );
+        assert_eq!(arg(2, "--dependency=").as_deref(), Some("--dependency=afterok:101:102"));
+        assert_eq!(arg(2, "--array="), None);
+        assert!(sent[2].1.ends_with("'score'\n") && !sent[2].1.contains("--shard"), "{}", sent[2].1);
+        // The agents (baseline and swap read β alone, mem the scored folder) and the report (and
+        // the Q) wait for the step's own job, not for the array.
+        assert_eq!(arg(3, "--dependency=").as_deref(), Some("--dependency=afterok:103"));
+        assert_eq!(arg(4, "--dependency=").as_deref(), Some("--dependency=afterok:101:103"));
+        // Kept in slurm.jsonl, as `pipeline status` reads them.
+        let kept = super::jobs(&p.out).unwrap();
+        assert_eq!(kept.len(), 6);
+        assert!(kept[1].shards && !kept[2].shards && kept[3].array && !kept[3].shards);
+    }
+
+    /// An element is done when its log has step_shard's closing line, failed when its log lacks
+    /// it, not started without a log, and pending or running while Slurm holds it; a failed
+    /// element is the step's failure when its own job left no log (cancelled).
+    #[test]
+    fn shard_elements_are_told_apart_by_the_queue_and_their_logs() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        std::fs::create_dir_all(out.join(".pipeline/logs")).unwrap();
+        let array = Job { id: "7".into(), elements: vec![vec!["score".into()]; 5], array: true, shards: true };
+        let own = Job { id: "8".into(), elements: vec![vec!["score".into()]], array: false, shards: false };
+        let write = |k: usize, text: &str| std::fs::write(array.log(out, k), text).unwrap();
+        write(0, "pipeline f: score shard 0 of 5: running\npipeline f: score shard 0 of 5: ran in 1.0 s\n");
+        write(1, "pipeline f: score shard 1 of 5: up to date\n");
+        write(2, "pipeline f: score shard 2 of 5: running\nerror: out of disk\n");
+        let queue: HashMap<String, String> = [("7_3".to_string(), "RUNNING".to_string())].into();
+        let states = element_states(out, &array, Some(&queue));
+        assert_eq!(states, ["done", "done", "failed", "running", "not started"]);
+        let both = [array.clone(), own.clone()];
+        assert_eq!(failed_log(out, &both, "score"), Some(array.log(out, 2)));
+        // Its own job ran and failed: its log says why.
+        std::fs::write(own.log(out, 0), "error: the manifest\n").unwrap();
+        assert_eq!(failed_log(out, &both, "score"), Some(own.log(out, 0)));
+        assert_eq!(failed_log(out, &both, "report"), None);
+    }
 }

@@ -91,6 +91,11 @@ pub enum Data {
     /// OGBench's recipe for the dataset the task names (`task = "pointmaze-medium-stitch-v0"`):
     /// `episodes` of its oracle (seeds seed…), written as the dataset's `.npz` and converted.
     Oracle { episodes: usize, seed: u64, noise: f64 },
+    /// An existing trajectory table (`[data] table`), used as β as it is: a single `.parquet`
+    /// file or a table folder (Parquet shards and `manifest.json`, `trajectory/folder.rs`). There
+    /// is no convert step; over a folder the score step writes a scored folder, one scored shard
+    /// per β shard, which a cluster scores as one job array (`slurm.rs`).
+    Table { path: PathBuf },
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -166,12 +171,32 @@ struct DataFile {
     expert: Option<usize>,
     random: Option<usize>,
     oracle: Option<usize>,
-    #[serde(default)]
-    seed: u64,
+    /// Optional here (0 by default) only so that `table` can refuse it by name.
+    seed: Option<u64>,
     noise: Option<f64>,
     expert_checkpoint: Option<String>,
     #[serde(default)]
     drop: Vec<String>,
+    table: Option<String>,
+}
+
+impl DataFile {
+    /// The keys given besides `table`, in the file's documented order: a table is β as it is, so
+    /// each of them would be silently ignored.
+    fn besides_table(&self) -> Vec<&'static str> {
+        let given = [
+            ("pickles", !self.pickles.is_empty()),
+            ("episodes", self.episodes.is_some()),
+            ("drop", !self.drop.is_empty()),
+            ("expert", self.expert.is_some()),
+            ("random", self.random.is_some()),
+            ("seed", self.seed.is_some()),
+            ("noise", self.noise.is_some()),
+            ("expert_checkpoint", self.expert_checkpoint.is_some()),
+            ("oracle", self.oracle.is_some()),
+        ];
+        given.into_iter().filter(|(_, g)| *g).map(|(k, _)| k).collect()
+    }
 }
 
 /// The first entry of `list` that an earlier one equals.
@@ -204,12 +229,27 @@ impl Pipeline {
             bail!("name {:?}: use letters, digits, - and _ only", f.name);
         }
         let d = f.data;
+        if let Some(table) = &d.table {
+            let others = d.besides_table();
+            if !others.is_empty() {
+                bail!(
+                    "[data] table is an existing table used as β as it is; it cannot be combined with {} (give \
+                     either `table` alone or the data to make)",
+                    others.iter().map(|k| format!("`{k}`")).collect::<Vec<_>>().join(", ")
+                );
+            }
+            if table.is_empty() {
+                bail!("[data] table = \"\": give the path of a .parquet trajectory table or a table folder");
+            }
+        }
+        let seed = d.seed.unwrap_or(0);
         if !d.drop.is_empty() && d.pickles.is_empty() {
             bail!(
                 "[data] drop leaves keys of the given `pickles` out; the data a pipeline makes has none to leave out"
             );
         }
         let data = match (d.pickles.is_empty(), d.expert, d.random, d.oracle) {
+            _ if d.table.is_some() => Data::Table { path: resolve(d.table.as_deref().unwrap_or_default()) },
             (false, None, None, None) => {
                 if let Some(e) = &d.episodes
                     && e.len() != d.pickles.len()
@@ -227,7 +267,7 @@ impl Pipeline {
                     bail!("[data]: expert = 0; the report needs expert episodes as positives");
                 }
                 let checkpoint = d.expert_checkpoint.as_deref().map(resolve);
-                Data::Collect { expert, random, seed: d.seed, noise: d.noise.unwrap_or(0.0), checkpoint }
+                Data::Collect { expert, random, seed, noise: d.noise.unwrap_or(0.0), checkpoint }
             }
             (true, None, None, Some(episodes)) if d.episodes.is_none() && d.expert_checkpoint.is_none() => {
                 crate::env::pointmaze::recipe(&f.task).with_context(|| {
@@ -239,11 +279,11 @@ impl Pipeline {
                 if episodes == 0 {
                     bail!("[data] oracle = 0: must be at least 1 episode");
                 }
-                Data::Oracle { episodes, seed: d.seed, noise: d.noise.unwrap_or(crate::env::pointmaze::ORACLE_NOISE) }
+                Data::Oracle { episodes, seed, noise: d.noise.unwrap_or(crate::env::pointmaze::ORACLE_NOISE) }
             }
             _ => bail!(
-                "[data]: give either `pickles` (and optionally `episodes`), both `expert` and `random`, or `oracle` \
-                 (an OGBench dataset's episodes)"
+                "[data]: give either `pickles` (and optionally `episodes`), both `expert` and `random`, `oracle` \
+                 (an OGBench dataset's episodes), or `table` (an existing trajectory table or table folder)"
             ),
         };
         if f.expert.is_some() && !matches!(data, Data::Collect { checkpoint: Some(_), .. }) {
@@ -374,7 +414,7 @@ fn take<T: serde::de::DeserializeOwned>(t: &mut toml::Table, key: &str) -> Resul
 
 /// `TrainConfig`'s own settings that its JSON leaves out when unset, so that runs from before
 /// they existed keep their bytes and keys.
-const OPTIONAL_TRAIN_KEYS: [&str; 1] = ["memory_budget"];
+const OPTIONAL_TRAIN_KEYS: [&str; 2] = ["memory_budget", "shard_window"];
 
 /// `TrainConfig` from the CLI's defaults with `layers` applied in order. Keys are the flags'
 /// snake_case names, found in whichever group (agent, sampler, priority) holds them.

@@ -27,6 +27,7 @@ use super::Step;
 use crate::agent::{Backend, checkpoint};
 use crate::output::{AtomicFile, hex};
 use crate::train::TrainConfig;
+use crate::trajectory::folder::MANIFEST;
 
 /// Bump when the meaning of a key changes, so old records are not trusted (2: the key holds
 /// pgser's version).
@@ -79,13 +80,30 @@ pub struct Hashes {
 }
 
 impl Hashes {
+    /// The digest of a file, or of a folder by its manifest (`trajectory::folder::digest`): a
+    /// table folder given as β, or the scored folder the score step writes over one. None when
+    /// the path is absent, and for a folder without its manifest (written last, so a score still
+    /// running or killed) or a scored folder that no longer opens (a shard deleted or of another
+    /// size): that output is missing, and its step rebuilds it.
     pub fn sha256(&mut self, path: &Path) -> Result<Option<String>> {
         let Ok(meta) = std::fs::metadata(path) else { return Ok(None) };
+        // A folder's stamp is its manifest's: the folder's own changes with any file in it.
+        let meta = if meta.is_dir() {
+            match std::fs::metadata(path.join(MANIFEST)) {
+                Ok(m) if m.is_file() => m,
+                _ => return Ok(None),
+            }
+        } else {
+            meta
+        };
         let stamp = (meta.len(), meta.modified().with_context(|| format!("{}: no modification time", path.display()))?);
         if let Some((len, time, sha)) = self.seen.get(path)
             && (*len, *time) == stamp
         {
             return Ok(Some(sha.clone()));
+        }
+        if crate::score::folder::is_scored_folder(path) && crate::score::folder::ScoredFolder::open(path).is_err() {
+            return Ok(None);
         }
         let sha = crate::trajectory::folder::digest(path)?;
         self.seen.insert(path.to_path_buf(), (stamp.0, stamp.1, sha.clone()));

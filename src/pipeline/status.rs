@@ -38,6 +38,25 @@ pub struct StepState {
     /// How far a training step got, when it has saved part of its run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub progress: Option<Progress>,
+    /// The score step over a table folder, not up to date, submitted to Slurm: its job array of
+    /// one element per shard.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shards: Option<Shards>,
+}
+
+/// A shard array's elements by state (`slurm::element_states`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Shards {
+    /// The array's job id.
+    pub job: String,
+    /// Elements: β's shards.
+    pub of: usize,
+    pub done: usize,
+    pub running: usize,
+    pub pending: usize,
+    pub failed: usize,
+    /// Cancelled before they began (an element before them failed), or not yet begun.
+    pub not_started: usize,
 }
 
 /// A training step's saved progress: its checkpoint's update count and last evaluation.
@@ -61,15 +80,24 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
     let forecast = state::forecast(&p.out, &steps, &mut hashes)?;
     let mut all = Vec::with_capacity(steps.len());
     for (step, f) in steps.iter().zip(&forecast) {
-        // The latest job that holds this step, and which element.
-        let latest = jobs.iter().rev().find_map(|j| {
+        // The latest job that runs this step, and which element (a shard array's elements only
+        // score: the step's own job is submitted after it).
+        let latest = jobs.iter().rev().filter(|j| !j.shards).find_map(|j| {
             let k = j.elements.iter().position(|e| e.contains(&step.name))?;
             Some((j, k))
         });
         let job = latest.map(|(j, k)| j.element_id(k));
         let log = latest.map(|(j, k)| j.log(&p.out, k)).filter(|l| l.exists());
         let key = hashes.key(step)?;
-        let mut s = StepState { name: step.name.clone(), state: String::new(), job, log, holder: None, progress: None };
+        let mut s = StepState {
+            name: step.name.clone(),
+            state: String::new(),
+            job,
+            log,
+            holder: None,
+            progress: None,
+            shards: None,
+        };
         s.state = if key.as_ref().is_some_and(|k| state::up_to_date(&p.out, step, k, &mut hashes)) {
             "up to date".into()
         } else if let Some(h) = lock::holder(&p.out, &step.name) {
@@ -93,6 +121,28 @@ pub fn status(p: &Pipeline) -> Result<Vec<StepState>> {
             if s.state == "not started" && s.progress.is_some() {
                 s.state = "stopped".into();
             }
+        }
+        if s.state != "up to date"
+            && let Some(array) =
+                jobs.iter().rev().find(|j| j.shards && j.elements.iter().any(|e| e.contains(&step.name)))
+        {
+            let states = slurm::element_states(&p.out, array, queue.as_ref());
+            let count = |what: &str| states.iter().filter(|s| *s == what).count();
+            // Its own job is cancelled once an element fails: the step failed, and that
+            // element's log says why.
+            if s.state == "not started" && count("failed") > 0 {
+                s.state = "failed".into();
+                s.log = slurm::failed_log(&p.out, &jobs, &step.name);
+            }
+            s.shards = Some(Shards {
+                job: array.id.clone(),
+                of: states.len(),
+                done: count("done"),
+                running: count("running"),
+                pending: count("pending"),
+                failed: count("failed"),
+                not_started: count("not started"),
+            });
         }
         all.push(s);
     }
@@ -130,6 +180,19 @@ fn render_progress(g: &Progress, task: &str) -> String {
     s
 }
 
+/// "shards (job array 12): 2 of 4 scored, 1 running, 1 pending".
+fn render_shards(a: &Shards) -> String {
+    let mut s = format!("shards (job array {}): {} of {} scored", a.job, a.done, a.of);
+    for (n, what) in
+        [(a.running, "running"), (a.pending, "pending"), (a.failed, "failed"), (a.not_started, "not started")]
+    {
+        if n > 0 {
+            s += &format!(", {n} {what}");
+        }
+    }
+    s
+}
+
 /// One line per step.
 pub fn render(p: &Pipeline, states: &[StepState]) -> String {
     let n = states.len();
@@ -146,6 +209,9 @@ pub fn render(p: &Pipeline, states: &[StepState]) -> String {
         }
         if let Some(g) = &s.progress {
             line += &format!(" — {}", render_progress(g, &p.task));
+        }
+        if let Some(a) = &s.shards {
+            line += &format!(" — {}", render_shards(a));
         }
         text += &line;
         text.push('\n');

@@ -26,7 +26,6 @@ use super::share::{PriorityShares, ShareCounter, median, shares_markdown};
 use super::{FIG_SIZE, ensure_dir, write_text};
 use crate::agent::{Backend, checkpoint};
 use crate::nprandom::NpRandom;
-use crate::output::sha256_file;
 use crate::sampler::priority::PriorityConfig;
 use crate::score::{self, Q_BATCH};
 use crate::trajectory::{self, Episodes};
@@ -169,8 +168,7 @@ pub fn q_report(o: &QReportOptions) -> Result<QReport> {
     check_sha(&ckpt, &footer.checkpoint.sha256, &o.scored, "checkpoint")?;
     let beta = footer.source_table(&o.scored);
     check_sha(&beta, &footer.source.sha256, &o.scored, "source table")?;
-    let beta_footer: trajectory::Footer = serde_json::from_value(crate::table::read_footer(&beta)?)
-        .with_context(|| format!("{}: malformed trajectory footer", beta.display()))?;
+    let beta_footer = trajectory::folder::footer(&beta)?;
     let episodes = positive_episodes(o.positive_episodes, &beta_footer, &beta)?;
 
     // Positives: (o, u) of the first episodes with their own desired goals, scored now.
@@ -299,7 +297,9 @@ fn classifier_table(rows: &[ClassifierScore]) -> String {
 
 /// A path from a footer, relative to the scored table's folder (as `Footer::source_table`).
 fn check_sha(file: &Path, want: &str, scored: &Path, what: &str) -> Result<()> {
-    let got = sha256_file(file).with_context(|| format!("{}: the {what} of {}", file.display(), scored.display()))?;
+    // A table folder's digest is its manifest's, as `score` recorded it.
+    let got = trajectory::folder::digest(file)
+        .with_context(|| format!("{}: the {what} of {}", file.display(), scored.display()))?;
     if got != want {
         bail!(
             "{}: sha256 {got} differs from the {want} recorded in {}; the {what} changed since scoring (re-score it)",

@@ -120,9 +120,13 @@ pub(super) fn score(o: &ScoreOptions, bar: &ProgressBar, start: Instant) -> Resu
             continue;
         }
         // A manifest beside a shard being replaced would list what is no longer there.
+        // Array tasks scoring shards anew may race to remove it: gone is what both want.
         let manifest = o.output.join(MANIFEST);
-        if manifest.exists() {
-            std::fs::remove_file(&manifest).with_context(|| format!("{}: cannot remove", manifest.display()))?;
+        match std::fs::remove_file(&manifest) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("{}: cannot remove", manifest.display()));
+            }
+            _ => {}
         }
         let mut writer = TableWriter::create(&dest, job.schema.clone())?;
         let first = shard.first_episode;

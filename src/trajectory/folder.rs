@@ -152,6 +152,12 @@ pub fn digest(path: &Path) -> Result<String> {
     }
 }
 
+/// The trajectory footer of a table: a file's own, or a table folder's (its manifest's, with the
+/// folder's totals; the folder opened and checked).
+pub fn footer(path: &Path) -> Result<Footer> {
+    if is_folder(path) { Ok(TableFolder::open(path)?.manifest.footer) } else { shard_footer(path) }
+}
+
 /// The trajectory footer of the shard at `path`.
 pub fn shard_footer(path: &Path) -> Result<Footer> {
     let json = crate::table::read_footer(path)?;

@@ -247,3 +247,62 @@ pub fn step_statuses(o: &Output) -> std::collections::BTreeMap<String, String> {
         .map(|s| (s["name"].as_str().unwrap().to_string(), s["status"].as_str().unwrap().to_string()))
         .collect()
 }
+
+/// `DIR/reach/`: a table folder of three FetchReach shards made from the committed sample
+/// pickles — `reach-0.parquet` the first 8 expert episodes, `reach-1.parquet` and
+/// `reach-2.parquet` the first 8 and 12 random ones — each converted alone, with the manifest
+/// a convert of a folder writes. Its footer lists three sources, so a report's positives default
+/// to the first shard's 8 (expert) episodes, as with two pickles.
+pub fn reach_folder(dir: &Path) -> PathBuf {
+    let data = repo().join("data");
+    let folder = dir.join("reach");
+    std::fs::create_dir_all(&folder).unwrap();
+    let parts =
+        [("fetch_reach_expert_50.pkl", 8), ("fetch_reach_random_200.pkl", 8), ("fetch_reach_random_200.pkl", 12)];
+    let mut files = Vec::new();
+    for (i, (pickle, episodes)) in parts.into_iter().enumerate() {
+        let file = format!("reach-{i}.parquet");
+        let args = ["--task".to_string(), "FetchReach".into(), "--episodes".into(), episodes.to_string()];
+        convert_ok(&[&data.join(pickle)], &folder.join(&file), &args);
+        files.push(file);
+    }
+    pgser::trajectory::folder::Manifest::of_shards(&folder, &files, "tests/common reach_folder", false, None)
+        .unwrap()
+        .write(&folder)
+        .unwrap();
+    folder
+}
+
+/// `DIR/folder.toml`: the tiny pipeline's settings (2 swaps) over `[data] table` = [`reach_folder`]'s
+/// folder, made in `DIR` when absent; outputs in `DIR/out`.
+pub fn folder_pipeline(dir: &Path, agent_updates: u64) -> PathBuf {
+    if !dir.join("reach/manifest.json").exists() {
+        reach_folder(dir);
+    }
+    let toml = format!(
+        r#"name = "folder"
+task = "FetchReach"
+out = "out"
+[data]
+table = "reach"
+[train]
+batch_size = 64
+eval_every = 0
+eval_episodes = 4
+save_every = 0
+log_every = 10
+[pretrain]
+updates = 40
+[score]
+swaps = 2
+[report]
+seed = 1
+[agents]
+seeds = [0, 1]
+updates = {agent_updates}
+"#
+    );
+    let path = dir.join("folder.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}

@@ -435,13 +435,20 @@ pub enum PipelineCommand {
         Each step is skipped when up to date, takes its lock in OUT/.pipeline/locks/ first (a second\n\
         runner waits, then finds it up to date), and a training step continues from its checkpoint.\n\
         Agent cells of one stack train as one stack. Their inputs must exist. On SIGTERM a training\n\
-        step saves its checkpoint at the next update and exits 1; running it again continues it.")]
+        step saves its checkpoint at the next update and exits 1; running it again continues it.\n\n\
+        With --shard I (the score step over a table folder, `[data] table`): scores only shard I into\n\
+        the scored folder, under its own lock, and records nothing; `pipeline step FILE score` then\n\
+        scores what is missing, writes the manifest and records the step. What each element of the\n\
+        score step's Slurm job array runs.")]
     Step {
         /// The pipeline file.
         file: PathBuf,
         /// Step names as `pipeline run` prints them (`pretrain`, `agent td3bc_mem_s0`, …).
         #[arg(required = true)]
         steps: Vec<String>,
+        /// Score only shard I (0-based) of the table folder β (one step, `score`, named).
+        #[arg(long, value_name = "I")]
+        shard: Option<usize>,
         /// Where the networks run.
         #[arg(long, value_enum, default_value = "cpu")]
         device: Backend,

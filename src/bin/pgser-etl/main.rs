@@ -206,12 +206,17 @@ pub(crate) fn main() -> ExitCode {
             print!("{}", pipeline::demo::EXPLAIN);
             Ok(())
         }
-        Command::Pipeline(PipelineCommand::Step { file, steps, device, threads }) => {
+        Command::Pipeline(PipelineCommand::Step { file, steps, device, threads, shard }) => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
             }
             let p = pipeline::Pipeline::load(&file)?;
-            pipeline::step(&p, &steps, device, &|line| eprintln!("pipeline {}: {line}", p.name))?;
+            let log = |line: &str| eprintln!("pipeline {}: {line}", p.name);
+            match (shard, steps.as_slice()) {
+                (None, _) => drop(pipeline::step(&p, &steps, device, &log)?),
+                (Some(i), [name]) => drop(pipeline::step_shard(&p, name, i, device, &log)?),
+                (Some(i), _) => anyhow::bail!("--shard {i} scores a shard of one step: name that step alone (score)"),
+            }
             Ok(())
         }
         Command::Pipeline(PipelineCommand::Status { file, json }) => {

@@ -222,3 +222,34 @@ fn a_memory_budget_reads_as_a_size_or_bytes_and_is_left_out_when_unset() {
     let c = train_config(&[]).unwrap();
     assert!(serde_json::to_value(&c).unwrap().get("memory_budget").is_none());
 }
+
+/// `[data] table`: an existing table, resolved against the file like every path, used as β with
+/// no convert step and its path in the score step's key; combined with any other data key it is
+/// refused, naming each.
+#[test]
+fn a_table_is_beta_as_it_is_and_refuses_the_other_data_keys() {
+    let text = MIN
+        .replace("pickles = [\"../data/a.pkl\", \"b.pkl\"]\n    episodes = [5, 10]", "table = \"../t/beta.parquet\"");
+    let p = Pipeline::parse(&text, Path::new("pipes/t.toml")).unwrap();
+    match &p.data {
+        Data::Table { path } => assert_eq!(path, Path::new("t/beta.parquet")),
+        d => panic!("{d:?}"),
+    }
+    let steps = crate::pipeline::plan(&p).unwrap();
+    assert!(steps.iter().all(|s| s.name != "convert" && !s.name.starts_with("collect")));
+    let pretrain = steps.iter().find(|s| s.name == "pretrain").unwrap();
+    assert_eq!(pretrain.inputs, [PathBuf::from("t/beta.parquet")]);
+    let score = steps.iter().find(|s| s.name == "score").unwrap();
+    assert_eq!(score.params["table"], "t/beta.parquet");
+    assert_eq!(score.outputs, [PathBuf::from("out/t/scored.parquet")]);
+
+    let err = |text: &str| format!("{:#}", Pipeline::parse(text, Path::new("t.toml")).unwrap_err());
+    let both = MIN.replace("episodes = [5, 10]", "episodes = [5, 10]\ntable = \"beta.parquet\"");
+    let e = err(&both);
+    assert!(e.contains("[data] table") && e.contains("`pickles`, `episodes`"), "{e}");
+    let seeded = text.replace("table =", "seed = 3\nnoise = 0.1\ntable =");
+    assert!(err(&seeded).contains("`seed`, `noise`"), "{}", err(&seeded));
+    let oracle = text.replace("table =", "oracle = 5\ntable =");
+    assert!(err(&oracle).contains("`oracle`"), "{}", err(&oracle));
+    assert!(err(&text.replace("../t/beta.parquet", "")).contains("[data] table = \"\""));
+}
