@@ -261,6 +261,18 @@ fn every_committed_pipeline_plans_and_is_listed_in_the_pipelines_readme() {
             continue;
         }
         std::fs::copy(&p, copy.join(&name)).unwrap();
+        // A pipeline over an existing table (`[data] table`) that is not committed (a dataset
+        // made by a bench script, hundreds of MB) cannot be checked here, only parsed and planned.
+        let pipeline = pgser::pipeline::Pipeline::load(&copy.join(&name)).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        if let pgser::pipeline::Data::Table { path } = &pipeline.data
+            && !path.exists()
+        {
+            let steps = pgser::pipeline::plan(&pipeline).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+            assert!(steps.iter().any(|s| s.name == "score"), "{name}: no score step");
+            eprintln!("{name}: [data] table {} is not here: planned, not dry-run", path.display());
+            planned += 1;
+            continue;
+        }
         let out =
             etl().args(["pipeline", "run"]).arg(copy.join(&name)).args(["--dry-run", "--no-measure"]).output().unwrap();
         assert!(out.status.success(), "{name}: {}", text(&out.stderr));
