@@ -29,4 +29,11 @@ for algo in ["td3bc", "td3"]:
     for a, b in [("baseline_whole", "baseline_window"), ("mem_whole", "mem_window"), ("mem_whole", "baseline_whole"), ("mem_window", "baseline_window")]:
         if rows[a] and rows[b]:
             t = stats.ttest_ind(rows[a], rows[b], equal_var=False)
-            print(f"  {algo}: {a} vs {b}: diff {statistics.mean(rows[a]) - statistics.mean(rows[b]):+.1f}, Welch p = {t.pvalue:.3f}")
+            # Over episodes: 50 per seed, each a success or not, the arms' 250 pooled.
+            n = 50 * len(rows[a])
+            ka, kb = (round(sum(rows[x]) / 100 * 50) for x in (a, b))
+            pool = (ka + kb) / (2 * n)
+            z = (ka - kb) / n / ((pool * (1 - pool) * 2 / n) ** 0.5)
+            p_eps = 2 * stats.norm.sf(abs(z))
+            print(f"  {algo}: {a} vs {b}: diff {statistics.mean(rows[a]) - statistics.mean(rows[b]):+.1f}, "
+                  f"Welch p = {t.pvalue:.3f} over seeds, p = {p_eps:.2g} over {n} episodes each")
