@@ -462,6 +462,17 @@ fn folder_status(c: &Cluster, dir: &Path) -> BTreeMap<String, serde_json::Value>
         .collect()
 }
 
+/// The folder pipeline written into `d` and run locally there: its outputs' bytes, with `d/out`
+/// then removed for the Slurm run to write again. In `d` itself: a checkpoint records its data's
+/// path, so the same folder is needed for the same bytes.
+fn folder_run_locally(d: &Path) -> BTreeMap<std::path::PathBuf, Vec<u8>> {
+    folder_pipeline(d, 20);
+    local_file(d, "folder.toml", &[]);
+    let want = snapshot(&d.join("out"));
+    std::fs::remove_dir_all(d.join("out")).unwrap();
+    want
+}
+
 /// `[data] table` over a table folder of 3 shards: the score step goes to Slurm as one job array
 /// of 3 elements (one per shard, `pipeline step FILE score --shard K`) and its own job after it,
 /// which `pipeline status` shows while they run; the run writes the bytes of a local run — the
@@ -474,13 +485,10 @@ fn a_table_folder_is_scored_by_a_job_array_of_its_shards_into_the_bytes_of_a_loc
     };
     let dir = tempfile::tempdir().unwrap();
     let (d, out) = (dir.path(), dir.path().join("out"));
-    folder_pipeline(d, 20);
-    local_file(d, "folder.toml", &[]);
-    let want = snapshot(&out);
+    let want = folder_run_locally(d);
     for f in ["scored/manifest.json", "scored/reach-0.parquet", "scored/reach-2.parquet", "results.csv"] {
         assert!(want.contains_key(Path::new(f)), "the local run wrote no {f}");
     }
-    std::fs::remove_dir_all(&out).unwrap();
 
     let child = submit_folder(&c, d);
     // Once the array is submitted (before its elements can have run: they wait for the Q's job),
@@ -538,12 +546,7 @@ fn a_failed_shard_fails_the_score_step_with_its_log_and_a_resubmission_finishes_
     };
     let dir = tempfile::tempdir().unwrap();
     let (d, out) = (dir.path(), dir.path().join("out"));
-    folder_pipeline(d, 20);
-    // The uninterrupted run's files, made here first: a checkpoint records its data's path, so
-    // the same folder is needed for the same bytes.
-    local_file(d, "folder.toml", &[]);
-    let want = snapshot(&out);
-    std::fs::remove_dir_all(&out).unwrap();
+    let want = folder_run_locally(d);
     let blocker = out.join("scored/reach-1.parquet/in_the_way");
     std::fs::create_dir_all(&blocker).unwrap();
     let o = submit_folder(&c, d).wait_with_output().unwrap();
