@@ -258,6 +258,11 @@ struct Job<'a> {
     per: usize,
     chunk_episodes: usize,
     schema: SchemaRef,
+    /// The source and checkpoint as every output of this job records them. Its outputs share one
+    /// folder (a file's, or the scored folder), so these are computed once: each is a hash, and
+    /// a table folder's digest opens every shard's footer, which per shard of a 1000-shard folder
+    /// would read a million footers.
+    refs: std::sync::OnceLock<(FileRef, FileRef)>,
 }
 
 impl<'a> Job<'a> {
@@ -270,7 +275,7 @@ impl<'a> Job<'a> {
         let per = o.swaps + o.include_original as usize;
         let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
         let schema = schema(&task);
-        Ok(Job { o, table, agent, task, pool, per, chunk_episodes, schema })
+        Ok(Job { o, table, agent, task, pool, per, chunk_episodes, schema, refs: std::sync::OnceLock::new() })
     }
 
     /// Transitions of the whole input table.
@@ -368,6 +373,10 @@ impl<'a> Job<'a> {
     /// The footer of an output at `output` holding `rows` rows of `episodes` episodes.
     fn footer(&self, episodes: usize, rows: usize, q: QStats, output: &Path) -> Result<Footer> {
         let (o, task) = (self.o, &self.task);
+        if self.refs.get().is_none() {
+            let _ = self.refs.set((file_ref(&o.data, output)?, file_ref(&o.checkpoint, output)?));
+        }
+        let (source, checkpoint) = self.refs.get().cloned().expect("set above");
         Ok(Footer {
             schema_version: SCHEMA_VERSION,
             kind: KIND.to_string(),
@@ -382,8 +391,8 @@ impl<'a> Job<'a> {
             episodes,
             transitions: episodes * (task.t - 1),
             rows,
-            source: file_ref(&o.data, output)?,
-            checkpoint: file_ref(&o.checkpoint, output)?,
+            source,
+            checkpoint,
             gamma: self.agent.config.gamma,
             seed: o.seed,
             swaps: o.swaps,
