@@ -13,7 +13,6 @@ use std::path::{Path, PathBuf};
 
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float32Type, Int64Type};
-use pgser::agent::Backend;
 use pgser::sampler::stream::{BatchSource, StreamConfig};
 use pgser::sampler::view::Budget;
 use pgser::sampler::{SamplerConfig, Swap};
@@ -32,33 +31,12 @@ const PASS_BATCHES: usize = EPISODES * (T - 1) / BATCH;
 /// The coded folder and a FetchReach critic trained on it for a few updates, in `dir`.
 fn data_and_critic(dir: &Path) -> (PathBuf, PathBuf) {
     let data = folder(dir);
-    let q = dir.join("q.ckpt");
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(&q)
-        .args(["--updates", "30", "--batch-size", "98", "--hidden", "16", "--eval-episodes", "0", "--swap", "random"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::text(&o.stderr));
+    let q = common::coded::critic(dir, &data);
     (data, q)
 }
 
 fn options(data: &Path, q: &Path, out: &Path, seed: u64, threads: usize, shard: Option<usize>) -> ScoreOptions {
-    ScoreOptions {
-        checkpoint: q.to_path_buf(),
-        data: data.to_path_buf(),
-        output: out.to_path_buf(),
-        swaps: SWAPS,
-        seed,
-        include_original: false,
-        device: Backend::Cpu,
-        chunk_episodes: None,
-        threads,
-        shard,
-        command: "test".into(),
-    }
+    common::coded::score_options(data, q, out, (SWAPS, seed), threads, shard)
 }
 
 fn score(o: &ScoreOptions) -> anyhow::Result<pgser::score::ScoreSummary> {

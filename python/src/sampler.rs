@@ -40,8 +40,9 @@ type OgDrawn = anyhow::Result<OgbenchBatch>;
 const TICK: Duration = Duration::from_millis(100);
 
 /// OGBench's config keys this sampler reads; any other key of an agent's config is ignored.
-const OG_FLOATS: [&str; 7] = [
+const OG_FLOATS: [&str; 8] = [
     "discount",
+    "p_swapgoal",
     "value_p_curgoal",
     "value_p_trajgoal",
     "value_p_randomgoal",
@@ -49,7 +50,7 @@ const OG_FLOATS: [&str; 7] = [
     "actor_p_trajgoal",
     "actor_p_randomgoal",
 ];
-const OG_BOOLS: [&str; 3] = ["value_geom_sample", "actor_geom_sample", "gc_negative"];
+const OG_BOOLS: [&str; 4] = ["value_geom_sample", "actor_geom_sample", "gc_negative", "swap_actor_goals"];
 
 /// pgser's own batches (original data, HER, random swapping, the prioritized `-mem` mix), or
 /// OGBench's (`layout="ogbench"`).
@@ -239,7 +240,9 @@ impl Sampler {
     ///
     /// `layout="ogbench"`: OGBench's GCDataset batches; `config` is an OGBench agent's config
     /// (a dict or ConfigDict, passed unchanged: its sampling keys are read, the rest ignored),
-    /// and `discount`, `value_p_curgoal`, … `gc_negative` override it.
+    /// and `discount`, `value_p_curgoal`, … `gc_negative` override it. From a scored table,
+    /// `p_swapgoal` (0) of each batch's rows are PGSER's swapped rows, drawn by `priority`,
+    /// `alpha` and `eps`; `swap_actor_goals` (True) gives their actor goal the swapped goal too.
     ///
     /// Both: `batch_size` (default `config["batch_size"]`, else 512), `memory_budget` (None: the
     /// whole table in memory; bytes, or a size such as "2GB": an out-of-core pool when the table
@@ -249,7 +252,8 @@ impl Sampler {
         aug_ratio=None, priority=None, alpha=None, eps=None, is_beta=None, seed=0, in_memory=false,
         num_batches=None, prefetch=4, memory_budget=None, config=None, discount=None, value_p_curgoal=None,
         value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
-        actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None))]
+        actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None,
+        p_swapgoal=None, swap_actor_goals=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -280,6 +284,8 @@ impl Sampler {
         actor_p_randomgoal: Option<f64>,
         actor_geom_sample: Option<bool>,
         gc_negative: Option<bool>,
+        p_swapgoal: Option<f64>,
+        swap_actor_goals: Option<bool>,
     ) -> PyResult<Sampler> {
         existing(&path)?;
         let budget = parse_budget(memory_budget)?;
@@ -291,20 +297,19 @@ impl Sampler {
             ("actor_p_curgoal", actor_p_curgoal),
             ("actor_p_trajgoal", actor_p_trajgoal),
             ("actor_p_randomgoal", actor_p_randomgoal),
+            ("p_swapgoal", p_swapgoal),
         ];
         let kw_bools = [
             ("value_geom_sample", value_geom_sample),
             ("actor_geom_sample", actor_geom_sample),
             ("gc_negative", gc_negative),
+            ("swap_actor_goals", swap_actor_goals),
         ];
         let pgser_args = [
             ("her", her.is_some()),
             ("swap", swap.is_some()),
             ("swap_ratio", swap_ratio.is_some()),
             ("aug_ratio", aug_ratio.is_some()),
-            ("priority", priority.is_some()),
-            ("alpha", alpha.is_some()),
-            ("eps", eps.is_some()),
             ("is_beta", is_beta.is_some()),
             ("in_memory", in_memory),
         ];
@@ -315,6 +320,12 @@ impl Sampler {
                 ))),
                 None => Ok(()),
             }
+        };
+        let priorities = PriorityConfig {
+            priority: parse_priority(priority.unwrap_or("rank"))?,
+            priority_alpha: alpha.unwrap_or(1.0),
+            priority_eps: eps.unwrap_or(0.01),
+            is_beta: None,
         };
         let batch_size = match batch_size {
             Some(b) => b,
@@ -338,12 +349,7 @@ impl Sampler {
                         },
                         batch_size,
                         aug_ratio: aug_ratio.unwrap_or(0.5),
-                        priority: PriorityConfig {
-                            priority: parse_priority(priority.unwrap_or("rank"))?,
-                            priority_alpha: alpha.unwrap_or(1.0),
-                            priority_eps: eps.unwrap_or(0.01),
-                            is_beta,
-                        },
+                        priority: PriorityConfig { is_beta, ..priorities },
                         aug_in_memory: in_memory,
                         seed,
                     },
@@ -357,7 +363,7 @@ impl Sampler {
                     return Err(PyValueError::new_err("batch_size=0: must be at least 1"));
                 }
                 let cfg = ogbench_config(config, &kw, &kw_bools)?;
-                Self::ogbench(py, path, budget, cfg, seed, batch_size, num_batches, prefetch)
+                Self::ogbench(py, path, budget, (cfg, priorities), seed, batch_size, num_batches, prefetch)
             }
             o => Err(PyValueError::new_err(format!("layout={o:?}: use \"pgser\" or \"ogbench\""))),
         }
@@ -381,7 +387,8 @@ impl Sampler {
     /// OGBench's `GCDataset.sample(batch_size)`: observations, next_observations, actions,
     /// value_goals, actor_goals, terminals (float32), rewards, masks (float64, as OGBench's), and
     /// where each row came from (int64): episode, step (table-wide episode numbers, in shard order
-    /// across a folder), value_goal_episode, value_goal_step, actor_goal_episode, actor_goal_step.
+    /// across a folder), value_goal_episode, value_goal_step, actor_goal_episode, actor_goal_step,
+    /// and scored_row (the scored table's row of a swapped row, −1 for the others).
     /// `layout="pgser"`: the next batch, whose size is fixed when the sampler is made.
     #[pyo3(signature = (batch_size=None))]
     fn sample<'py>(&self, py: Python<'py>, batch_size: Option<usize>) -> PyResult<Bound<'py, PyDict>> {
@@ -471,14 +478,15 @@ impl Sampler {
         py: Python<'_>,
         path: PathBuf,
         budget: Budget,
-        cfg: OgbenchConfig,
+        (cfg, priority): (OgbenchConfig, PriorityConfig),
         seed: u64,
         batch_size: usize,
         num_batches: Option<u64>,
         prefetch: usize,
     ) -> PyResult<Sampler> {
-        let stream = py.detach(|| OgbenchStream::open(&path, budget, cfg, seed)).map_err(py_err)?;
+        let stream = py.detach(|| OgbenchStream::open(&path, budget, cfg, &priority, seed)).map_err(py_err)?;
         let task = stream.view().task().name.clone();
+        let scored = stream.is_scored();
         let (req_tx, req_rx) = channel::<usize>();
         let (tx, rx) = sync_channel::<OgDrawn>(1);
         let worker = std::thread::Builder::new()
@@ -492,7 +500,7 @@ impl Sampler {
             },
             task,
             batch_size,
-            scored: false,
+            scored,
             layout: "ogbench".into(),
             num_batches,
             handed: AtomicU64::new(0),
@@ -613,6 +621,7 @@ fn og_dict(py: Python<'_>, b: OgbenchBatch) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("value_goal_step", b.value_goal_step.into_pyarray(py))?;
     d.set_item("actor_goal_episode", b.actor_goal_episode.into_pyarray(py))?;
     d.set_item("actor_goal_step", b.actor_goal_step.into_pyarray(py))?;
+    d.set_item("scored_row", b.scored_row.into_pyarray(py))?;
     Ok(d)
 }
 

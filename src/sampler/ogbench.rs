@@ -39,11 +39,20 @@
 //! The distribution is OGBench's; the numbers are not numpy's (OGBench draws from numpy's global
 //! legacy generator, column by column; here each row draws in turn from pgser's own stream).
 //!
+//! # PGSER's swapped rows (`p_swapgoal`)
+//! From a scored table or folder, a fraction `p_swapgoal` of rows (decided first, with its own
+//! uniform, and only when `p_swapgoal > 0`, so other settings draw exactly as before) are PGSER's
+//! prioritized swapped rows: a scored row drawn by priority gives the transition and the value
+//! goal, the observation its goal was taken from; the actor goal is the same goal
+//! (`swap_actor_goals`, as PGSER's TD3+BC trains actor and critic on one goal) or drawn by the
+//! actor's fractions for that transition. The other rows follow OGBench's rules unchanged, so
+//! the value goals' overall fractions are (1 − p_swapgoal)·p_curgoal, … and p_swapgoal. Success
+//! is decided as for every goal, by (episode, step). Where the rows come from, within a budget
+//! too: `swapped.rs`.
+//!
 //! # What is left out
 //! - OGBench's `frame_stack` and `p_aug` (pixel-based tasks: stacked frames, random crops), and
 //!   Horizon Reduction's `HGCDataset` (subgoal keys of the hierarchical agents).
-//! - PGSER's `p_swapgoal`: a fraction of goals from a scored table's priorities, once scored table
-//!   folders exist; random goals here are OGBench's uniform ones.
 //!
 //! # Streams
 //! Batch k of a stream draws from its own generator, `NpRandom::spawned(seed, [STREAM_OGBENCH,
@@ -56,8 +65,13 @@ use std::path::Path;
 use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
 
-use super::view::{self, Budget, View};
+use super::pool::{Beta, ScoredDraw};
+use super::priority::PriorityConfig;
+use super::view::{Budget, View};
 use crate::nprandom::NpRandom;
+use swapped::{Source, Swapper};
+
+mod swapped;
 
 /// Spawn key of OGBench-layout batches ("OGBN"), beside the batch streams' 1–4 and the pool's 5–6.
 pub const STREAM_OGBENCH: u64 = 0x4f47_424e;
@@ -80,6 +94,10 @@ pub struct OgbenchConfig {
     pub actor_geom_sample: bool,
     /// Rewards 0 at the goal and −1 elsewhere (true), or 1 and 0 (false).
     pub gc_negative: bool,
+    /// PGSER's prioritized swapped rows, a fraction of each batch (needs a scored table).
+    pub p_swapgoal: f64,
+    /// A swapped row's actor goal is its swapped goal (true) or drawn by the actor's fractions.
+    pub swap_actor_goals: bool,
 }
 
 impl Default for OgbenchConfig {
@@ -95,6 +113,8 @@ impl Default for OgbenchConfig {
             actor_p_randomgoal: 0.0,
             actor_geom_sample: false,
             gc_negative: true,
+            p_swapgoal: 0.0,
+            swap_actor_goals: true,
         }
     }
 }
@@ -105,6 +125,9 @@ impl OgbenchConfig {
     pub fn validate(&self) -> Result<()> {
         if !(0.0..1.0).contains(&self.discount) {
             bail!("discount = {}: must be in [0, 1) (geometric goal offsets take p = 1 − discount)", self.discount);
+        }
+        if !(0.0..=1.0).contains(&self.p_swapgoal) {
+            bail!("p_swapgoal = {}: must be in [0, 1]", self.p_swapgoal);
         }
         for (who, [cur, traj, random]) in [
             ("value", [self.value_p_curgoal, self.value_p_trajgoal, self.value_p_randomgoal]),
@@ -125,12 +148,13 @@ impl OgbenchConfig {
     }
 }
 
-/// Which of OGBench's three sources a goal came from.
+/// Which of OGBench's three sources, or PGSER's swapped rows, a goal came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum GoalKind {
     Current,
     Trajectory,
     Random,
+    Swapped,
 }
 
 /// One batch, as flat row-major arrays (`n` rows; vectors of `obs_dim` or `act_dim` floats).
@@ -158,6 +182,8 @@ pub struct OgbenchBatch {
     pub actor_goal_step: Vec<i64>,
     pub value_goal_kind: Vec<GoalKind>,
     pub actor_goal_kind: Vec<GoalKind>,
+    /// The scored table's row of a swapped row; −1 for rows drawn by OGBench's rules.
+    pub scored_row: Vec<i64>,
 }
 
 /// A goal drawn for row (e, s): its kind, table-wide (episode, step), and where to read it.
@@ -174,7 +200,9 @@ enum At {
     /// A resident episode's step.
     Resident(usize, usize),
     /// A `random_goal` source.
-    Source(view::GoalSource),
+    Source(super::view::GoalSource),
+    /// A scored row's stored goal, in a pool's block.
+    Scored(ScoredDraw),
 }
 
 /// Numpy's geometric by inversion, k = ⌈ln(1 − u) / ln(1 − p)⌉ on 1, 2, …: P(k > j) = (1 − p)^j.
@@ -184,32 +212,54 @@ fn geometric(rng: &mut NpRandom, p: f64) -> u64 {
     if k >= 1.0 { k.min(u64::MAX as f64) as u64 } else { 1 }
 }
 
-/// Batches of OGBench's layout from a view of a table.
+/// Batches of OGBench's layout from a table.
 pub struct OgbenchStream {
-    view: Box<dyn View>,
+    source: Source,
     cfg: OgbenchConfig,
     seed: u64,
     next: u64,
 }
 
 impl OgbenchStream {
-    /// A stream over `view`; refuses settings OGBench refuses and episodes without a transition.
-    pub fn new(view: Box<dyn View>, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
-        cfg.validate()?;
-        if view.t() < 2 {
-            bail!("episodes of {} step(s) hold no transition", view.t());
+    /// A stream over β without swapped rows; refuses settings OGBench refuses, `p_swapgoal`
+    /// (which needs a scored table) and episodes without a transition.
+    pub fn new(beta: Beta, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
+        if cfg.p_swapgoal > 0.0 {
+            bail!("p_swapgoal = {}: swapped rows come from a scored table; open one", cfg.p_swapgoal);
         }
-        Ok(OgbenchStream { view, cfg, seed, next: 0 })
+        Self::of(Source::Plain(beta), cfg, seed)
     }
 
-    /// Opens a trajectory table (a file or a table folder) within `budget`.
-    pub fn open(path: &Path, budget: Budget, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
-        let view = view::open(path, budget, seed)?;
-        Self::new(view, cfg, seed).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    fn of(source: Source, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
+        cfg.validate()?;
+        if source.view().t() < 2 {
+            bail!("episodes of {} step(s) hold no transition", source.view().t());
+        }
+        Ok(OgbenchStream { source, cfg, seed, next: 0 })
+    }
+
+    /// Opens a trajectory table (a file or a table folder) within `budget`; or a scored table or
+    /// folder, whose original data is β and whose rows, by `priority`, are the swapped rows
+    /// (`p_swapgoal`).
+    pub fn open(
+        path: &Path,
+        budget: Budget,
+        cfg: OgbenchConfig,
+        priority: &PriorityConfig,
+        seed: u64,
+    ) -> Result<OgbenchStream> {
+        cfg.validate()?;
+        let source = Source::open(path, budget, cfg.p_swapgoal, priority, seed)?;
+        Self::of(source, cfg, seed).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
     pub fn view(&self) -> &dyn View {
-        self.view.as_ref()
+        self.source.view()
+    }
+
+    /// Whether batches mix in PGSER's swapped rows.
+    pub fn is_scored(&self) -> bool {
+        self.source.swapper().is_some()
     }
 
     pub fn config(&self) -> &OgbenchConfig {
@@ -234,32 +284,46 @@ impl OgbenchStream {
         if n == 0 {
             bail!("batch_size must be at least 1");
         }
-        self.view.refresh(n)?;
+        self.source.refresh(n)?;
         let mut rng = NpRandom::spawned(self.seed, &[STREAM_OGBENCH, k]);
-        Ok(draw(self.view.as_ref(), &self.cfg, &mut rng, n))
+        Ok(draw(self.source.view(), self.source.swapper(), &self.cfg, &mut rng, n))
     }
 }
 
-/// `n` rows of OGBench's layout from `view` (the module doc). The rows and goals are drawn in
-/// turn from `rng`; their vectors are then copied in parallel, in chunks of rows (copying is most
-/// of a batch's time on wide observations, and it does not touch the generator, so the batch is
-/// the same at any thread count).
-pub fn draw(view: &dyn View, cfg: &OgbenchConfig, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
+/// `n` rows of OGBench's layout from `view`, with swapped rows from `swap` (the module doc).
+/// The rows and goals are drawn in turn from `rng`; their vectors are then copied in parallel, in
+/// chunks of rows (copying is most of a batch's time on wide observations, and it does not touch
+/// the generator, so the batch is the same at any thread count).
+fn draw(
+    view: &dyn View,
+    swap: Option<&dyn Swapper>,
+    cfg: &OgbenchConfig,
+    rng: &mut NpRandom,
+    n: usize,
+) -> OgbenchBatch {
     let (t, od, ad) = (view.t(), view.task().obs_dim, view.task().act_dim);
     let steps = t - 1;
     let value = (cfg.value_p_curgoal, cfg.value_p_trajgoal, cfg.value_geom_sample);
     let actor = (cfg.actor_p_curgoal, cfg.actor_p_trajgoal, cfg.actor_geom_sample);
     let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
+    let mut scored_rows = Vec::with_capacity(n);
     let rows: Vec<(usize, usize, Goal, Goal)> = (0..n)
         .map(|_| {
+            if let Some(swap) = swap.filter(|_| cfg.p_swapgoal > 0.0 && rng.random() < cfg.p_swapgoal) {
+                let (e, s, vg, row) = swap.pick(rng);
+                let ag = if cfg.swap_actor_goals { vg } else { goal(view, cfg, rng, e, s, actor) };
+                scored_rows.push(row as i64);
+                return (e, s, vg, ag);
+            }
             let row = rng.below(view.episodes() * steps);
             let (e, s) = (row / steps, row % steps);
             let vg = goal(view, cfg, rng, e, s, value);
             let ag = goal(view, cfg, rng, e, s, actor);
+            scored_rows.push(-1);
             (e, s, vg, ag)
         })
         .collect();
-    let mut b = OgbenchBatch { n, obs_dim: od, act_dim: ad, ..OgbenchBatch::default() };
+    let mut b = OgbenchBatch { n, obs_dim: od, act_dim: ad, scored_row: scored_rows, ..OgbenchBatch::default() };
     for &(e, s, vg, ag) in &rows {
         let number = view.episode_number(e);
         b.terminals.push(if s + 2 == t { 1.0 } else { 0.0 });
@@ -280,6 +344,7 @@ pub fn draw(view: &dyn View, cfg: &OgbenchConfig, rng: &mut NpRandom, n: usize) 
     let goal_obs = |g: &Goal| match g.at {
         At::Resident(e, s) => view.obs(e, s),
         At::Source(src) => view.goal_obs(src),
+        At::Scored(d) => swap.expect("a scored goal comes from the swapper").scored_obs(&d),
     };
     b.observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1));
     b.next_observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1 + 1));

@@ -126,6 +126,24 @@ impl Beta {
         }
     }
 
+    /// A trajectory table (a file or a table folder) held within `budget`.
+    pub fn within(path: &Path, budget: super::view::Budget, seed: u64) -> Result<Beta> {
+        use super::view::Budget;
+        Ok(match budget {
+            Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
+            Budget::Bytes(b) => Beta::open(path, b, seed)?,
+            Budget::ShardWindow(rows) => Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, seed)?)),
+        })
+    }
+
+    /// The view of β as a box of its own.
+    pub fn into_view(self) -> Box<dyn View> {
+        match self {
+            Beta::Whole(d) => Box::new(super::view::InMemory(d)),
+            Beta::Pool(p) => p,
+        }
+    }
+
     /// Plans `path` against `budget` and opens it.
     pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Beta> {
         let cfg = PoolConfig { budget, draws_per_row: 1.0, seed, window: None };
@@ -378,6 +396,21 @@ impl Pool {
     /// The scored table's number of a drawn row.
     pub fn scored_row(&self, d: &ScoredDraw) -> u64 {
         self.resident[d.slot].aug.as_ref().expect("scored").first_row + d.row as u64
+    }
+
+    /// Whether the task's goals are its whole observations, as the resident blocks show (every
+    /// achieved goal equal to its observation, bit for bit): then a scored row's stored goal is
+    /// the observation it was taken from.
+    pub fn goals_are_observations(&self) -> bool {
+        self.layout.task.goal_dim == self.layout.task.obs_dim
+            && self.resident.iter().all(|b| b.ag.iter().zip(&b.obs).all(|(a, o)| a.to_bits() == o.to_bits()))
+    }
+
+    /// The table-wide (episode, step) of the goal a drawn row was scored with: only when the
+    /// layout keeps them (`Layout::with_goal_sources`).
+    pub fn scored_goal_source(&self, d: &ScoredDraw) -> Option<(u64, usize)> {
+        let at = &self.resident[d.slot].aug.as_ref().expect("scored").at;
+        at.get(d.row).map(|&[e, s]| (e as u64, s as usize))
     }
 
     /// The goal a drawn row was scored with.

@@ -50,6 +50,14 @@ const STREAM_AUG: u64 = 4;
 /// The columns that name a row's transition and goal.
 const COLUMNS: [&str; 4] = ["episode", "step", "goal_episode", "goal_step"];
 
+/// The scored rows of a block of β ([`ScoredTable::read_goals`]): each row's stored goal, its q,
+/// and (when asked for) its goal's table-wide (episode, step).
+pub struct BlockGoals {
+    pub goal: Vec<f32>,
+    pub q: Vec<f32>,
+    pub at: Vec<[u32; 2]>,
+}
+
 /// A scored transition table (one file, or a scored folder's shards as one table): its footer and
 /// the shape of its row groups.
 pub struct ScoredTable {
@@ -79,6 +87,16 @@ struct ScoredFile {
 }
 
 impl ScoredTable {
+    /// The scored table at `path` (a file whose footer says so, or a scored folder), or None when
+    /// `path` is something else (a trajectory table or folder, left to its own reader).
+    pub fn open_if_scored(path: &Path) -> Result<Option<ScoredTable>> {
+        match crate::table::read_footer(path) {
+            Ok(f) if f["kind"] == crate::score::KIND => Ok(Some(ScoredTable::open(path)?)),
+            _ if crate::score::folder::is_scored_folder(path) => Ok(Some(ScoredTable::open(path)?)),
+            _ => Ok(None),
+        }
+    }
+
     /// Opens a scored file, or a scored folder (`score::folder`) as the one table of its shards.
     pub fn open(path: &Path) -> Result<ScoredTable> {
         let (footer, paths, source) = if crate::score::folder::is_scored_folder(path) {
@@ -168,16 +186,25 @@ impl ScoredTable {
     /// from table-wide episode `first_episode` on, `per` rows per transition of T = `t`, in order:
     /// what the out-of-core pool holds beside a block of β (`pool.rs`). Every row's episode and step
     /// are checked against that, so a scored table that is not the block's is refused, naming the
-    /// file and row.
+    /// file and row. With `sources`, each row's goal (episode, step) is kept too (OGBench's layout
+    /// reports where a goal came from); a row that keeps its transition's own desired goal
+    /// (`goal_step` −1) is then refused, as it names no observation.
     pub fn read_goals(
         &self,
         (r0, r1): (usize, usize),
         first_episode: u64,
         t: usize,
         per: usize,
-    ) -> Result<(Vec<f32>, Vec<f32>)> {
+        sources: bool,
+    ) -> Result<BlockGoals> {
         let gd = self.task.goal_dim;
         let (mut goal, mut q) = (Vec::with_capacity((r1 - r0) * gd), Vec::with_capacity(r1 - r0));
+        let mut goal_at: Vec<[u32; 2]> = Vec::with_capacity(if sources { r1 - r0 } else { 0 });
+        let names: &[&str] = if sources {
+            &["episode", "step", "goal", "q", "goal_episode", "goal_step"]
+        } else {
+            &["episode", "step", "goal", "q"]
+        };
         let first = self.group_starts.partition_point(|&s| s <= r0) - 1;
         let mut row = r0;
         for rg in first..self.group_starts.len() - 1 {
@@ -190,7 +217,7 @@ impl ScoredTable {
             let at = format!("{} (row group {local})", file.path.display());
             let (a, b) = (row - start, r1.min(end) - start);
             let builder = self.builder(file)?;
-            let mask = ProjectionMask::columns(builder.parquet_schema(), ["episode", "step", "goal", "q"]);
+            let mask = ProjectionMask::columns(builder.parquet_schema(), names.iter().copied());
             let mut selectors = Vec::new();
             if a > 0 {
                 selectors.push(RowSelector::skip(a));
@@ -245,6 +272,30 @@ impl ScoredTable {
                         vals[j]
                     );
                 }
+                if sources {
+                    let (Some(ge), Some(gs)) = (
+                        col("goal_episode")?.as_primitive_opt::<Int64Type>(),
+                        col("goal_step")?.as_primitive_opt::<Int32Type>(),
+                    ) else {
+                        bail!("{at}: goal_episode must be int64 and goal_step int32");
+                    };
+                    for i in 0..batch.num_rows() {
+                        let (e, s) = (ge.value(i), gs.value(i));
+                        if !(0..=u32::MAX as i64).contains(&e) || !(0..t as i32).contains(&s) {
+                            bail!(
+                                "{}: row {}: goal (episode {e}, step {s}) is no observation of its original data{}",
+                                file.path.display(),
+                                row + i - file.first_row,
+                                if s == -1 {
+                                    " (the row keeps its transition's own desired goal: --include-original)"
+                                } else {
+                                    ""
+                                }
+                            );
+                        }
+                        goal_at.push([e as u32, s as u32]);
+                    }
+                }
                 goal.extend_from_slice(vals);
                 q.extend_from_slice(qs.values());
                 row += batch.num_rows();
@@ -256,7 +307,17 @@ impl ScoredTable {
                 self.path.display()
             );
         }
-        Ok((goal, q))
+        Ok(BlockGoals { goal, q, at: goal_at })
+    }
+
+    /// Every row's keys, in order (16 bytes a row), checked against β's shape.
+    pub fn read_keys(&self, beta: &Episodes) -> Result<Vec<RowKey>> {
+        let mut all = Vec::with_capacity(self.rows);
+        for rg in 0..self.group_starts.len() - 1 {
+            let rows: Vec<usize> = (self.group_starts[rg]..self.group_starts[rg + 1]).collect();
+            all.extend(self.read_rows(rg, &rows, beta)?);
+        }
+        Ok(all)
     }
 
     /// The keys of `rows` (sorted, unique, within row group `rg`), in that order, checked
@@ -391,16 +452,7 @@ impl ScoredSampler {
             cfg.priorities(q, table.gamma).with_context(|| format!("{}", table.path.display()))?,
         ));
         let per_block = block_batches(table.rows, k);
-        let rows = if in_memory {
-            let mut all = Vec::with_capacity(table.rows);
-            for rg in 0..table.group_starts.len() - 1 {
-                let rows: Vec<usize> = (table.group_starts[rg]..table.group_starts[rg + 1]).collect();
-                all.extend(table.read_rows(rg, &rows, &beta)?);
-            }
-            Rows::Memory(all)
-        } else {
-            Rows::Disk(Box::new(table))
-        };
+        let rows = if in_memory { Rows::Memory(table.read_keys(&beta)?) } else { Rows::Disk(Box::new(table)) };
         let (tx, rx) = sync_channel(2 * per_block);
         let is_beta = cfg.is_beta;
         let t = tree.clone();

@@ -71,23 +71,9 @@ impl BatchSource {
             bail!("--batch-size must be at least 1");
         }
         cfg.priority.validate()?;
-        let scored = match crate::table::read_footer(path) {
-            Ok(f) if f["kind"] == crate::score::KIND => Some(ScoredTable::open(path)?),
-            _ if crate::score::folder::is_scored_folder(path) => Some(ScoredTable::open(path)?),
-            _ => None,
-        };
-        let source = match scored {
+        let source = match ScoredTable::open_if_scored(path)? {
             Some(table) => BatchSource::open_scored(path, table, cfg, budget)?,
-            None => BatchSource {
-                data: match budget {
-                    Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
-                    Budget::Bytes(b) => Beta::open(path, b, cfg.seed)?,
-                    Budget::ShardWindow(rows) => {
-                        Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, cfg.seed)?))
-                    }
-                },
-                scored: None,
-            },
+            None => BatchSource { data: Beta::within(path, budget, cfg.seed)?, scored: None },
         };
         if source.data.view().t() < 2 {
             bail!("{}: episodes of {} step(s) hold no transition", path.display(), source.data.view().t());
@@ -283,7 +269,7 @@ pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
 }
 
 /// Where the trajectory table a scored table names is, checked present and unchanged.
-fn checked_source(table: &ScoredTable) -> Result<std::path::PathBuf> {
+pub(super) fn checked_source(table: &ScoredTable) -> Result<std::path::PathBuf> {
     let at = table.path.display();
     let (path, sha) = table.trajectory();
     if !path.exists() {

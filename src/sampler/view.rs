@@ -12,7 +12,6 @@
 //! [`View::episode_number`] turns one into the table-wide number (in shard order across a
 //! folder) that a batch reports as where a row came from.
 
-use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::Result;
@@ -157,20 +156,6 @@ pub enum Budget {
     /// goal from the held shard: Horizon Reduction's reload scheme, emulated to measure what
     /// drawing from the whole table changes (`--shard-window`).
     ShardWindow(u64),
-}
-
-/// Opens a trajectory table (a file or a table folder) as a view within `budget`.
-pub fn open(path: &Path, budget: Budget, seed: u64) -> Result<Box<dyn View>> {
-    match budget {
-        Budget::Unbounded => Ok(Box::new(InMemory(Arc::new(Episodes::load(path)?)))),
-        Budget::Bytes(b) => Ok(match super::pool::Beta::open(path, b, seed)? {
-            super::pool::Beta::Whole(data) => Box::new(InMemory(data)),
-            super::pool::Beta::Pool(pool) => pool,
-        }),
-        Budget::ShardWindow(rows) => {
-            Ok(Box::new(super::pool::Pool::window(super::pool::Layout::open(path)?, rows, seed)?))
-        }
-    }
 }
 
 /// A size as `--memory-budget` and `memory_budget=` take it: bytes, or a number with a unit,

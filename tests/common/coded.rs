@@ -6,6 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pgser::task::Task;
 use pgser::trajectory::folder::Manifest;
 use pgser::trajectory::{Episodes, FloatType, Footer};
 
@@ -22,13 +23,32 @@ pub const PASS_BATCHES: usize = EPISODES * (T - 1) / BATCH;
 
 /// The coded folder, written once per test into `dir`.
 pub fn folder(dir: &Path) -> PathBuf {
+    folder_of(dir, &Task::known("FetchReach").unwrap())
+}
+
+/// A PointMaze-shaped task (T = 50) whose goals are its whole observations (2 values), as
+/// OGBench's PointMaze's are.
+pub fn point_task() -> Task {
+    Task {
+        name: "pointmaze-medium-navigate-v0".into(),
+        t: T,
+        obs_dim: 2,
+        goal_dim: 2,
+        act_dim: 2,
+        threshold: 1.0,
+        metric: pgser::task::GoalMetric::Euclidean,
+    }
+}
+
+/// The coded folder of `task`'s shapes (T must be [`T`]), written into `dir`.
+pub fn folder_of(dir: &Path, task: &Task) -> PathBuf {
     let out = dir.join("coded");
     std::fs::create_dir_all(&out).unwrap();
     let mut first = 0;
     let mut files = Vec::new();
     for (i, &n) in SHARDS.iter().enumerate() {
         // Desired goals are never reached (−1), so rewards say nothing here; the values do.
-        let d = coded(first, n);
+        let d = coded_of(task, first, n);
         let file = format!("coded-{i}.parquet");
         let footer = Footer::new(&d.task, FloatType::Float32, n, "test".into());
         pgser::sampler::replay::stage_table(&d, &out.join(&file), GROUP_EPISODES * T, &footer)
@@ -45,7 +65,12 @@ pub fn folder(dir: &Path) -> PathBuf {
 /// FetchReach-shaped episodes whose observations and achieved goals of (episode e, step s) are
 /// (first + e)·1000 + s, actions that over 10⁵, and desired goals −1 (never reached).
 pub fn coded(first: usize, n: usize) -> Episodes {
-    let task = pgser::task::Task::known("FetchReach").unwrap();
+    coded_of(&Task::known("FetchReach").unwrap(), first, n)
+}
+
+/// [`coded`] episodes of `task`'s shapes.
+pub fn coded_of(task: &Task, first: usize, n: usize) -> Episodes {
+    let task = task.clone();
     let code = |e: usize, s: usize| ((first + e) * 1000 + s) as f32;
     let (mut obs, mut ag, mut g, mut u) = (vec![], vec![], vec![], vec![]);
     for e in 0..n {
@@ -102,4 +127,43 @@ pub fn worst_share_gap(episodes: impl Iterator<Item = usize>) -> f64 {
     (0..4)
         .map(|i| (100.0 * counts[i] as f64 / total as f64 - 100.0 * SHARDS[i] as f64 / EPISODES as f64).abs())
         .fold(0.0, f64::max)
+}
+
+/// A critic trained for a few updates on table (or folder) `data`, written to `dir/q.ckpt`.
+pub fn critic(dir: &Path, data: &Path) -> PathBuf {
+    let q = dir.join("q.ckpt");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .arg("--data")
+        .arg(data)
+        .arg("-o")
+        .arg(&q)
+        .args(["--updates", "30", "--batch-size", "98", "--hidden", "16", "--eval-episodes", "0", "--swap", "random"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", super::text(&o.stderr));
+    q
+}
+
+/// `score`'s options: `swaps` goals per transition, no original goals, CPU.
+pub fn score_options(
+    data: &Path,
+    q: &Path,
+    out: &Path,
+    (swaps, seed): (usize, u64),
+    threads: usize,
+    shard: Option<usize>,
+) -> pgser::score::ScoreOptions {
+    pgser::score::ScoreOptions {
+        checkpoint: q.to_path_buf(),
+        data: data.to_path_buf(),
+        output: out.to_path_buf(),
+        swaps,
+        seed,
+        include_original: false,
+        device: pgser::agent::Backend::Cpu,
+        chunk_episodes: None,
+        threads,
+        shard,
+        command: "test".into(),
+    }
 }

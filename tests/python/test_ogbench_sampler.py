@@ -31,7 +31,8 @@ OGBENCH_DTYPES = {
     "value_goals": np.float32,
     "actor_goals": np.float32,
 }
-PROVENANCE = ("episode", "step", "value_goal_episode", "value_goal_step", "actor_goal_episode", "actor_goal_step")
+PROVENANCE = ("episode", "step", "value_goal_episode", "value_goal_step", "actor_goal_episode", "actor_goal_step",
+              "scored_row")
 # GCIQL's sampling defaults; the peer reads them as its command line does.
 DEFAULTS = dict(discount=0.99, value_p_curgoal=0.2, value_p_trajgoal=0.5, actor_p_curgoal=0.0, actor_p_trajgoal=1.0)
 
@@ -262,6 +263,38 @@ def test_bad_arguments_raise_naming_them(folder, tables):
     with pgser.Sampler(table, layout="ogbench") as s:
         with pytest.raises(ValueError, match="batch_size=0"):
             s.sample(0)
+
+
+def test_pgsers_swapped_rows_come_in_their_fraction_with_their_goals_observation(folder, tmp_path):
+    table, _, arrays = folder
+    t, obs = 101, arrays["observations"]
+    ckpt, scored = tmp_path / "q.ckpt", tmp_path / "scored"
+    run(BIN / "pgser-train", "--data", table, "-o", ckpt, "--updates", "10", "--hidden", "16", "--batch-size", "64",
+        "--eval-episodes", "0", "--swap", "random")
+    pgser.score(ckpt, table, scored, swaps=4)
+    with pgser.Sampler(scored, layout="ogbench", p_swapgoal=0.4, priority="q", seed=2) as s:
+        assert s.scored
+        b = many(s, 3)
+    swapped = b["scored_row"] >= 0
+    within(int(swapped.sum()), len(swapped), 0.4)
+    # A swapped row is the transition its scored row scored (4 rows per transition, in order),
+    # its goals the observation its scored goal was taken from.
+    rows = b["scored_row"][swapped]
+    assert np.array_equal(rows // 4, (b["episode"] * (t - 1) + b["step"])[swapped])
+    e, st = b["value_goal_episode"], b["value_goal_step"]
+    assert np.array_equal(b["value_goals"], obs[e * t + st])
+    assert np.array_equal(b["actor_goals"][swapped], b["value_goals"][swapped])
+    # Read from an agent's config too; without swaps a scored folder gives its data's batches.
+    with pgser.Sampler(scored, layout="ogbench", config=dict(p_swapgoal=1.0), seed=2) as s:
+        assert (s.sample(64)["scored_row"] >= 0).all()
+    with pgser.Sampler(scored, layout="ogbench", seed=5) as s, pgser.Sampler(table, layout="ogbench", seed=5) as p:
+        assert not s.scored
+        x, y = s.sample(256), p.sample(256)
+        assert all(np.array_equal(x[k], y[k]) for k in x)
+    with pytest.raises(ValueError, match="p_swapgoal = 0.2 draws swapped goals by priority from a scored table"):
+        pgser.Sampler(table, layout="ogbench", p_swapgoal=0.2)
+    with pytest.raises(ValueError, match="is_beta= is a setting of layout=\"pgser\""):
+        pgser.Sampler(scored, layout="ogbench", p_swapgoal=0.2, is_beta=0.4)
 
 
 def test_same_seed_same_bytes_whatever_the_sizes_asked(folder):

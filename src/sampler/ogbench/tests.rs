@@ -12,7 +12,7 @@ fn coded(n: usize) -> InMemory {
 
 fn batch(cfg: &OgbenchConfig, n: usize, seed: u64) -> (InMemory, OgbenchBatch) {
     let v = coded(20);
-    let b = draw(&v, cfg, &mut NpRandom::spawned(seed, &[STREAM_OGBENCH, 0]), n);
+    let b = draw(&v, None, cfg, &mut NpRandom::spawned(seed, &[STREAM_OGBENCH, 0]), n);
     (v, b)
 }
 
@@ -258,7 +258,7 @@ fn transitions_and_random_goals_are_uniform_over_the_table() {
 
 #[test]
 fn same_seed_same_bytes_and_batches_are_their_own_streams() {
-    let open = || OgbenchStream::new(Box::new(coded(5)), OgbenchConfig::default(), 9).unwrap();
+    let open = || OgbenchStream::new(Beta::Whole(coded(5).0), OgbenchConfig::default(), 9).unwrap();
     let (mut a, mut b) = (open(), open());
     let a0 = a.next_batch(64).unwrap();
     assert_eq!(a0, b.next_batch(64).unwrap());
@@ -266,7 +266,7 @@ fn same_seed_same_bytes_and_batches_are_their_own_streams() {
     let _ = b.batch(0, 7).unwrap();
     assert_eq!(a.next_batch(64).unwrap(), b.next_batch(64).unwrap());
     assert_ne!(a0, a.next_batch(64).unwrap(), "batches differ from one another");
-    let mut c = OgbenchStream::new(Box::new(coded(5)), OgbenchConfig::default(), 10).unwrap();
+    let mut c = OgbenchStream::new(Beta::Whole(coded(5).0), OgbenchConfig::default(), 10).unwrap();
     assert_ne!(a0, c.next_batch(64).unwrap(), "seeds differ");
 }
 
@@ -280,7 +280,7 @@ fn settings_ogbench_refuses_are_refused() {
     let msgs =
         ["value_p_curgoal + value_p_trajgoal + value_p_randomgoal = 1.1", "actor_p_trajgoal = -0.5", "discount = 1"];
     for (cfg, msg) in bad.iter().zip(msgs) {
-        let e = OgbenchStream::new(Box::new(coded(2)), cfg.clone(), 0).err().expect("refused");
+        let e = OgbenchStream::new(Beta::Whole(coded(2).0), cfg.clone(), 0).err().expect("refused");
         assert!(e.to_string().contains(msg), "{e}");
     }
     // Within np.isclose of 1 is accepted, as OGBench accepts it.

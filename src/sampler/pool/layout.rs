@@ -63,6 +63,9 @@ pub(super) struct Scored {
     /// Scored rows per transition.
     pub(super) per: usize,
     pub(super) priority: PriorityConfig,
+    /// Whether blocks keep each scored row's goal (episode, step), 8 bytes a row (OGBench's
+    /// layout reports them; pgser's batches do not need them).
+    pub(super) sources: bool,
 }
 
 impl Layout {
@@ -139,8 +142,16 @@ impl Layout {
             );
         }
         let per = f.rows / transitions;
-        self.scored = Some(Scored { table, per, priority });
+        self.scored = Some(Scored { table, per, priority, sources: false });
         Ok(self)
+    }
+
+    /// The layout with each block's scored rows keeping their goals' (episode, step) as well.
+    pub fn with_goal_sources(mut self) -> Layout {
+        if let Some(s) = self.scored.as_mut() {
+            s.sources = true;
+        }
+        self
     }
 
     /// The layout with one block per shard, all its row groups: a shard window's unit.
@@ -165,10 +176,13 @@ impl Layout {
     }
 
     /// Float32 bytes of one episode as a block holds it, with its scored rows (a goal and a
-    /// priority each) when it carries them.
+    /// priority each, and the goal's source when kept) when it carries them.
     pub(super) fn episode_bytes(&self) -> u64 {
         let (t, task) = (self.t as u64, &self.task);
-        let scored = self.scored.as_ref().map_or(0, |s| (t - 1) * s.per as u64 * 4 * (task.goal_dim as u64 + 1));
+        let scored = self
+            .scored
+            .as_ref()
+            .map_or(0, |s| (t - 1) * s.per as u64 * (4 * (task.goal_dim as u64 + 1) + if s.sources { 8 } else { 0 }));
         4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64) + scored
     }
 
@@ -249,12 +263,12 @@ impl Layout {
         let per_episode = (self.t - 1) * s.per;
         let first = b.first_episode as usize * per_episode;
         let rows = (first, first + b.episodes * per_episode);
-        let (goal, q) = s.table.read_goals(rows, b.first_episode, self.t, s.per)?;
+        let read = s.table.read_goals(rows, b.first_episode, self.t, s.per, s.sources)?;
         let priorities = s
             .priority
-            .priorities(q, s.table.gamma)
+            .priorities(read.q, s.table.gamma)
             .with_context(|| format!("{}: rows {}..{}", s.table.path.display(), rows.0, rows.1))?;
-        Ok(ScoredRows { first_row: first as u64, goal, tree: SumTree::new(priorities) })
+        Ok(ScoredRows { first_row: first as u64, goal: read.goal, at: read.at, tree: SumTree::new(priorities) })
     }
 }
 
@@ -322,6 +336,8 @@ pub(super) struct ScoredRows {
     pub(super) first_row: u64,
     /// Each row's goal, as scored.
     pub(super) goal: Vec<f32>,
+    /// Each row's goal (episode, step), when the layout keeps them (else empty).
+    pub(super) at: Vec<[u32; 2]>,
     pub(super) tree: SumTree,
 }
 

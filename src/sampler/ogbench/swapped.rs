@@ -1,0 +1,179 @@
+//! PGSER's prioritized swapped rows in OGBench's layout (`p_swapgoal`): where they come from, and
+//! opening a scored table for them.
+//!
+//! A swapped row is a scored row drawn by priority: its transition and its goal come together,
+//! as in PGSER's `-mem` batches, so the transitions of swapped rows lean towards those the critic
+//! finds a reachable goal for. OGBench's goals are observations, so the goal of a swapped row is
+//! the observation at the scored row's (`goal_episode`, `goal_step`), not the achieved goal the
+//! scored table stores:
+//! - **β held whole**: priorities over the whole scored table in a sum tree (4.25 bytes a row)
+//!   and every row's keys (16 bytes a row); the goal is read from β.
+//! - **β within a budget** (a pool, or a shard window): each block carries its own scored rows and
+//!   their goals' (episode, step) (`pool.rs`, "PGSER within a budget"); the goal's observation is
+//!   usually not resident, so the stored goal is used, which is the observation only when the
+//!   task's goals are its whole observations (PointMaze). Other tasks are refused within a budget.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+
+use super::{At, Goal, GoalKind};
+use crate::nprandom::NpRandom;
+use crate::sampler::RowKey;
+use crate::sampler::pool::{Beta, Layout, Plan, Pool, PoolConfig};
+use crate::sampler::priority::{PriorityConfig, SumTree};
+use crate::sampler::scored::ScoredTable;
+use crate::sampler::view::{Budget, View};
+use crate::trajectory::Episodes;
+
+/// A source of prioritized swapped rows for OGBench's layout.
+pub(super) trait Swapper: Sync {
+    /// A scored row drawn by priority: its transition (resident episode, step), its goal, and
+    /// its row in the scored table.
+    fn pick(&self, rng: &mut NpRandom) -> (usize, usize, Goal, u64);
+    /// The goal observation of an `At::Scored` goal `pick` returned.
+    fn scored_obs(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32];
+}
+
+/// β held whole: priorities over every scored row, and every row's keys.
+pub(super) struct WholeRows {
+    tree: SumTree,
+    keys: Vec<RowKey>,
+}
+
+impl Swapper for WholeRows {
+    fn pick(&self, rng: &mut NpRandom) -> (usize, usize, Goal, u64) {
+        let r = self.tree.find(rng.random() * self.tree.total());
+        let k = self.keys[r];
+        let (ge, gs) = (k.goal_episode as usize, k.goal_step as usize);
+        let goal = Goal { kind: GoalKind::Swapped, episode: ge as u64, step: gs, at: At::Resident(ge, gs) };
+        (k.episode as usize, k.step as usize, goal, r as u64)
+    }
+    fn scored_obs(&self, _: &crate::sampler::pool::ScoredDraw) -> &[f32] {
+        unreachable!("rows of β held whole name their goal's place in β")
+    }
+}
+
+impl Swapper for Pool {
+    fn pick(&self, rng: &mut NpRandom) -> (usize, usize, Goal, u64) {
+        let d = self.draw_scored(1, rng)[0];
+        let (ge, gs) = self.scored_goal_source(&d).expect("the layout keeps the goals' sources");
+        let goal = Goal { kind: GoalKind::Swapped, episode: ge, step: gs, at: At::Scored(d) };
+        (d.e, d.step, goal, self.scored_row(&d))
+    }
+    fn scored_obs(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32] {
+        self.scored_goal(d)
+    }
+}
+
+/// β and, when swapped rows are drawn, where they come from.
+pub(super) enum Source {
+    Plain(Beta),
+    Whole { data: Arc<Episodes>, rows: WholeRows },
+    Pool(Box<Pool>),
+}
+
+impl Source {
+    pub(super) fn view(&self) -> &dyn View {
+        match self {
+            Source::Plain(b) => b.view(),
+            Source::Whole { data, .. } => data.as_ref(),
+            Source::Pool(p) => p.as_ref(),
+        }
+    }
+
+    /// Readies a pool for the next `rows` draws (`View::refresh`); β held whole has nothing to do.
+    pub(super) fn refresh(&mut self, rows: usize) -> Result<()> {
+        match self {
+            Source::Plain(Beta::Pool(p)) | Source::Pool(p) => p.refresh(rows),
+            Source::Plain(Beta::Whole(_)) | Source::Whole { .. } => Ok(()),
+        }
+    }
+
+    pub(super) fn swapper(&self) -> Option<&dyn Swapper> {
+        match self {
+            Source::Plain(_) => None,
+            Source::Whole { rows, .. } => Some(rows),
+            Source::Pool(p) => Some(p.as_ref()),
+        }
+    }
+
+    /// Opens `path` within `budget`: a trajectory table (no swapped rows: `p_swapgoal` must be 0),
+    /// or a scored table and its original data, with its rows' priorities by `priority`.
+    pub(super) fn open(
+        path: &Path,
+        budget: Budget,
+        p_swapgoal: f64,
+        priority: &PriorityConfig,
+        seed: u64,
+    ) -> Result<Source> {
+        let at = path.display();
+        let Some(table) = ScoredTable::open_if_scored(path)? else {
+            if p_swapgoal > 0.0 {
+                bail!(
+                    "{at}: p_swapgoal = {p_swapgoal} draws swapped goals by priority from a scored table (pgser-etl \
+                     score), and this is a trajectory table; give its scored table or folder, or p_swapgoal = 0"
+                );
+            }
+            return Ok(Source::Plain(Beta::within(path, budget, seed)?));
+        };
+        let source = crate::sampler::stream::checked_source(&table)?;
+        if p_swapgoal == 0.0 {
+            // Its original data alone: no scored rows held for nothing.
+            return Ok(Source::Plain(Beta::within(&source, budget, seed)?));
+        }
+        priority.validate()?;
+        if let Some(b) = priority.is_beta {
+            bail!("is_beta = {b}: OGBench's batches carry no importance weights; leave it unset");
+        }
+        if table.footer.include_original {
+            bail!(
+                "{at}: scored with --include-original: its rows that keep a transition's own desired goal name no \
+                 observation, which OGBench's goals are; score without it"
+            );
+        }
+        let layout = || -> Result<Layout> {
+            Ok(Layout::open(&source)?.with_scored(ScoredTable::open(path)?, priority.clone())?.with_goal_sources())
+        };
+        let pool = match budget {
+            Budget::Unbounded => None,
+            Budget::ShardWindow(rows) => Some(Pool::window(layout()?, rows, seed)?),
+            Budget::Bytes(b) => {
+                let layout = layout()?;
+                match Plan::of(&layout, b)? {
+                    Plan::Whole => None,
+                    Plan::Pool { slots, reservoir } => {
+                        let cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed, window: None };
+                        Some(Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?)
+                    }
+                }
+            }
+        };
+        match pool {
+            Some(pool) => {
+                if !pool.goals_are_observations() {
+                    let task = pool.task();
+                    bail!(
+                        "{at}: p_swapgoal within a memory budget needs goals that are whole observations (a block \
+                         keeps the goals its rows were scored with, not the observations they were taken from); \
+                         {}'s goals are {} of its {} observation values. Hold the data in memory (no \
+                         memory_budget, or one above {}), or use layout=\"pgser\"",
+                        task.name,
+                        task.goal_dim,
+                        task.obs_dim,
+                        crate::progress::bytes(layout()?.bytes())
+                    );
+                }
+                Ok(Source::Pool(Box::new(pool)))
+            }
+            None => {
+                let data = crate::sampler::stream::beta_of(&table)?;
+                let q = table.read_q()?;
+                let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
+                let keys = table.read_keys(&data)?;
+                Ok(Source::Whole { data: Arc::new(data), rows: WholeRows { tree, keys } })
+            }
+        }
+    }
+}
