@@ -379,9 +379,13 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
     }
     if let Some(f) = s.footer.as_ref().filter(|f| f["kind"] == crate::score::KIND) {
         let original = if f["include_original"] == true { " + the original goal" } else { "" };
+        let sample = match f["goal_sample"].as_u64() {
+            Some(k) => format!(" (from a sample of {k} achieved goals)"),
+            None => String::new(),
+        };
         let _ = writeln!(
             o,
-            "transitions: {} of {} episodes, {} swapped goals each{original}; task: {}",
+            "transitions: {} of {} episodes, {} swapped goals each{sample}{original}; task: {}",
             f["transitions"],
             f["episodes"],
             f["swaps"],

@@ -24,27 +24,34 @@ pub fn random_goal(n: usize, t: usize, rng: &mut NpRandom) -> (usize, usize) {
     (k / t, k % t)
 }
 
-/// Every achieved goal of a table, `[n, t, goal_dim]` float32: the pool swapped goals come from.
-/// Small (goal_dim floats per observation: 3 MB for 5000 Fetch episodes), so `score` holds it
-/// whole while everything else streams.
+/// The achieved goals swapped goals come from: every one of a table, `[n, t, goal_dim]` float32
+/// (goal_dim floats per observation: 3 MB for 5000 Fetch episodes, but 8 GB for a billion
+/// PointMaze rows and 96 GB for cube-octuple's), or a uniform sample of them (`score
+/// --goal-sample N`), which bounds `score`'s memory whatever the table's size.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GoalPool {
     pub n: usize,
     pub t: usize,
     pub goal_dim: usize,
     pub ag: Vec<f32>,
+    /// A sample's (episode, step) of each goal in `ag`; empty when `ag` is the whole table's.
+    pub at: Vec<(u64, u32)>,
 }
 
 impl GoalPool {
-    /// ag[episode, step].
-    pub fn goal(&self, episode: usize, step: usize) -> &[f32] {
+    /// A uniformly drawn goal of the pool: its (episode, step) in the table, and its value. The
+    /// whole table's draws with [`random_goal`]; a sample draws one of its entries, each a
+    /// uniform draw of the table's observations, so the goal is uniform over the table either way.
+    pub fn draw(&self, rng: &mut NpRandom) -> (usize, usize, &[f32]) {
         let d = self.goal_dim;
-        &self.ag[(episode * self.t + step) * d..][..d]
-    }
-
-    /// A uniformly drawn (episode, step) of the pool.
-    pub fn draw(&self, rng: &mut NpRandom) -> (usize, usize) {
-        random_goal(self.n, self.t, rng)
+        if self.at.is_empty() {
+            let (e, s) = random_goal(self.n, self.t, rng);
+            (e, s, &self.ag[(e * self.t + s) * d..][..d])
+        } else {
+            let k = rng.below(self.at.len());
+            let (e, s) = self.at[k];
+            (e as usize, s as usize, &self.ag[k * d..][..d])
+        }
     }
 }
 
@@ -106,8 +113,8 @@ pub fn swap_block(
             let (ge, gt, goal) = if include_original && j == 0 {
                 (episode, ORIGINAL_GOAL_STEP, block.goal(e, t))
             } else {
-                let (ge, gt) = pool.draw(rng);
-                (ge as i64, gt as i32, pool.goal(ge, gt))
+                let (ge, gt, goal) = pool.draw(rng);
+                (ge as i64, gt as i32, goal)
             };
             r.episode.push(episode);
             r.step.push(t as i32);
@@ -136,7 +143,7 @@ mod tests {
     #[test]
     fn rows_are_transitions_in_order_with_pool_goals_and_rewards() {
         let whole = block(0, 30);
-        let pool = GoalPool { n: 30, t: whole.t, goal_dim: 3, ag: whole.ag.clone() };
+        let pool = GoalPool { n: 30, t: whole.t, goal_dim: 3, ag: whole.ag.clone(), at: Vec::new() };
         let part = block(10, 5);
         let task = whole.task.clone();
         let r = swap_block(&part, 10, &pool, &task, 3, true, &mut NpRandom::new(1));
@@ -153,7 +160,7 @@ mod tests {
             } else {
                 let (ge, gt) = (r.goal_episode[i] as usize, r.goal_step[i] as usize);
                 assert!(ge < 30 && gt < 50);
-                assert_eq!(goal, pool.goal(ge, gt));
+                assert_eq!(goal, &whole.ag[(ge * whole.t + gt) * 3..][..3]);
             }
             assert_eq!(r.reward[i], task.reward(&r.next_achieved_goal[i * 3..][..3], goal));
         }
@@ -165,7 +172,7 @@ mod tests {
     fn draws_follow_the_shared_goal_source() {
         // swap_block draws exactly what random_goal draws, in row order.
         let whole = block(0, 7);
-        let pool = GoalPool { n: 7, t: whole.t, goal_dim: 3, ag: whole.ag.clone() };
+        let pool = GoalPool { n: 7, t: whole.t, goal_dim: 3, ag: whole.ag.clone(), at: Vec::new() };
         let r = swap_block(&whole, 0, &pool, &whole.task, 2, false, &mut NpRandom::new(9));
         let mut rng = NpRandom::new(9);
         for i in 0..r.n {

@@ -109,6 +109,50 @@ fn a_folder_scores_shard_by_shard_to_the_same_bytes_in_any_order_and_at_any_thre
 }
 
 #[test]
+fn a_goal_sample_holds_k_goals_drawn_from_every_shard_the_same_whoever_scores() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, q) = data_and_critic(dir.path());
+    const K: usize = 2000;
+    let sampled = |out: &Path, threads: usize, shard: Option<usize>| {
+        let o = ScoreOptions { goal_sample: Some(K), ..options(&data, &q, out, 5, threads, shard) };
+        score(&o)
+    };
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    sampled(&a, 2, None).unwrap();
+    // Shard by shard on one thread (as array tasks, each drawing the sample again): the same bytes.
+    for i in [3, 1, 0, 2] {
+        sampled(&b, 1, Some(i)).unwrap();
+    }
+    sampled(&b, 1, None).unwrap();
+    assert_eq!(files(&a), files(&b));
+    let m = pgser::score::folder::ScoredFolder::open(&a).unwrap().manifest;
+    assert_eq!(m.footer.goal_sample, Some(K));
+    // Every goal is the achieved goal its (goal_episode, goal_step) names, one of at most K; a
+    // sample of K draws from 24,000 observations has about K·(1 − K/48,000) = 1,917 distinct ones.
+    let mut distinct = std::collections::BTreeSet::new();
+    for path in pgser::score::folder::ScoredFolder::open(&a).unwrap().shard_paths() {
+        let (batch, _) = common::read_table(&path);
+        let ge = batch.column_by_name("goal_episode").unwrap().as_primitive::<Int64Type>();
+        let gs = batch.column_by_name("goal_step").unwrap().as_primitive::<arrow_array::types::Int32Type>();
+        let gv = batch.column_by_name("goal").unwrap().as_fixed_size_list().values().as_primitive::<Float32Type>();
+        for i in 0..batch.num_rows() {
+            let at = (ge.value(i) as usize, gs.value(i) as usize);
+            assert_eq!(decode(gv.value(i * 3)), at, "row {i} of {}", path.display());
+            distinct.insert(at);
+        }
+    }
+    assert!((1850..=1980).contains(&distinct.len()), "{} distinct goals", distinct.len());
+    // The sample comes from every shard in proportion to its rows (K draws: within 4 points).
+    let gap = worst_share_gap(distinct.iter().map(|g| g.0));
+    assert!(gap < 4.0, "a shard's share of the sampled goals is {gap:.2} points off its share of the rows");
+    // Scored from every goal instead: other settings, so every shard is scored again.
+    score(&options(&data, &q, &a, 5, 2, None)).unwrap();
+    assert_eq!(pgser::score::folder::ScoredFolder::open(&a).unwrap().manifest.footer.goal_sample, None);
+    let e = score(&ScoreOptions { goal_sample: Some(0), ..options(&data, &q, &b, 5, 1, None) }).unwrap_err();
+    assert!(e.to_string().contains("--goal-sample must be at least 1"), "{e}");
+}
+
+#[test]
 fn a_killed_score_redoes_only_missing_shards_and_other_settings_rescore_them() {
     let dir = tempfile::tempdir().unwrap();
     let (data, q) = data_and_critic(dir.path());

@@ -232,7 +232,7 @@ fn convert<'py>(
 /// checkpoint. Returns the summary `--json` prints, as a dict.
 #[pyfunction]
 #[pyo3(signature = (q, data, output, *, swaps=pgser::score::DEFAULT_SWAPS, seed=0, include_original=false,
-    chunk_episodes=None, threads=0))]
+    chunk_episodes=None, goal_sample=None, threads=0))]
 #[allow(clippy::too_many_arguments)]
 fn score<'py>(
     py: Python<'py>,
@@ -243,6 +243,7 @@ fn score<'py>(
     seed: u64,
     include_original: bool,
     chunk_episodes: Option<usize>,
+    goal_sample: Option<usize>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyAny>> {
     existing(&q)?;
@@ -257,6 +258,7 @@ fn score<'py>(
         include_original,
         device: pgser::agent::Backend::Cpu,
         chunk_episodes,
+        goal_sample,
         threads,
         shard: None,
         command,

@@ -93,6 +93,9 @@ pub fn check(p: &Pipeline, steps: &[Step], device: Backend) -> Result<Checked> {
                 if o.chunk_episodes == Some(0) {
                     bail!("[score] chunk_episodes = 0: must be at least 1");
                 }
+                if o.goal_sample == Some(0) {
+                    bail!("[score] goal_sample = 0: must be at least 1");
+                }
             }
             Action::Report(_) => {
                 let (_, sources, _) = beta.as_ref().expect("convert comes before the report");

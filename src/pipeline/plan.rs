@@ -39,6 +39,10 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
     let s = &p.score;
     let mut params = json!({"swaps": s.swaps, "seed": s.seed, "include_original": s.include_original,
                             "chunk_episodes": s.chunk_episodes});
+    if let Some(k) = s.goal_sample {
+        // Only when set, so the keys of steps scored from every goal stay as they were.
+        params["goal_sample"] = json!(k);
+    }
     if let Some(q) = given_q {
         params["q"] = json!(q);
     }
@@ -64,6 +68,7 @@ pub fn plan(p: &Pipeline) -> Result<Vec<Step>> {
                 include_original: s.include_original,
                 device: Backend::Cpu,
                 chunk_episodes: s.chunk_episodes,
+                goal_sample: s.goal_sample,
                 threads: 0,
                 shard: None,
                 command: cmd("score"),

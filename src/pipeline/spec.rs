@@ -109,6 +109,9 @@ pub struct ScoreSpec {
     pub include_original: bool,
     #[serde(default)]
     pub chunk_episodes: Option<usize>,
+    /// `--goal-sample K`: goals from K achieved goals sampled from the whole table.
+    #[serde(default)]
+    pub goal_sample: Option<usize>,
 }
 
 fn default_swaps() -> usize {
@@ -159,7 +162,7 @@ struct File {
 }
 
 fn default_score() -> ScoreSpec {
-    ScoreSpec { swaps: default_swaps(), seed: 0, include_original: false, chunk_episodes: None }
+    ScoreSpec { swaps: default_swaps(), seed: 0, include_original: false, chunk_episodes: None, goal_sample: None }
 }
 
 #[derive(Deserialize)]

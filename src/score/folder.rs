@@ -247,13 +247,14 @@ fn check_same(path: &Path, a: &Footer, b: &Footer) -> Result<()> {
             f.swaps,
             f.include_original,
             f.chunk_episodes,
+            f.goal_sample,
             f.task.clone(),
         )
     };
     if fields(a) != fields(b) {
         bail!(
             "{}: scored from another source, critic or settings than the folder's first shard (source, checkpoint, seed, \
-             swaps, include_original, chunk_episodes or task differ)",
+             swaps, include_original, chunk_episodes, goal_sample or task differ)",
             path.display()
         );
     }

@@ -111,6 +111,10 @@ pub struct Footer {
     pub swaps: usize,
     pub include_original: bool,
     pub chunk_episodes: usize,
+    /// `--goal-sample K`: goals came from K achieved goals drawn uniformly from the whole table
+    /// (absent: from every achieved goal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub goal_sample: Option<usize>,
     pub q: QStats,
     /// Set in a scored folder's shards (`folder.rs`): which shard of the table folder this one
     /// scored. Its `episodes`, `transitions` and `rows` are then the shard's.
@@ -182,6 +186,9 @@ pub struct ScoreOptions {
     pub chunk_episodes: Option<usize>,
     /// Worker threads; 0: rayon's default (`RAYON_NUM_THREADS`, else one per core).
     pub threads: usize,
+    /// Draw goals from this many achieved goals, sampled uniformly from the whole table, instead of
+    /// holding every one: bounds memory at K × goal_dim floats (None: every achieved goal).
+    pub goal_sample: Option<usize>,
     /// With a table folder scored into a scored folder: score only this shard (one array task of
     /// a cluster job) and leave the manifest to a run without it (`folder.rs`).
     pub shard: Option<usize>,
@@ -223,6 +230,9 @@ fn run(o: &ScoreOptions, bar: &ProgressBar) -> Result<ScoreSummary> {
     }
     if o.chunk_episodes == Some(0) {
         bail!("--chunk-episodes must be at least 1");
+    }
+    if o.goal_sample == Some(0) {
+        bail!("--goal-sample must be at least 1");
     }
     check_not_an_input(&o.output, &[o.data.clone(), o.checkpoint.clone()])?;
     if folder::scores_into_a_folder(o) {
@@ -271,7 +281,7 @@ impl<'a> Job<'a> {
         let (agent, _) = checkpoint::load(&o.checkpoint, o.device.device()?)?;
         check_compatible(&agent.task, &o.checkpoint, &table, &o.data)?;
         let task = table.task();
-        let pool = read::goal_pool(&o.data)?;
+        let pool = read::goal_pool(&o.data, o.goal_sample.map(|k| (k, o.seed)))?;
         let per = o.swaps + o.include_original as usize;
         let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
         let schema = schema(&task);
@@ -398,6 +408,7 @@ impl<'a> Job<'a> {
             swaps: o.swaps,
             include_original: o.include_original,
             chunk_episodes: self.chunk_episodes,
+            goal_sample: o.goal_sample,
             q,
             shard: None,
             command: o.command.clone(),

@@ -10,6 +10,9 @@ use arrow_array::RecordBatch;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReader;
 
 use crate::swap::GoalPool;
+
+/// Spawn key of `--goal-sample`'s draws ("GSMP"), apart from the chunks' swap streams.
+pub const STREAM_GOAL_SAMPLE: u64 = 0x4753_4d50;
 use crate::trajectory::Episodes;
 use crate::trajectory::Footer;
 use crate::trajectory::folder::{TableFolder, is_folder};
@@ -38,37 +41,57 @@ pub fn footer(path: &Path) -> Result<Footer> {
     Ok(open_checked(path, &[], 1)?.0)
 }
 
-/// Every achieved goal of the table (a folder's shards in order), read as a stream of the
-/// `achieved_goal` column alone.
-pub fn goal_pool(path: &Path) -> Result<GoalPool> {
-    let mut pool: Option<GoalPool> = None;
-    for (file, _) in files(path)? {
-        let p = file_goal_pool(&file)?;
-        match pool.as_mut() {
-            None => pool = Some(p),
-            Some(all) => {
-                all.n += p.n;
-                all.ag.extend_from_slice(&p.ag);
+/// The goals swaps come from, read as a stream of the `achieved_goal` column alone (a folder's
+/// shards in order): every achieved goal of the table, or, with `sample = Some((k, seed))`, `k`
+/// of them drawn uniformly with replacement from the stream spawned from (seed,
+/// [`STREAM_GOAL_SAMPLE`]), which holds k goals whatever the table's size. A sample of at least
+/// the table's observations is the whole table.
+pub fn goal_pool(path: &Path, sample: Option<(usize, u64)>) -> Result<GoalPool> {
+    let table = footer(path)?;
+    let observations = table.episodes * table.t;
+    // The sampled observations' table-wide indices, in order (a repeat is a second entry).
+    let mut wanted: Option<Vec<u64>> = sample.filter(|&(k, _)| k < observations).map(|(k, seed)| {
+        let mut rng = crate::nprandom::NpRandom::spawned(seed, &[STREAM_GOAL_SAMPLE]);
+        let mut idx: Vec<u64> = (0..k).map(|_| rng.below(observations) as u64).collect();
+        idx.sort_unstable();
+        idx
+    });
+    let gd = table.goal_dim;
+    let mut pool = GoalPool { n: table.episodes, t: table.t, goal_dim: gd, ag: Vec::new(), at: Vec::new() };
+    let mut next = 0usize;
+    for (file, first_episode) in files(path)? {
+        let at = file.display().to_string();
+        let (f, reader) = open_checked(&file, &["achieved_goal"], 1024)?;
+        let first = (first_episode * table.t) as u64;
+        let mut row = 0;
+        let mut ag = Vec::new();
+        for batch in reader {
+            let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+            check_keys(&at, &batch, row, &f)?;
+            let col = batch.column_by_name("achieved_goal").expect("projected");
+            ag.clear();
+            append(&mut ag, col, "achieved_goal", gd, false, row, f.t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+            match wanted.as_deref() {
+                None => pool.ag.extend_from_slice(&ag),
+                Some(idx) => {
+                    let end = first + (row + batch.num_rows()) as u64;
+                    while next < idx.len() && idx[next] < end {
+                        let local = (idx[next] - first) as usize - row;
+                        let (e, s) = (idx[next] / table.t as u64, (idx[next] % table.t as u64) as u32);
+                        pool.at.push((e, s));
+                        pool.ag.extend_from_slice(&ag[local * gd..][..gd]);
+                        next += 1;
+                    }
+                }
             }
+            row += batch.num_rows();
         }
+        check_all_read(&at, row, &f)?;
     }
-    Ok(pool.expect("a table has a file"))
-}
-
-fn file_goal_pool(path: &Path) -> Result<GoalPool> {
-    let at = path.display().to_string();
-    let (f, reader) = open_checked(path, &["achieved_goal"], 1024)?;
-    let mut ag = Vec::with_capacity(f.rows.saturating_mul(f.goal_dim).min(1 << 26));
-    let mut row = 0;
-    for batch in reader {
-        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
-        check_keys(&at, &batch, row, &f)?;
-        let col = batch.column_by_name("achieved_goal").expect("projected");
-        append(&mut ag, col, "achieved_goal", f.goal_dim, false, row, f.t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
-        row += batch.num_rows();
+    if let Some(idx) = wanted.take() {
+        assert_eq!(next, idx.len(), "every sampled observation lies in the table");
     }
-    check_all_read(&at, row, &f)?;
-    Ok(GoalPool { n: f.episodes, t: f.t, goal_dim: f.goal_dim, ag })
+    Ok(pool)
 }
 
 /// Blocks of `per_block` whole episodes, in table order, as float32 [`Episodes`] (a file's last

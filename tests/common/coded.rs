@@ -162,6 +162,7 @@ pub fn score_options(
         include_original: false,
         device: pgser::agent::Backend::Cpu,
         chunk_episodes: None,
+        goal_sample: None,
         threads,
         shard,
         command: "test".into(),

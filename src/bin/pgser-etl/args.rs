@@ -123,6 +123,11 @@ pub enum Command {
         /// [default: as many as make about 12.5k rows].
         #[arg(long)]
         chunk_episodes: Option<usize>,
+        /// Draw goals from K achieved goals sampled uniformly from the whole table (drawn from --seed), not
+        /// from all of them: holds K goals instead of the table's (8 GB at a billion PointMaze rows)
+        /// [default: every achieved goal].
+        #[arg(long, value_name = "K")]
+        goal_sample: Option<usize>,
         /// Worker threads (0: RAYON_NUM_THREADS, else one per core). Does not change the output.
         #[arg(long, default_value_t = 0)]
         threads: usize,
