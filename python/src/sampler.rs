@@ -14,15 +14,16 @@
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, SyncSender, channel, sync_channel};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use numpy::{IntoPyArray, PyArrayMethods};
 use pgser::agent::Batch;
 use pgser::sampler::ogbench::{OgbenchBatch, OgbenchConfig, OgbenchStream};
+use pgser::sampler::pool::PoolStats;
 use pgser::sampler::priority::{PriorityConfig, PriorityKind};
 use pgser::sampler::stream::{BatchSource, RowIds, StreamConfig};
 use pgser::sampler::view::{Budget, parse_bytes};
@@ -69,6 +70,8 @@ pub struct Sampler {
     num_batches: Option<u64>,
     /// Batches handed out so far (iteration and `sample()` together).
     handed: AtomicU64,
+    /// The pool's disk waits after the last batch the worker drew; None while β is held whole.
+    pool: Arc<Mutex<Option<PoolStats>>>,
 }
 
 enum Kind {
@@ -207,12 +210,19 @@ fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize
 /// them and draws batch k at that size. It fills its queue before it answers a request, so which
 /// batches were drawn (and, for a pool, which data are resident) depends only on the requests
 /// made, never on timing: the same seed and the same calls give the same bytes.
-fn og_worker(mut stream: OgbenchStream, size: usize, prefetch: usize, req: Receiver<usize>, out: SyncSender<OgDrawn>) {
+fn og_worker(
+    mut stream: OgbenchStream,
+    (size, prefetch): (usize, usize),
+    req: Receiver<usize>,
+    out: SyncSender<OgDrawn>,
+    pool: Arc<Mutex<Option<PoolStats>>>,
+) {
     let mut ready: VecDeque<OgDrawn> = VecDeque::new();
     let mut k = 0u64;
     loop {
         if ready.len() < prefetch && !ready.back().is_some_and(|b| b.is_err()) {
             ready.push_back(stream.batch(k + ready.len() as u64, size));
+            *pool.lock().unwrap() = stream.pool_stats();
             continue;
         }
         // A closed request channel: the sampler was closed or dropped.
@@ -406,6 +416,20 @@ impl Sampler {
         self.draw(py, n)
     }
 
+    /// What the out-of-core pool's disk reads have cost the drawing so far, as of the last batch
+    /// the background thread drew (it draws `prefetch` ahead): blocks swapped in, swaps that
+    /// waited for their block, the seconds waited in all and the longest wait. None while the
+    /// table is held whole. Waits here are the disk's; a slow batch without one is scheduling.
+    fn pool_stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(s) = *self.pool.lock().unwrap() else { return Ok(None) };
+        let d = PyDict::new(py);
+        d.set_item("swaps", s.swaps)?;
+        d.set_item("waits", s.waits)?;
+        d.set_item("waited_seconds", s.waited.as_secs_f64())?;
+        d.set_item("longest_wait_seconds", s.longest_wait.as_secs_f64())?;
+        Ok(Some(d))
+    }
+
     /// Stops the background thread now (also done when the sampler is dropped).
     fn close(&self, py: Python<'_>) {
         // Without the GIL: another thread's `sample` may hold the channel and need the GIL.
@@ -443,12 +467,15 @@ impl Sampler {
         let scored = source.is_scored();
         let mut stream = py.detach(|| source.start(&cfg)).map_err(py_err)?;
         let (tx, rx) = sync_channel::<Drawn>(prefetch.max(1));
+        let pool = Arc::new(Mutex::new(stream.pool().map(|p| p.stats())));
+        let shared = pool.clone();
         let worker = std::thread::Builder::new()
             .name("pgser-py-sampler".into())
             .spawn(move || {
                 let mut sent = 0u64;
                 while num_batches.is_none_or(|n| sent < n) {
                     let b = stream.next_batch();
+                    *shared.lock().unwrap() = stream.pool().map(|p| p.stats());
                     let failed = b.is_err();
                     // A closed channel: the sampler was dropped.
                     if tx.send(b).is_err() || failed {
@@ -470,6 +497,7 @@ impl Sampler {
             layout: "pgser".into(),
             num_batches,
             handed: AtomicU64::new(0),
+            pool,
         })
     }
 
@@ -485,13 +513,15 @@ impl Sampler {
         prefetch: usize,
     ) -> PyResult<Sampler> {
         let stream = py.detach(|| OgbenchStream::open(&path, budget, cfg, &priority, seed)).map_err(py_err)?;
+        let pool = Arc::new(Mutex::new(stream.pool_stats()));
+        let shared = pool.clone();
         let task = stream.view().task().name.clone();
         let scored = stream.is_scored();
         let (req_tx, req_rx) = channel::<usize>();
         let (tx, rx) = sync_channel::<OgDrawn>(1);
         let worker = std::thread::Builder::new()
             .name("pgser-py-ogbench".into())
-            .spawn(move || og_worker(stream, batch_size, prefetch.max(1), req_rx, tx))
+            .spawn(move || og_worker(stream, (batch_size, prefetch.max(1)), req_rx, tx, shared))
             .map_err(|e| py_err(e.into()))?;
         Ok(Sampler {
             kind: Kind::Ogbench {
@@ -504,6 +534,7 @@ impl Sampler {
             layout: "ogbench".into(),
             num_batches,
             handed: AtomicU64::new(0),
+            pool,
         })
     }
 

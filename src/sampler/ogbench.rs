@@ -257,6 +257,11 @@ impl OgbenchStream {
         self.source.view()
     }
 
+    /// What the pool's disk reads have cost so far; None while β is held whole.
+    pub fn pool_stats(&self) -> Option<super::pool::PoolStats> {
+        self.source.pool().map(|p| p.stats())
+    }
+
     /// Whether batches mix in PGSER's swapped rows.
     pub fn is_scored(&self) -> bool {
         self.source.swapper().is_some()

@@ -297,6 +297,25 @@ def test_pgsers_swapped_rows_come_in_their_fraction_with_their_goals_observation
         pgser.Sampler(scored, layout="ogbench", p_swapgoal=0.2, is_beta=0.4)
 
 
+def test_pool_stats_count_the_disk_waits_of_a_pool_and_none_when_held_whole(tables, tmp_path):
+    # The FetchReach sample in row groups of 10 episodes (25 of them), and a budget that holds 3.
+    small = tmp_path / "small.parquet"
+    data = REPO / "data"
+    pgser.convert([data / "fetch_reach_expert_50.pkl", data / "fetch_reach_random_200.pkl"], small,
+                  row_group_rows=500)
+    for layout in ("ogbench", "pgser"):
+        with pgser.Sampler(small, layout=layout, memory_budget=350_000, batch_size=256, seed=1) as s:
+            for _ in range(60):
+                s.sample()
+            st = s.pool_stats()
+        # 60 batches of 256 draws are 15,360, and a block leaves after its 490 transitions.
+        assert st["swaps"] >= 25, (layout, st)
+        assert 0 <= st["waits"] <= st["swaps"] and st["longest_wait_seconds"] <= st["waited_seconds"], st
+        with pgser.Sampler(small, layout=layout, batch_size=256) as s:
+            s.sample()
+            assert s.pool_stats() is None
+
+
 def test_same_seed_same_bytes_whatever_the_sizes_asked(folder):
     table, _, _ = folder
     # A table that fits its budget is held whole: the same batches as without one.

@@ -91,6 +91,14 @@ impl Source {
         }
     }
 
+    /// The pool, when β is one.
+    pub(super) fn pool(&self) -> Option<&Pool> {
+        match self {
+            Source::Plain(Beta::Pool(p)) | Source::Pool(p) => Some(p),
+            _ => None,
+        }
+    }
+
     pub(super) fn swapper(&self) -> Option<&dyn Swapper> {
         match self {
             Source::Plain(_) => None,
