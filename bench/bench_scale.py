@@ -243,6 +243,7 @@ def pgser_child(argv: list[str]) -> None:
         times[i] = time.perf_counter() - t
     seconds = time.perf_counter() - start
     shapes = {k: list(v.shape) for k, v in b.items()}
+    pool = s.pool_stats()  # the pool's own waits for blocks: tells disk waits from scheduling
     s.close()
     ms = times * 1e3
     med = float(np.median(ms))
@@ -256,7 +257,7 @@ def pgser_child(argv: list[str]) -> None:
         "max_ms": float(ms.max()), "mean_ms": float(ms.mean()),
         "slow_batches": int(slow.sum()), "slow_ms_total": float(ms[slow].sum()),
         "longest": [[int(i), float(ms[i])] for i in top],
-        "open_seconds": open_s, "rss_start_bytes": rss_start, "rss_after_open_bytes": rss_open,
+        "pool": pool, "open_seconds": open_s, "rss_start_bytes": rss_start, "rss_after_open_bytes": rss_open,
         "rss_after_warmup_bytes": rss_warm, "rss_end_bytes": vm("VmRSS"), "hwm_bytes": vm("VmHWM"),
         "peak_rss_self_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "batch_shapes": shapes,

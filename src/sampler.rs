@@ -161,20 +161,43 @@ const PARALLEL_FLOATS: usize = 1 << 16;
 /// any thread count.
 pub(crate) fn gather_rows<'a, R: Sync>(rows: &[R], dim: usize, of: impl Fn(&R) -> &'a [f32] + Sync) -> Vec<f32> {
     use rayon::prelude::*;
-    if rows.len() * dim < PARALLEL_FLOATS {
-        let mut out = Vec::with_capacity(rows.len() * dim);
-        for r in rows {
-            out.extend_from_slice(of(r));
-        }
-        return out;
-    }
     let mut out = vec![0.0f32; rows.len() * dim];
-    out.par_chunks_mut(GATHER_CHUNK * dim).zip(rows.par_chunks(GATHER_CHUNK)).for_each(|(o, rs)| {
-        for (k, r) in rs.iter().enumerate() {
-            o[k * dim..][..dim].copy_from_slice(of(r));
-        }
-    });
+    if rows.len() * dim < PARALLEL_FLOATS {
+        copy_rows(&mut out, rows, dim, &of);
+    } else {
+        out.par_chunks_mut(GATHER_CHUNK * dim)
+            .zip(rows.par_chunks(GATHER_CHUNK))
+            .for_each(|(o, rs)| copy_rows(o, rs, dim, &of));
+    }
     out
+}
+
+/// Copies each row's vector into its place in `out`. A vector of a few floats (PointMaze's 2, a
+/// Fetch goal's 3) is copied as a fixed-size array: a `memcpy` call per row of 8 bytes was most of
+/// the out-of-core pool's drawing time (perf, bench_scale.py's pgser side on 100M PointMaze rows).
+fn copy_rows<'a, R>(out: &mut [f32], rows: &[R], dim: usize, of: &impl Fn(&R) -> &'a [f32]) {
+    fn fixed<'a, R, const D: usize>(out: &mut [f32], rows: &[R], of: &impl Fn(&R) -> &'a [f32]) {
+        for (o, r) in out.chunks_exact_mut(D).zip(rows) {
+            let o: &mut [f32; D] = o.try_into().expect("chunks of D");
+            *o = *<&[f32; D]>::try_from(of(r)).expect("a row's vector is D wide");
+        }
+    }
+    match dim {
+        0 => {}
+        1 => fixed::<R, 1>(out, rows, of),
+        2 => fixed::<R, 2>(out, rows, of),
+        3 => fixed::<R, 3>(out, rows, of),
+        4 => fixed::<R, 4>(out, rows, of),
+        5 => fixed::<R, 5>(out, rows, of),
+        6 => fixed::<R, 6>(out, rows, of),
+        7 => fixed::<R, 7>(out, rows, of),
+        8 => fixed::<R, 8>(out, rows, of),
+        _ => {
+            for (o, r) in out.chunks_exact_mut(dim).zip(rows) {
+                o.copy_from_slice(of(r));
+            }
+        }
+    }
 }
 
 /// β as an engine holds it (`Engine::hold`).
