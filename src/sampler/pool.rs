@@ -177,6 +177,9 @@ pub struct PoolStats {
     pub waits: u64,
     pub waited: Duration,
     pub longest_wait: Duration,
+    /// The longest swap itself, its wait left out: placing the block, feeding the reservoir and
+    /// re-indexing the resident episodes, which the drawing thread does between two batches.
+    pub longest_swap: Duration,
 }
 
 /// β within a memory budget (see the module doc).
@@ -422,16 +425,17 @@ impl Pool {
     /// Takes the next block from the loader in place of the oldest, and feeds the reservoir.
     fn swap(&mut self) -> Result<()> {
         let t0 = Instant::now();
+        let mut wait = Duration::ZERO;
         let next = {
             let rx = self.loader.get_mut().expect("the loader's channel is never poisoned");
             match rx.try_recv() {
                 Ok(b) => b,
                 Err(_) => {
                     let b = rx.recv().map_err(|_| anyhow!("the pool's loader stopped"))?;
-                    let w = t0.elapsed();
+                    wait = t0.elapsed();
                     self.stats.waits += 1;
-                    self.stats.waited += w;
-                    self.stats.longest_wait = self.stats.longest_wait.max(w);
+                    self.stats.waited += wait;
+                    self.stats.longest_wait = self.stats.longest_wait.max(wait);
                     b
                 }
             }
@@ -454,6 +458,7 @@ impl Pool {
         }
         self.resident.push_back(next);
         self.reindex();
+        self.stats.longest_swap = self.stats.longest_swap.max(t0.elapsed().saturating_sub(wait));
         Ok(())
     }
 

@@ -311,6 +311,7 @@ def test_pool_stats_count_the_disk_waits_of_a_pool_and_none_when_held_whole(tabl
         # 60 batches of 256 draws are 15,360, and a block leaves after its 490 transitions.
         assert st["swaps"] >= 25, (layout, st)
         assert 0 <= st["waits"] <= st["swaps"] and st["longest_wait_seconds"] <= st["waited_seconds"], st
+        assert 0 < st["longest_swap_seconds"] < 1.0, st
         with pgser.Sampler(small, layout=layout, batch_size=256) as s:
             s.sample()
             assert s.pool_stats() is None
