@@ -219,8 +219,12 @@ case "${1:-}" in
       # whose footer finds that Q by a path relative to the grid's out/, which a copy elsewhere
       # does not have: its figures stay the ones its own build drew.
       given_q=$(sed -n '/^\[pretrain\]/,/^\[/p' "$g" | grep -c '^checkpoint *=' || true)
+      # So does one whose data is a table given by path ([data] table): the copy has no such table.
+      given_table=$(sed -n '/^\[data\]/,/^\[/p' "$g" | grep -c '^table *=' || true)
       if [ "$given_q" != 0 ]; then
         echo "$name: scores with a given Q: figures as its own build drew them"
+      elif [ "$given_table" != 0 ]; then
+        echo "$name: reads a table given by path: figures as its own build drew them"
       elif [ "$render" != "$bin/pgser-etl" ]; then
         # The report and results steps again, on a hard-linked copy of out/ (outputs are replaced
         # by rename, so the grid's own files are never written) with their records removed so
