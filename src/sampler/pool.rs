@@ -492,22 +492,28 @@ fn entries(layout: &Layout, cfg: &PoolConfig, head: usize) -> Entries {
     }
 }
 
+/// glibc's mmap threshold while a pool lives: buffers of this many bytes or more are mappings of
+/// their own, returned to the system when freed.
+pub(super) const MMAP_THRESHOLD: usize = 1 << 20;
+
 /// Makes glibc give large buffers (a block's arrays, a row group's decoded pages) back to the
 /// system when they are freed. By default glibc raises its mmap threshold each time such a
 /// buffer is freed, up to 32 MB, after which buffers of a block's size come from the heaps of the
 /// threads that allocated them and stay there when freed: measured on 10M humanoidmaze-shaped
 /// rows, the process then held 0.9 GB beyond a 1 GB budget, more on a larger table. A fixed
-/// threshold keeps every buffer over 128 KiB a mapping of its own, returned on free. It was 1 MiB
-/// at first, which left PointMaze's blocks (arrays of 500 kB: 62,500 rows of 2 floats) in the
-/// threads' heaps, where they fragmented: peak RSS rose while drawing, from 1,162 MiB after 2,000
-/// batches to 1,326 MiB after 8,000 and 1,706 MiB after 20,000 (100M rows, 1 GB budget); at
-/// 128 KiB it stays at 1,171 MiB through 30,000 batches, at the same speed. Process-wide and
-/// idempotent; elsewhere than glibc it does nothing.
+/// threshold keeps every buffer over 1 MiB a mapping of its own, returned on free. A block's
+/// arrays are always at least that large ([`Layout::read`] reserves it), however narrow the rows:
+/// PointMaze's 500 kB arrays (62,500 rows of 2 floats) otherwise stayed in the threads' heaps,
+/// where they fragmented, and peak RSS rose while drawing, from 1,162 MiB after 2,000 batches to
+/// 1,326 MiB after 8,000 and 1,706 MiB after 20,000 (100M rows, 1 GB budget). A lower threshold
+/// (128 KiB) fixed that too, but then every batch's wide vectors (1024 rows of 69 floats: 282 kB)
+/// were fresh mappings, zeroed by the kernel: 805 → 679 batches/s on humanoidmaze's shape.
+/// Process-wide and idempotent; elsewhere than glibc it does nothing.
 fn keep_large_buffers_returnable() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets an allocator parameter; it is safe to call at any time.
     unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 17);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD as i32);
     }
 }
 

@@ -235,7 +235,12 @@ impl Layout {
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
         let mut out: [Vec<f32>; 4] =
-            std::array::from_fn(|k| Vec::with_capacity(if which[k] { b.episodes * steps[k] * dims[k] } else { 0 }));
+            // At least the mmap threshold, so every array is a mapping of its own, returned whole
+            // when the block leaves (`keep_large_buffers_returnable`); untouched pages cost no memory.
+            std::array::from_fn(|k| {
+                let floats = if which[k] { b.episodes * steps[k] * dims[k] } else { 0 };
+                Vec::with_capacity(if floats > 0 { floats.max(super::MMAP_THRESHOLD / 4) } else { 0 })
+            });
         let mut row = b.first_row;
         for batch in reader {
             let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
