@@ -12,10 +12,9 @@
 //! overlap; the thread never holds the GIL. Dropping the sampler, `close()`, or the end of
 //! `num_batches` stops the thread.
 
-use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, SyncSender, channel, sync_channel};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel, sync_channel};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -33,25 +32,15 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 use crate::{existing, py_err};
+use ogbench::{config_batch_size, og_dict, og_worker, ogbench_config};
+
+mod ogbench;
 
 type Drawn = anyhow::Result<(Batch, RowIds)>;
-type OgDrawn = anyhow::Result<OgbenchBatch>;
+pub(crate) type OgDrawn = anyhow::Result<OgbenchBatch>;
 
 /// How long a wait sleeps between checks for Ctrl-C.
 const TICK: Duration = Duration::from_millis(100);
-
-/// OGBench's config keys this sampler reads; any other key of an agent's config is ignored.
-const OG_FLOATS: [&str; 8] = [
-    "discount",
-    "p_swapgoal",
-    "value_p_curgoal",
-    "value_p_trajgoal",
-    "value_p_randomgoal",
-    "actor_p_curgoal",
-    "actor_p_trajgoal",
-    "actor_p_randomgoal",
-];
-const OG_BOOLS: [&str; 4] = ["value_geom_sample", "actor_geom_sample", "gc_negative", "swap_actor_goals"];
 
 /// pgser's own batches (original data, HER, random swapping, the prioritized `-mem` mix), or
 /// OGBench's (`layout="ogbench"`).
@@ -122,123 +111,6 @@ fn parse_budget(b: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
         }
     };
     Ok(Budget::Bytes(bytes))
-}
-
-/// OGBench's settings: its defaults, then an agent's `config` (any mapping: a dict, an
-/// `ml_collections.ConfigDict`), then the keyword arguments. Keys OGBench's GCDataset reads but
-/// pgser does not draw (`frame_stack`, `p_aug`, a `dataset_class` other than GCDataset) are
-/// refused when set, so a config is never silently trained on other batches than it asks for.
-fn ogbench_config<'py>(
-    config: Option<&Bound<'py, PyAny>>,
-    kw: &[(&str, Option<f64>)],
-    kw_bools: &[(&str, Option<bool>)],
-) -> PyResult<OgbenchConfig> {
-    let mut values = serde_json::to_value(OgbenchConfig::default()).expect("a plain struct");
-    let obj = values.as_object_mut().expect("a struct is an object");
-    if let Some(c) = config.filter(|c| !c.is_none()) {
-        // A key that is absent or None is not set (ConfigDict's placeholders are None).
-        let get = |k: &str| -> PyResult<Option<Bound<'py, PyAny>>> {
-            if !c.contains(k)? {
-                return Ok(None);
-            }
-            let v = c.get_item(k)?;
-            Ok(if v.is_none() { None } else { Some(v) })
-        };
-        for k in OG_FLOATS {
-            if let Some(v) = get(k)? {
-                let x: f64 = v.extract().map_err(|_| PyValueError::new_err(format!("config[{k:?}]: not a number")))?;
-                obj.insert(k.into(), x.into());
-            }
-        }
-        for k in OG_BOOLS {
-            if let Some(v) = get(k)? {
-                obj.insert(k.into(), v.is_truthy()?.into());
-            }
-        }
-        if let Some(v) = get("frame_stack")? {
-            return Err(PyValueError::new_err(format!(
-                "config[\"frame_stack\"] = {}: frame stacking (OGBench's pixel tasks) is not drawn by pgser; use None",
-                v.repr()?
-            )));
-        }
-        if let Some(v) = get("p_aug")?
-            && v.extract::<f64>().map_or(true, |p| p != 0.0)
-        {
-            return Err(PyValueError::new_err(format!(
-                "config[\"p_aug\"] = {}: image augmentation (OGBench's pixel tasks) is not done by pgser; use 0 or None",
-                v.repr()?
-            )));
-        }
-        if let Some(v) = get("dataset_class")? {
-            let name: String = v.str()?.to_cow()?.into_owned();
-            if name != "GCDataset" {
-                return Err(PyValueError::new_err(format!(
-                    "config[\"dataset_class\"] = {name:?}: pgser draws GCDataset's batches only (not HGCDataset's subgoals)"
-                )));
-            }
-        }
-    }
-    for &(k, v) in kw {
-        if let Some(x) = v {
-            obj.insert(k.into(), x.into());
-        }
-    }
-    for &(k, v) in kw_bools {
-        if let Some(x) = v {
-            obj.insert(k.into(), x.into());
-        }
-    }
-    let cfg: OgbenchConfig = serde_json::from_value(values).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    cfg.validate().map_err(py_err)?;
-    Ok(cfg)
-}
-
-/// The batch size from `config["batch_size"]`, when an agent's config carries one.
-fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
-    match config.filter(|c| !c.is_none()) {
-        Some(c) if c.contains("batch_size")? => Ok(Some(
-            c.get_item("batch_size")?
-                .extract()
-                .map_err(|_| PyValueError::new_err("config[\"batch_size\"]: not a positive int"))?,
-        )),
-        _ => Ok(None),
-    }
-}
-
-/// The ogbench layout's worker. Batch k of the stream is drawn from its own generator, so the
-/// worker keeps batches k, k+1, … of the default size ready and, asked for another size, drops
-/// them and draws batch k at that size. It fills its queue before it answers a request, so which
-/// batches were drawn (and, for a pool, which data are resident) depends only on the requests
-/// made, never on timing: the same seed and the same calls give the same bytes.
-fn og_worker(
-    mut stream: OgbenchStream,
-    (size, prefetch): (usize, usize),
-    req: Receiver<usize>,
-    out: SyncSender<OgDrawn>,
-    pool: Arc<Mutex<Option<PoolStats>>>,
-) {
-    let mut ready: VecDeque<OgDrawn> = VecDeque::new();
-    let mut k = 0u64;
-    loop {
-        if ready.len() < prefetch && !ready.back().is_some_and(|b| b.is_err()) {
-            ready.push_back(stream.batch(k + ready.len() as u64, size));
-            *pool.lock().unwrap() = stream.pool_stats();
-            continue;
-        }
-        // A closed request channel: the sampler was closed or dropped.
-        let Ok(n) = req.recv() else { return };
-        let b = if n == size {
-            ready.pop_front().expect("filled above")
-        } else {
-            ready.clear();
-            stream.batch(k, n)
-        };
-        k += 1;
-        let failed = b.is_err();
-        if out.send(b).is_err() || failed {
-            return;
-        }
-    }
 }
 
 #[pymethods]
@@ -630,31 +502,6 @@ fn pgser_dict<'py>(
     d.set_item("episode", wide(ids.episode))?;
     d.set_item("step", wide(ids.step))?;
     d.set_item("scored_row", ids.scored_row.into_pyarray(py))?;
-    Ok(d)
-}
-
-/// OGBench's batch dict, with its dtypes: float32 vectors and terminals, float64 rewards and
-/// masks (`successes.astype(float)` in its GCDataset), and pgser's int64 provenance columns.
-fn og_dict(py: Python<'_>, b: OgbenchBatch) -> PyResult<Bound<'_, PyDict>> {
-    let (n, od, ad) = (b.n, b.obs_dim, b.act_dim);
-    let d = PyDict::new(py);
-    let matrix = |v: Vec<f32>, dim: usize| v.into_pyarray(py).reshape([n, dim]);
-    let wide = |v: Vec<f32>| v.into_iter().map(f64::from).collect::<Vec<f64>>().into_pyarray(py);
-    d.set_item("observations", matrix(b.observations, od)?)?;
-    d.set_item("next_observations", matrix(b.next_observations, od)?)?;
-    d.set_item("actions", matrix(b.actions, ad)?)?;
-    d.set_item("terminals", b.terminals.into_pyarray(py))?;
-    d.set_item("rewards", wide(b.rewards))?;
-    d.set_item("masks", wide(b.masks))?;
-    d.set_item("value_goals", matrix(b.value_goals, od)?)?;
-    d.set_item("actor_goals", matrix(b.actor_goals, od)?)?;
-    d.set_item("episode", b.episode.into_pyarray(py))?;
-    d.set_item("step", b.step.into_pyarray(py))?;
-    d.set_item("value_goal_episode", b.value_goal_episode.into_pyarray(py))?;
-    d.set_item("value_goal_step", b.value_goal_step.into_pyarray(py))?;
-    d.set_item("actor_goal_episode", b.actor_goal_episode.into_pyarray(py))?;
-    d.set_item("actor_goal_step", b.actor_goal_step.into_pyarray(py))?;
-    d.set_item("scored_row", b.scored_row.into_pyarray(py))?;
     Ok(d)
 }
 

@@ -240,7 +240,7 @@ impl Layout {
             // when the block leaves (`keep_large_buffers_returnable`); untouched pages cost no memory.
             std::array::from_fn(|k| {
                 let floats = if which[k] { b.episodes * steps[k] * dims[k] } else { 0 };
-                Vec::with_capacity(if floats > 0 { floats.max(super::MMAP_THRESHOLD / 4) } else { 0 })
+                Vec::with_capacity(if floats > 0 { floats.max(super::loader::MMAP_THRESHOLD / 4) } else { 0 })
             });
         let mut row = b.first_row;
         for batch in reader {
