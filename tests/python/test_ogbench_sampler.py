@@ -315,6 +315,21 @@ def test_pool_stats_count_the_disk_waits_of_a_pool_and_none_when_held_whole(tabl
         with pgser.Sampler(small, layout=layout, batch_size=256) as s:
             s.sample()
             assert s.pool_stats() is None
+    # With a pool, what is resident depends on the batches drawn before: the same calls give the
+    # same bytes whether they come back to back (the queue never full) or after it has filled.
+    import time
+    sizes = [256, 256, 100, 256, 300, 256, 256]
+
+    def run(pause):
+        with pgser.Sampler(small, layout="ogbench", memory_budget=350_000, batch_size=256, seed=4) as s:
+            out = []
+            for n in sizes:
+                time.sleep(pause)
+                out.append(s.sample(n))
+            return out
+
+    for a, b in zip(run(0.0), run(0.05)):
+        assert all(np.array_equal(a[k], b[k]) for k in a)
 
 
 def test_same_seed_same_bytes_whatever_the_sizes_asked(folder):

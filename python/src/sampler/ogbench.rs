@@ -2,7 +2,7 @@
 //! draws batches of any size asked for, and the dict OGBench's agents take.
 
 use std::collections::VecDeque;
-use std::sync::mpsc::{Receiver, SyncSender};
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use numpy::{IntoPyArray, PyArrayMethods};
@@ -111,9 +111,12 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
 
 /// The ogbench layout's worker. Batch k of the stream is drawn from its own generator, so the
 /// worker keeps batches k, k+1, … of the default size ready and, asked for another size, drops
-/// them and draws batch k at that size. It fills its queue before it answers a request, so which
-/// batches were drawn (and, for a pool, which data are resident) depends only on the requests
-/// made, never on timing: the same seed and the same calls give the same bytes.
+/// them and draws batch k at that size. A request for the default size is answered as soon as
+/// batch k is ready, before the queue is topped up, so a learner waits for a draw only when it
+/// has used up the queue. Which batches are drawn (and, for a pool, which data are resident)
+/// still depends only on the requests made, never on timing: the default-size batches are drawn
+/// in order whoever asks when, and a request for another size first fills the queue, as if it had
+/// waited for it, so the same seed and the same calls give the same bytes.
 pub(super) fn og_worker(
     mut stream: OgbenchStream,
     (size, prefetch): (usize, usize),
@@ -123,17 +126,38 @@ pub(super) fn og_worker(
 ) {
     let mut ready: VecDeque<OgDrawn> = VecDeque::new();
     let mut k = 0u64;
-    loop {
-        if ready.len() < prefetch && !ready.back().is_some_and(|b| b.is_err()) {
-            ready.push_back(stream.batch(k + ready.len() as u64, size));
-            *pool.lock().unwrap() = stream.pool_stats();
-            continue;
+    // Draws the next default-size batch into the queue, unless it is full or ends in an error.
+    let top_up = |stream: &mut OgbenchStream, ready: &mut VecDeque<OgDrawn>, k: u64| -> bool {
+        if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) {
+            return false;
         }
-        // A closed request channel: the sampler was closed or dropped.
-        let Ok(n) = req.recv() else { return };
+        ready.push_back(stream.batch(k + ready.len() as u64, size));
+        *pool.lock().unwrap() = stream.pool_stats();
+        true
+    };
+    loop {
+        let n = match req.try_recv() {
+            Ok(n) => n,
+            Err(TryRecvError::Disconnected) => return,
+            Err(TryRecvError::Empty) => {
+                if top_up(&mut stream, &mut ready, k) {
+                    continue;
+                }
+                // A closed request channel: the sampler was closed or dropped.
+                let Ok(n) = req.recv() else { return };
+                n
+            }
+        };
         let b = if n == size {
-            ready.pop_front().expect("filled above")
+            match ready.pop_front() {
+                Some(b) => b,
+                None => {
+                    top_up(&mut stream, &mut ready, k);
+                    ready.pop_front().expect("an empty queue takes a batch")
+                }
+            }
         } else {
+            while top_up(&mut stream, &mut ready, k) {}
             ready.clear();
             stream.batch(k, n)
         };
