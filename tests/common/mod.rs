@@ -126,7 +126,12 @@ pub fn sample_pipeline(dir: &Path, file: &str, name: &str, rest: &str) -> PathBu
 
 /// `DIR/tiny.toml`: [`sample_pipeline`] with counts small enough for seconds.
 pub fn tiny_pipeline(dir: &Path, agent_updates: u64, swaps: usize) -> PathBuf {
-    let rest = format!(
+    sample_pipeline(dir, "tiny.toml", "tiny", &tiny_settings(agent_updates, swaps))
+}
+
+/// The tiny pipeline's tables after `[data]`: [train], [pretrain], [score], [report], [agents].
+fn tiny_settings(agent_updates: u64, swaps: usize) -> String {
+    format!(
         r#"[train]
 batch_size = 64
 eval_every = 0
@@ -143,8 +148,7 @@ seed = 1
 seeds = [0, 1]
 updates = {agent_updates}
 "#
-    );
-    sample_pipeline(dir, "tiny.toml", "tiny", &rest)
+    )
 }
 
 /// Every file under `out` except the step records, by path relative to `out`.
@@ -280,27 +284,8 @@ pub fn folder_pipeline(dir: &Path, agent_updates: u64) -> PathBuf {
         reach_folder(dir);
     }
     let toml = format!(
-        r#"name = "folder"
-task = "FetchReach"
-out = "out"
-[data]
-table = "reach"
-[train]
-batch_size = 64
-eval_every = 0
-eval_episodes = 4
-save_every = 0
-log_every = 10
-[pretrain]
-updates = 40
-[score]
-swaps = 2
-[report]
-seed = 1
-[agents]
-seeds = [0, 1]
-updates = {agent_updates}
-"#
+        "name = \"folder\"\ntask = \"FetchReach\"\nout = \"out\"\n[data]\ntable = \"reach\"\n{}",
+        tiny_settings(agent_updates, 2)
     );
     let path = dir.join("folder.toml");
     std::fs::write(&path, toml).unwrap();
