@@ -123,13 +123,10 @@ type Beta = (Task, Vec<(PathBuf, usize)>, usize);
 /// positives are the first source's, as for pickles; the whole table when its footer lists no
 /// sources that add up to it), and bytes per value.
 fn check_table(path: &Path, task: &str) -> Result<Beta> {
-    let footer = if crate::trajectory::folder::is_folder(path) {
-        crate::trajectory::folder::TableFolder::open(path)?.footer().clone()
-    } else if path.is_dir() {
+    if path.is_dir() && !crate::trajectory::folder::is_folder(path) {
         bail!("a folder without {}: not a table folder", crate::trajectory::folder::MANIFEST);
-    } else {
-        crate::trajectory::folder::shard_footer(path)?
-    };
+    }
+    let footer = crate::trajectory::folder::footer(path)?;
     let want = crate::env::task(task)?;
     let has = crate::env::task(&footer.task).map(|t| t.name).unwrap_or_else(|_| footer.task.clone());
     if has != want.name {

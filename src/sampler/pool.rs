@@ -138,14 +138,6 @@ impl Beta {
         })
     }
 
-    /// The view of β as a box of its own.
-    pub fn into_view(self) -> Box<dyn View> {
-        match self {
-            Beta::Whole(d) => Box::new(super::view::InMemory(d)),
-            Beta::Pool(p) => p,
-        }
-    }
-
     /// Plans `path` against `budget` and opens it.
     pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Beta> {
         let cfg = PoolConfig { budget, draws_per_row: 1.0, seed, window: None };

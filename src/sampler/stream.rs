@@ -125,7 +125,7 @@ impl BatchSource {
                 }
             }
         };
-        let data = beta_of(&table)?;
+        let data = beta_at(&table, &source)?;
         Ok(BatchSource { data: Beta::Whole(Arc::new(data)), scored: Some(table) })
     }
 
@@ -260,10 +260,15 @@ impl BatchStream {
 
 /// The trajectory table a scored table names, checked: present, unchanged, same task.
 pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
-    let path = checked_source(table)?;
-    let data = Episodes::load(&path)?;
+    beta_at(table, &checked_source(table)?)
+}
+
+/// The trajectory table at `source`, which [`checked_source`] returned for `table`, loaded and
+/// checked to be of the same task (without hashing it again).
+pub(super) fn beta_at(table: &ScoredTable, source: &std::path::Path) -> Result<Episodes> {
+    let data = Episodes::load(source)?;
     if data.task != table.task {
-        bail!("{}: its task differs from that of its original data {}", table.path.display(), path.display());
+        bail!("{}: its task differs from that of its original data {}", table.path.display(), source.display());
     }
     Ok(data)
 }

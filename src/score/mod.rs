@@ -281,7 +281,7 @@ impl<'a> Job<'a> {
         let (agent, _) = checkpoint::load(&o.checkpoint, o.device.device()?)?;
         check_compatible(&agent.task, &o.checkpoint, &table, &o.data)?;
         let task = table.task();
-        let pool = read::goal_pool(&o.data, o.goal_sample.map(|k| (k, o.seed)))?;
+        let pool = read::goal_pool(&o.data, &table, o.goal_sample.map(|k| (k, o.seed)))?;
         let per = o.swaps + o.include_original as usize;
         let chunk_episodes = o.chunk_episodes.unwrap_or((CHUNK_ROWS / ((table.t - 1) * per).max(1)).max(1));
         let schema = schema(&task);

@@ -45,9 +45,8 @@ pub fn footer(path: &Path) -> Result<Footer> {
 /// shards in order): every achieved goal of the table, or, with `sample = Some((k, seed))`, `k`
 /// of them drawn uniformly with replacement from the stream spawned from (seed,
 /// [`STREAM_GOAL_SAMPLE`]), which holds k goals whatever the table's size. A sample of at least
-/// the table's observations is the whole table.
-pub fn goal_pool(path: &Path, sample: Option<(usize, u64)>) -> Result<GoalPool> {
-    let table = footer(path)?;
+/// the table's observations is the whole table. `table` is the table's [`footer`].
+pub fn goal_pool(path: &Path, table: &Footer, sample: Option<(usize, u64)>) -> Result<GoalPool> {
     let observations = table.episodes * table.t;
     // The sampled observations' table-wide indices, in order (a repeat is a second entry).
     let mut wanted: Option<Vec<u64>> = sample.filter(|&(k, _)| k < observations).map(|(k, seed)| {

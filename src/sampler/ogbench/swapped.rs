@@ -141,47 +141,47 @@ impl Source {
                  observation, which OGBench's goals are; score without it"
             );
         }
-        let layout = || -> Result<Layout> {
-            Ok(Layout::open(&source)?.with_scored(ScoredTable::open(path)?, priority.clone())?.with_goal_sources())
+        let whole = |table: ScoredTable| -> Result<Source> {
+            let data = crate::sampler::stream::beta_at(&table, &source)?;
+            let q = table.read_q()?;
+            let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
+            let keys = table.read_keys(&data)?;
+            Ok(Source::Whole { data: Arc::new(data), rows: WholeRows { tree, keys } })
+        };
+        if budget == Budget::Unbounded {
+            return whole(table);
+        }
+        let layout = Layout::open(&source)?.with_scored(table, priority.clone())?.with_goal_sources();
+        // Within a budget the stored goal stands for the observation it was taken from: refused
+        // unless the task's goals are its whole observations (the width now, the values below).
+        let (task, bytes) = (layout.task().clone(), layout.bytes());
+        let refuse = || {
+            anyhow::anyhow!(
+                "{at}: p_swapgoal within a memory budget needs goals that are whole observations (a block keeps the \
+                 goals its rows were scored with, not the observations they were taken from); {}'s goals are {} of \
+                 its {} observation values. Hold the data in memory (no memory_budget, or one above {}), or use \
+                 layout=\"pgser\"",
+                task.name,
+                task.goal_dim,
+                task.obs_dim,
+                crate::progress::bytes(bytes)
+            )
         };
         let pool = match budget {
-            Budget::Unbounded => None,
-            Budget::ShardWindow(rows) => Some(Pool::window(layout()?, rows, seed)?),
-            Budget::Bytes(b) => {
-                let layout = layout()?;
-                match Plan::of(&layout, b)? {
-                    Plan::Whole => None,
-                    Plan::Pool { slots, reservoir } => {
-                        let cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed, window: None };
-                        Some(Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?)
-                    }
+            Budget::Unbounded => unreachable!("held whole above"),
+            Budget::ShardWindow(_) | Budget::Bytes(_) if task.goal_dim != task.obs_dim => return Err(refuse()),
+            Budget::ShardWindow(rows) => Pool::window(layout, rows, seed)?,
+            Budget::Bytes(b) => match Plan::of(&layout, b)? {
+                Plan::Whole => return whole(layout.into_scored().expect("attached above")),
+                Plan::Pool { slots, reservoir } => {
+                    let cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed, window: None };
+                    Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?
                 }
-            }
+            },
         };
-        match pool {
-            Some(pool) => {
-                if !pool.goals_are_observations() {
-                    let task = pool.task();
-                    bail!(
-                        "{at}: p_swapgoal within a memory budget needs goals that are whole observations (a block \
-                         keeps the goals its rows were scored with, not the observations they were taken from); \
-                         {}'s goals are {} of its {} observation values. Hold the data in memory (no \
-                         memory_budget, or one above {}), or use layout=\"pgser\"",
-                        task.name,
-                        task.goal_dim,
-                        task.obs_dim,
-                        crate::progress::bytes(layout()?.bytes())
-                    );
-                }
-                Ok(Source::Pool(Box::new(pool)))
-            }
-            None => {
-                let data = crate::sampler::stream::beta_of(&table)?;
-                let q = table.read_q()?;
-                let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
-                let keys = table.read_keys(&data)?;
-                Ok(Source::Whole { data: Arc::new(data), rows: WholeRows { tree, keys } })
-            }
+        if !pool.goals_are_observations() {
+            return Err(refuse());
         }
+        Ok(Source::Pool(Box::new(pool)))
     }
 }

@@ -170,6 +170,11 @@ impl Layout {
         self
     }
 
+    /// The table's task.
+    pub fn task(&self) -> &Task {
+        &self.task
+    }
+
     /// The scored table `with_scored` attached, taken back (to draw from β held whole).
     pub fn into_scored(self) -> Option<ScoredTable> {
         self.scored.map(|s| s.table)
