@@ -162,7 +162,7 @@ const PARALLEL_FLOATS: usize = 1 << 16;
 pub(crate) fn gather_rows<'a, R: Sync>(rows: &[R], dim: usize, of: impl Fn(&R) -> &'a [f32] + Sync) -> Vec<f32> {
     use rayon::prelude::*;
     let mut out = vec![0.0f32; rows.len() * dim];
-    if rows.len() * dim < PARALLEL_FLOATS {
+    if rows.len() * dim < PARALLEL_FLOATS || rayon::current_num_threads() <= 2 {
         copy_rows(&mut out, rows, dim, &of);
     } else {
         out.par_chunks_mut(GATHER_CHUNK * dim)

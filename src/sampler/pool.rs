@@ -68,7 +68,7 @@
 
 use std::collections::VecDeque;
 use std::path::Path;
-use std::sync::mpsc::Receiver;
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -83,9 +83,9 @@ use super::view::{GoalSource, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
 use crate::trajectory::Episodes;
-use layout::Block;
+use layout::{Arrays, Block};
 pub use layout::{Layout, Plan};
-use loader::{keep_large_buffers_returnable, spawn_loader};
+use loader::{advise_huge_pages, keep_large_buffers_returnable, settle_after_open, spawn_loader};
 use schedule::{Entries, Keys};
 
 /// Options of a pool besides its budget.
@@ -198,6 +198,8 @@ pub struct Pool {
     /// Transitions drawn since the last swap.
     drawn: f64,
     loader: Mutex<Receiver<Result<Block>>>,
+    /// Leaving blocks' arrays, back to the loader.
+    spare: SyncSender<Arrays>,
     stats: PoolStats,
 }
 
@@ -237,8 +239,12 @@ impl Pool {
         }
         let resident: VecDeque<Block> = queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
         let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
+        let (loader, spare) = spawn_loader(layout.clone(), cfg, slots, next_entry);
+        let (mut goal_ag, mut goal_obs) = (vec![0.0; reservoir * gd], vec![0.0; reservoir * od]);
+        advise_huge_pages(&mut goal_ag, reservoir * gd);
+        advise_huge_pages(&mut goal_obs, reservoir * od);
         let mut pool = Pool {
-            layout: layout.clone(),
+            layout,
             cfg,
             slots,
             entries,
@@ -248,14 +254,16 @@ impl Pool {
             starts: Vec::new(),
             keys,
             goal_at: vec![(0, 0); reservoir],
-            goal_ag: vec![0.0; reservoir * gd],
-            goal_obs: vec![0.0; reservoir * od],
+            goal_ag,
+            goal_obs,
             drawn,
-            loader: Mutex::new(spawn_loader(layout, cfg, slots, next_entry)),
+            loader: Mutex::new(loader),
+            spare,
             stats: PoolStats::default(),
         };
         pool.reindex();
         pool.materialize()?;
+        settle_after_open();
         Ok(pool)
     }
 
@@ -292,7 +300,9 @@ impl Pool {
         entries.extend(
             others
                 .into_par_iter()
-                .map(|(&id, slots)| Ok(take(&layout.read_columns(id, &[true, true, false, false])?, slots)))
+                .map(|(&id, slots)| {
+                    Ok(take(&layout.read_columns(id, &[true, true, false, false], Default::default())?, slots))
+                })
                 .collect::<Result<Vec<_>>>()?,
         );
         for (slots, at, ag, obs) in entries {
@@ -438,10 +448,18 @@ impl Pool {
         assert_eq!(next.id, want, "the loader and the pool agree on the order of entries");
         self.next_entry += 1;
         self.stats.swaps += 1;
-        let leaving = self.resident.pop_front();
-        // Freeing a block returns its pages to the system (`keep_large_buffers_returnable`),
-        // milliseconds for a large one: done off the drawing thread, so no batch waits for it.
-        std::thread::spawn(move || drop(leaving));
+        let mut leaving = self.resident.pop_front().expect("a pool holds blocks");
+        // Its arrays go back to the loader to be filled again (`spawn_loader`). What is freed
+        // (its scored rows; the arrays when the loader has a spare already) returns its pages to
+        // the system (`keep_large_buffers_returnable`), milliseconds for a large block: done off
+        // the drawing thread, so no batch waits for it.
+        let unused = match self.spare.try_send(leaving.take_arrays()) {
+            Err(TrySendError::Full(a) | TrySendError::Disconnected(a)) => Some(a),
+            Ok(()) => None,
+        };
+        if unused.is_some() || leaving.aug.is_some() {
+            std::thread::spawn(move || drop((leaving, unused)));
+        }
         let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
         let len = self.goal_at.len();
         for j in self.keys.feed(&self.layout, next.id) {

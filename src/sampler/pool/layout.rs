@@ -204,12 +204,13 @@ impl Layout {
     /// Reads block `id`: its chunks checked against the shard's checksums, every row checked as
     /// `Episodes::load` checks them, decoded to float32.
     pub(super) fn read(&self, id: usize) -> Result<Block> {
-        self.read_columns(id, &[true; 4])
+        self.read_columns(id, &[true; 4], Arrays::default())
     }
 
-    /// Reads the columns of block `id` that `which` marks (in [`VECTORS`] order); the others
-    /// stay empty. The reservoir's first fill reads observations and achieved goals only.
-    pub(super) fn read_columns(&self, id: usize, which: &[bool; 4]) -> Result<Block> {
+    /// Reads the columns of block `id` that `which` marks (in [`VECTORS`] order) into `into`'s
+    /// arrays (a leaving block's, or empty ones); the others stay empty. The reservoir's first
+    /// fill reads observations and achieved goals only.
+    pub(super) fn read_columns(&self, id: usize, which: &[bool; 4], into: Arrays) -> Result<Block> {
         let b = self.blocks[id];
         let shard = &self.shards[b.shard];
         let at = match b.groups {
@@ -240,13 +241,22 @@ impl Layout {
             .with_context(|| format!("{at}: cannot read"))?;
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
-        let mut out: [Vec<f32>; 4] =
-            // At least the mmap threshold, so every array is a mapping of its own, returned whole
-            // when the block leaves (`keep_large_buffers_returnable`); untouched pages cost no memory.
-            std::array::from_fn(|k| {
-                let floats = if which[k] { b.episodes * steps[k] * dims[k] } else { 0 };
-                Vec::with_capacity(if floats > 0 { floats.max(super::loader::MMAP_THRESHOLD / 4) } else { 0 })
-            });
+        let mut out = into.0;
+        for (k, v) in out.iter_mut().enumerate() {
+            let floats = if which[k] { b.episodes * steps[k] * dims[k] } else { 0 };
+            v.clear();
+            if floats == 0 {
+                *v = Vec::new();
+            } else {
+                // At least the mmap threshold, so every array is a mapping of its own, returned
+                // whole when it is freed (`keep_large_buffers_returnable`); untouched pages cost
+                // no memory. A recycled array of a block as large or larger reserves nothing.
+                if v.capacity() < floats {
+                    v.reserve(floats.max(super::loader::MMAP_THRESHOLD / 4));
+                    super::loader::advise_huge_pages(v, floats);
+                }
+            }
+        }
         let mut row = b.first_row;
         for batch in reader {
             let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
@@ -337,6 +347,11 @@ impl Plan {
     }
 }
 
+/// A block's four arrays (in [`VECTORS`] order), emptied: a leaving block's are handed back to
+/// the loader and filled with the next block's rows (`loader.rs` says why).
+#[derive(Default)]
+pub(super) struct Arrays([Vec<f32>; 4]);
+
 /// A resident block.
 pub(super) struct Block {
     pub(super) id: usize,
@@ -362,6 +377,12 @@ pub(super) struct ScoredRows {
 }
 
 impl Block {
+    /// Its arrays, taken for the loader to fill again.
+    pub(super) fn take_arrays(&mut self) -> Arrays {
+        use std::mem::take;
+        Arrays([take(&mut self.obs), take(&mut self.ag), take(&mut self.g), take(&mut self.u)])
+    }
+
     pub(super) fn obs(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
         &self.obs[(e * t + s) * d..][..d]
     }
