@@ -118,7 +118,8 @@ fn a_goal_sample_holds_k_goals_drawn_from_every_shard_the_same_whoever_scores() 
         score(&o)
     };
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    sampled(&a, 2, None).unwrap();
+    let summary = sampled(&a, 2, None).unwrap();
+    assert_eq!(summary.goal_sample, Some(K), "the summary (and `score`'s line) names the sample");
     // Shard by shard on one thread (as array tasks, each drawing the sample again): the same bytes.
     for i in [3, 1, 0, 2] {
         sampled(&b, 1, Some(i)).unwrap();

@@ -204,6 +204,9 @@ pub struct ScoreSummary {
     pub rows: usize,
     pub swaps: usize,
     pub include_original: bool,
+    /// `--goal-sample K`: goals drawn from K achieved goals (absent: from every one).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub goal_sample: Option<usize>,
     pub q_min: f64,
     pub q_mean: f64,
     pub q_max: f64,
@@ -425,6 +428,7 @@ impl<'a> Job<'a> {
             rows: f.rows,
             swaps: f.swaps,
             include_original: f.include_original,
+            goal_sample: f.goal_sample,
             q_min: f.q.min,
             q_mean: f.q.mean,
             q_max: f.q.max,

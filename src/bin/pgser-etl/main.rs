@@ -117,13 +117,14 @@ pub(crate) fn main() -> ExitCode {
             let s = score::score(&opts, &bar)?;
             bar.finish_and_clear();
             eprintln!(
-                "wrote {}: {} rows ({} transitions × {}{}), q min/mean/max {:.3}/{:.3}/{:.3}, {:.1} MB; {:.2} s, \
+                "wrote {}: {} rows ({} transitions × {}{}){}, q min/mean/max {:.3}/{:.3}/{:.3}, {:.1} MB; {:.2} s, \
                  {:.0} rows/s on {} threads",
                 s.output.display(),
                 s.rows,
                 s.transitions,
                 s.swaps,
                 if s.include_original { " swaps + original" } else { " swaps" },
+                s.goal_sample.map_or(String::new(), |k| format!(", goals from a sample of {k}")),
                 s.q_min,
                 s.q_mean,
                 s.q_max,
