@@ -44,7 +44,7 @@ Usage (run in a Python that has `pgser` (make python) and numpy; pyarrow for the
     .venv/bin/python bench/bench_scale.py SHARDS_DIR --budget 1GB [--converted TABLE]
         [--workdir bench-out/scale-NAME] [--batches N] [--warmup 20] [--batch-size 1024]
         [--replace-interval N] [--prefix K | --no-prefix] [--repeat 1] [--seed 0]
-        [--prefetch 4] [--convert-arg ARG ...] [--peer-python PY] [--pgser-etl PATH]
+        [--prefetch 4] [--draws-per-row 1] [--convert-arg ARG ...] [--peer-python PY] [--pgser-etl PATH]
         [--json OUT.json]
 bench/make_scale_data.sh gives the commands for the benchmark's data sets.
 """
@@ -222,6 +222,7 @@ def pgser_child(argv: list[str]) -> None:
     ap.add_argument("--batch-size", type=int, required=True)
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--prefetch", type=int, required=True)
+    ap.add_argument("--draws-per-row", type=int, default=1)
     a = ap.parse_args(argv)
     import numpy as np
     import pgser
@@ -229,7 +230,7 @@ def pgser_child(argv: list[str]) -> None:
     rss_start = vm("VmRSS")
     t0 = time.perf_counter()
     s = pgser.Sampler(a.table, layout="ogbench", memory_budget=a.budget_bytes, batch_size=a.batch_size,
-                      seed=a.seed, prefetch=a.prefetch)
+                      seed=a.seed, prefetch=a.prefetch, draws_per_row=a.draws_per_row)
     open_s = time.perf_counter() - t0
     rss_open = vm("VmRSS")
     for _ in range(a.warmup):
@@ -392,6 +393,8 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=1, help="runs per side, order rotated (default 1)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--prefetch", type=int, default=4, help="pgser.Sampler's prefetch (default 4, its own)")
+    ap.add_argument("--draws-per-row", type=int, default=1,
+                    help="pgser.Sampler's draws_per_row: draws per transition a row group stays for (default 1)")
     ap.add_argument("--convert-arg", action="append", default=[],
                     help="extra argument for `pgser-etl convert` (repeatable; e.g. --convert-arg=--row-group-rows=4001)")
     ap.add_argument("--python", default=sys.executable, help="interpreter with pgser for (a) (default: this one)")
@@ -493,7 +496,8 @@ def main(argv=None) -> None:
     def pgser_cmd(t: Path) -> list[str]:
         return [python, str(Path(__file__).resolve()), "_pgser", str(t), "--budget-bytes", str(budget),
                 "--batches", str(batches), "--warmup", str(args.warmup), "--batch-size", str(args.batch_size),
-                "--seed", str(args.seed), "--prefetch", str(args.prefetch)]
+                "--seed", str(args.seed), "--prefetch", str(args.prefetch),
+                "--draws-per-row", str(args.draws_per_row)]
 
     peer = [peer_py, str(HERE / "ogbench_peer.py"), str(src), "--batches", str(batches), "--warmup",
             str(args.warmup), "--batch-size", str(args.batch_size), "--seed", str(args.seed)]
@@ -559,7 +563,7 @@ def main(argv=None) -> None:
     doc = {"dataset": name, "shards_dir": str(src), "shards": len(shards), "table": info, "budget_bytes": budget,
            "ratio_table_f32_to_budget": info["ratio_to_budget"], "batch_size": args.batch_size,
            "batches": batches, "warmup": args.warmup, "replace_interval": interval, "seed": args.seed,
-           "prefetch": args.prefetch, "repeat": args.repeat, "convert": conv, "prefix": prefix,
+           "prefetch": args.prefetch, "draws_per_row": args.draws_per_row, "repeat": args.repeat, "convert": conv, "prefix": prefix,
            "rss_vs_size": rss, "summary": summ, "runs": runs, "failed": failed, "machine": mach,
            "loadavg_start": load_start, "loadavg_end": load_end,
            "notes": ["pgser.Sampler draws on a background thread (prefetch batches ready): on an idle machine "

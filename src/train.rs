@@ -89,6 +89,13 @@ pub struct TrainConfig {
         deserialize_with = "crate::sampler::view::budget_setting"
     )]
     pub memory_budget: Option<u64>,
+    /// With --memory-budget, when the data does not fit it: keep each row group resident for N
+    /// draws per transition it holds (default 1: a pass of draws reads the table once). 2 reads
+    /// half as much, for a trainer faster than the reading; every shard still gets its share of
+    /// each pass of reading, and each block is drawn from for twice as long.
+    #[arg(long, value_name = "N", requires = "memory_budget", value_parser = clap::value_parser!(u32).range(1..))]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws_per_row: Option<u32>,
     /// Emulate Horizon Reduction's one-shard-at-a-time loading, for comparison: hold one shard of
     /// a table folder, move to the next (in folder order) every N updates, and draw every goal,
     /// random and prioritized ones included, from the held shard (docs/ogbench.md, "One shard at a
@@ -115,7 +122,8 @@ impl TrainConfig {
     pub fn budget(&self) -> Budget {
         match (self.shard_window, self.memory_budget) {
             (Some(updates), _) => Budget::ShardWindow(updates.saturating_mul(self.batch_size as u64)),
-            (None, bytes) => bytes.map_or(Budget::Unbounded, Budget::Bytes),
+            (None, Some(bytes)) => Budget::Bytes { bytes, draws_per_row: self.draws_per_row.unwrap_or(1) },
+            (None, None) => Budget::Unbounded,
         }
     }
 }

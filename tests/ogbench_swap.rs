@@ -147,7 +147,7 @@ fn swapped_rows_with_beta_in_memory_are_scored_rows_by_priority_with_their_goals
     let weights = PriorityConfig { is_beta: Some(0.4), ..PriorityConfig::default() };
     let e = OgbenchStream::open(&out, Budget::Unbounded, with_swaps(P_SWAP), &weights, 7).err().unwrap().to_string();
     assert!(e.contains("importance weights"), "{e}");
-    let e = open(&out, Budget::Bytes(420_000), with_swaps(P_SWAP)).err().unwrap().to_string();
+    let e = open(&out, Budget::bytes(420_000), with_swaps(P_SWAP)).err().unwrap().to_string();
     assert!(e.contains("whole observations") && e.contains("3 of its 10"), "{e}");
     let orig = dir.path().join("with-original");
     let mut o = score_options(&data, &q, &orig, (SWAPS, 5), 2, None);
@@ -164,7 +164,7 @@ fn within_a_budget_swapped_rows_come_from_resident_blocks_when_goals_are_observa
     let dir = tempfile::tempdir().unwrap();
     let (_, _, out) = scored(dir.path(), &point_task());
     let rows = scored_rows(&out);
-    let mut s = open(&out, Budget::Bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
+    let mut s = open(&out, Budget::bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
     let resident = s.view().episodes();
     assert!(resident < EPISODES / 10, "{resident} episodes resident: the budget should make a pool");
     // One pass: as many draws as the table has transitions.
@@ -181,8 +181,8 @@ fn within_a_budget_swapped_rows_come_from_resident_blocks_when_goals_are_observa
     let gap = worst_share_gap(episodes.into_iter());
     assert!(gap < 2.0, "a shard's share of the swapped rows is {gap:.2} points off its share of the rows");
     // The same seed, the same batches.
-    let mut again = open(&out, Budget::Bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
-    let mut first = open(&out, Budget::Bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
+    let mut again = open(&out, Budget::bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
+    let mut first = open(&out, Budget::bytes(POINT_BUDGET), with_swaps(P_SWAP)).unwrap();
     for _ in 0..5 {
         assert_eq!(first.next_batch(BATCH).unwrap(), again.next_batch(BATCH).unwrap());
     }

@@ -155,6 +155,8 @@ fn missing_or_foreign_pickles_an_unbuilt_device_and_an_unwritable_out_fail_first
     // A setting that only the step would have refused.
     let file = pipeline(dir.path(), "batch.toml", &[EXPERT, RANDOM], &[12, 24], "batch_size = 0");
     fails_before_any_work(&file, &[], "[agents] (agent td3bc_baseline_s0): batch_size = 0");
+    let file = pipeline(dir.path(), "draws.toml", &[EXPERT, RANDOM], &[12, 24], "draws_per_row = 2");
+    fails_before_any_work(&file, &[], "draws_per_row = 2 needs memory_budget");
 }
 
 /// Updates of the plan's training steps that the cost must count.

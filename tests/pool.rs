@@ -32,7 +32,7 @@ fn one_pass_gives_every_shard_its_share_and_episodes_and_steps_uniform_counts() 
     let dir = tempfile::tempdir().unwrap();
     let data = folder(dir.path());
     let cfg = config(Swap::None, 0.5, 0.0, 7);
-    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     let pool = s.pool().expect("the table is larger than the budget");
     assert_eq!(pool.resident_episodes(), 6 * GROUP_EPISODES);
     let (mut by_episode, mut by_step) = (vec![0u64; EPISODES], vec![0u64; T - 1]);
@@ -64,7 +64,7 @@ fn random_goals_come_from_every_shard_in_proportion_and_her_goals_from_the_rows_
     let data = folder(dir.path());
     // Every row swapped.
     let cfg = config(Swap::Random, 1.0, 0.0, 3);
-    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     let mut goal_episodes = Vec::new();
     let mut sources = std::collections::BTreeSet::new();
     for _ in 0..PASS_BATCHES {
@@ -90,7 +90,7 @@ fn random_goals_come_from_every_shard_in_proportion_and_her_goals_from_the_rows_
 
     // HER: every relabelled goal is a later achieved goal of the row's own episode.
     let cfg = config(Swap::None, 0.5, 1.0, 4);
-    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     for _ in 0..PASS_BATCHES / 4 {
         let (b, ids) = s.next_batch().unwrap();
         for i in 0..b.n {
@@ -110,7 +110,7 @@ fn rows_of_a_batch_share_episodes_as_uniform_draws_from_the_resident_ones_do() {
     let dir = tempfile::tempdir().unwrap();
     let data = folder(dir.path());
     let cfg = config(Swap::None, 0.5, 0.0, 11);
-    let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     let p = s.pool().unwrap().resident_episodes() as f64;
     let (mut same_episode, mut same_row) = (0u64, 0u64);
     for _ in 0..PASS_BATCHES {
@@ -138,7 +138,7 @@ fn a_budget_that_holds_the_table_gives_the_in_memory_batches_number_for_number()
     let data = folder(dir.path());
     for cfg in [config(Swap::None, 0.5, 0.5, 5), config(Swap::Random, 0.5, 0.5, 6)] {
         let mut whole = BatchSource::open(&data, &cfg).unwrap().start(&cfg).unwrap();
-        let mut within = BatchSource::open_within(&data, &cfg, Budget::Bytes(1 << 30)).unwrap().start(&cfg).unwrap();
+        let mut within = BatchSource::open_within(&data, &cfg, Budget::bytes(1 << 30)).unwrap().start(&cfg).unwrap();
         assert!(within.pool().is_none());
         for _ in 0..50 {
             assert_eq!(whole.next_batch().unwrap(), within.next_batch().unwrap());
@@ -152,7 +152,7 @@ fn the_same_seed_gives_the_same_batches_and_another_seed_others() {
     let data = folder(dir.path());
     let run = |seed| {
         let cfg = config(Swap::Random, 0.5, 0.5, seed);
-        let mut s = BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+        let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
         (0..PASS_BATCHES).map(|_| s.next_batch().unwrap()).collect::<Vec<_>>()
     };
     let a = run(1);
@@ -186,7 +186,7 @@ fn a_budget_too_small_is_refused_saying_what_would_do() {
     let dir = tempfile::tempdir().unwrap();
     let data = folder(dir.path());
     let cfg = config(Swap::None, 0.5, 0.5, 0);
-    let e = BatchSource::open_within(&data, &cfg, Budget::Bytes(60_000)).err().expect("refused").to_string();
+    let e = BatchSource::open_within(&data, &cfg, Budget::bytes(60_000)).err().expect("refused").to_string();
     assert!(e.contains("fewer than two") && e.contains("give at least"), "{e}");
 }
 
@@ -203,7 +203,7 @@ fn a_corrupt_block_is_named_by_file_and_row_group() {
     // The manifest's sizes still agree, so the folder opens; the block read finds the fault,
     // at the first fill (observations and goals) or when the loader reaches it.
     let cfg = config(Swap::None, 0.5, 0.5, 0);
-    let e = match BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)) {
+    let e = match BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)) {
         Err(e) => e,
         Ok(src) => {
             let mut s = src.start(&cfg).unwrap();
@@ -219,7 +219,7 @@ fn a_resumed_stream_draws_what_an_uninterrupted_one_does() {
     let dir = tempfile::tempdir().unwrap();
     let data = folder(dir.path());
     let cfg = config(Swap::Random, 0.5, 0.5, 9);
-    let open = || BatchSource::open_within(&data, &cfg, Budget::Bytes(BUDGET)).unwrap();
+    let open = || BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap();
     let mut whole = open().start(&cfg).unwrap();
     // Stopped past more than a pass (swaps, reservoir refreshes and a new pass's order replayed).
     let stop = PASS_BATCHES as u64 + 37;
@@ -231,6 +231,56 @@ fn a_resumed_stream_draws_what_an_uninterrupted_one_does() {
     for _ in 0..PASS_BATCHES {
         assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
     }
+}
+
+#[test]
+fn blocks_kept_for_two_draws_a_row_read_half_as_much_and_keep_every_shards_share() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::Random, 0.5, 0.5, 11);
+    let budget = Budget::Bytes { bytes: BUDGET, draws_per_row: 2 };
+    let open = || BatchSource::open_within(&data, &cfg, budget).unwrap();
+    let mut s = open().start(&cfg).unwrap();
+    let mut by_episode = vec![0u64; EPISODES];
+    for k in 0..2 * PASS_BATCHES {
+        let (b, ids) = s.next_batch().unwrap();
+        for i in 0..b.n {
+            let (e, t) = (ids.episode[i] as usize, ids.step[i] as usize);
+            assert_eq!(decode(b.obs[i * 10]), (e, t), "batch {k}, row {i}");
+            by_episode[e] += 1;
+        }
+        if k + 1 == PASS_BATCHES {
+            let swaps = s.pool().unwrap().stats().swaps as usize;
+            assert_eq!(swaps, EPISODES / GROUP_EPISODES / 2, "a pass of draws reads half the blocks");
+        }
+    }
+    // Two passes of draws are one pass of reading: every block swapped in once, and every shard,
+    // episode and step drawn in its share.
+    assert_eq!(s.pool().unwrap().stats().swaps as usize, EPISODES / GROUP_EPISODES);
+    let gap = worst_share_gap(by_episode.iter().enumerate().flat_map(|(e, &c)| std::iter::repeat_n(e, c as usize)));
+    assert!(gap < 2.0, "a shard's share of the draws is {gap:.2} points off its share of the rows");
+    let (stat, bound) = chi_square(&by_episode);
+    assert!(stat < bound, "episode counts: chi-square {stat:.0} over {bound:.0}");
+    // Resumed, it replays the same longer stays.
+    let stop = PASS_BATCHES as u64 + 21;
+    let mut whole = open().start(&cfg).unwrap();
+    for _ in 0..stop {
+        whole.next_batch().unwrap();
+    }
+    let mut resumed = open().resume(&cfg, whole.rng().clone(), stop).unwrap();
+    for _ in 0..PASS_BATCHES / 2 {
+        assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
+    }
+    // The trainer's flag needs a budget.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
+        .arg("--data")
+        .arg(&data)
+        .args(["-o", "x.ckpt", "--draws-per-row", "2"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(common::text(&o.stderr).contains("--memory-budget"), "{}", common::text(&o.stderr));
 }
 
 #[test]

@@ -230,7 +230,7 @@ fn mem_within_a_budget_draws_scored_rows_of_resident_blocks_by_their_priority_wi
     score(&options(&data, &q, &out, 5, 2, None)).unwrap();
     let rows = scored_rows(&out);
     let cfg = config(0.5, 9);
-    let mut s = BatchSource::open_within(&out, &cfg, Budget::Bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let mut s = BatchSource::open_within(&out, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     let pool = s.pool().expect("the scored data are larger than the budget");
     assert!((4..10).contains(&pool.blocks().0), "{:?} blocks resident", pool.blocks());
     // Each block's rows ranked by q, highest first (ties by row), as the pool ranks them.
@@ -283,7 +283,7 @@ fn mem_within_a_budget_resumes_to_the_same_batches_and_refuses_weights() {
     let out = dir.path().join("scored");
     score(&options(&data, &q, &out, 5, 2, None)).unwrap();
     let cfg = config(0.25, 4);
-    let open = || BatchSource::open_within(&out, &cfg, Budget::Bytes(BUDGET)).unwrap();
+    let open = || BatchSource::open_within(&out, &cfg, Budget::bytes(BUDGET)).unwrap();
     let mut whole = open().start(&cfg).unwrap();
     let again: Vec<_> = {
         let mut s = open().start(&cfg).unwrap();
@@ -301,12 +301,12 @@ fn mem_within_a_budget_resumes_to_the_same_batches_and_refuses_weights() {
     }
     let mut weighted = config(0.25, 4);
     weighted.priority.is_beta = Some(0.4);
-    let e = BatchSource::open_within(&out, &weighted, Budget::Bytes(BUDGET)).map(|_| ()).unwrap_err().to_string();
+    let e = BatchSource::open_within(&out, &weighted, Budget::bytes(BUDGET)).map(|_| ()).unwrap_err().to_string();
     assert!(e.contains("--is-beta 0.4 within --memory-budget"), "{e}");
     // A budget that holds β and its scored rows: β whole, the prioritized rows drawn from the
     // whole scored table, as without a budget.
     let (mut a, mut b) = (
-        BatchSource::open_within(&out, &cfg, Budget::Bytes(1 << 30)).unwrap().start(&cfg).unwrap(),
+        BatchSource::open_within(&out, &cfg, Budget::bytes(1 << 30)).unwrap().start(&cfg).unwrap(),
         BatchSource::open_within(&out, &cfg, Budget::Unbounded).unwrap().start(&cfg).unwrap(),
     );
     assert!(a.pool().is_none());

@@ -94,9 +94,20 @@ fn parse_priority(s: &str) -> PyResult<PriorityKind> {
     }
 }
 
-/// `memory_budget=`: None (the whole table in memory), bytes as an int, or a size string.
-fn parse_budget(b: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
-    let Some(b) = b.filter(|b| !b.is_none()) else { return Ok(Budget::Unbounded) };
+/// `memory_budget=`: None (the whole table in memory), bytes as an int, or a size string; with
+/// `draws_per_row=` (1 when None), which needs a budget.
+fn parse_budget(b: Option<&Bound<'_, PyAny>>, draws_per_row: Option<u32>) -> PyResult<Budget> {
+    if draws_per_row == Some(0) {
+        return Err(PyValueError::new_err("draws_per_row=0: must be at least 1"));
+    }
+    let Some(b) = b.filter(|b| !b.is_none()) else {
+        return match draws_per_row {
+            Some(n) => Err(PyValueError::new_err(format!(
+                "draws_per_row={n} needs memory_budget=: it says how long a streamed row group stays"
+            ))),
+            None => Ok(Budget::Unbounded),
+        };
+    };
     let bytes = if let Ok(s) = b.cast::<PyString>() {
         parse_bytes(&s.to_cow()?).map_err(|e| PyValueError::new_err(format!("memory_budget={e}")))?
     } else {
@@ -110,7 +121,7 @@ fn parse_budget(b: Option<&Bound<'_, PyAny>>) -> PyResult<Budget> {
             }
         }
     };
-    Ok(Budget::Bytes(bytes))
+    Ok(Budget::Bytes { bytes, draws_per_row: draws_per_row.unwrap_or(1) })
 }
 
 #[pymethods]
@@ -128,14 +139,15 @@ impl Sampler {
     ///
     /// Both: `batch_size` (default `config["batch_size"]`, else 512), `memory_budget` (None: the
     /// whole table in memory; bytes, or a size such as "2GB": an out-of-core pool when the table
-    /// is larger), `num_batches` (how many batches iteration yields; None: endless), `prefetch`.
+    /// is larger), `draws_per_row` (with a budget: draws per transition a streamed row group
+    /// stays for; 1, or 2 to read half as much), `num_batches` (how many batches iteration yields; None: endless), `prefetch`.
     #[new]
     #[pyo3(signature = (path, *, layout="pgser", batch_size=None, her=None, swap=None, swap_ratio=None,
         aug_ratio=None, priority=None, alpha=None, eps=None, is_beta=None, seed=0, in_memory=false,
         num_batches=None, prefetch=4, memory_budget=None, config=None, discount=None, value_p_curgoal=None,
         value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
         actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None,
-        p_swapgoal=None, swap_actor_goals=None))]
+        p_swapgoal=None, swap_actor_goals=None, draws_per_row=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -168,9 +180,10 @@ impl Sampler {
         gc_negative: Option<bool>,
         p_swapgoal: Option<f64>,
         swap_actor_goals: Option<bool>,
+        draws_per_row: Option<u32>,
     ) -> PyResult<Sampler> {
         existing(&path)?;
-        let budget = parse_budget(memory_budget)?;
+        let budget = parse_budget(memory_budget, draws_per_row)?;
         let kw = [
             ("discount", discount),
             ("value_p_curgoal", value_p_curgoal),

@@ -195,6 +195,13 @@ fn check_train(cfg: &TrainConfig, scored: bool) -> Result<()> {
     {
         bail!("lr = {lr}: must be a positive number");
     }
+    match cfg.draws_per_row {
+        Some(0) => bail!("draws_per_row = 0: must be at least 1"),
+        Some(n) if cfg.memory_budget.is_none() => {
+            bail!("draws_per_row = {n} needs memory_budget: it says how long a streamed row group stays")
+        }
+        _ => {}
+    }
     if scored && !(0.0..=1.0).contains(&cfg.aug_ratio) {
         bail!("aug_ratio = {}: must be in [0, 1]", cfg.aug_ratio);
     }

@@ -417,7 +417,7 @@ fn take<T: serde::de::DeserializeOwned>(t: &mut toml::Table, key: &str) -> Resul
 
 /// `TrainConfig`'s own settings that its JSON leaves out when unset, so that runs from before
 /// they existed keep their bytes and keys.
-const OPTIONAL_TRAIN_KEYS: [&str; 2] = ["memory_budget", "shard_window"];
+const OPTIONAL_TRAIN_KEYS: [&str; 3] = ["memory_budget", "draws_per_row", "shard_window"];
 
 /// `TrainConfig` from the CLI's defaults with `layers` applied in order. Keys are the flags'
 /// snake_case names, found in whichever group (agent, sampler, priority) holds them.

@@ -139,8 +139,11 @@ pub fn write_batches(
 /// tables written without one keep their bytes.
 fn settings(cfg: &StreamConfig, budget: Budget) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(cfg)?;
-    if let Budget::Bytes(b) = budget {
-        v["memory_budget"] = b.into();
+    if let Budget::Bytes { bytes, draws_per_row } = budget {
+        v["memory_budget"] = bytes.into();
+        if draws_per_row != 1 {
+            v["draws_per_row"] = draws_per_row.into();
+        }
     }
     Ok(v)
 }

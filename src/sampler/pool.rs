@@ -133,14 +133,15 @@ impl Beta {
         use super::view::Budget;
         Ok(match budget {
             Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
-            Budget::Bytes(b) => Beta::open(path, b, seed)?,
+            Budget::Bytes { bytes, draws_per_row } => Beta::open(path, bytes, draws_per_row, seed)?,
             Budget::ShardWindow(rows) => Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, seed)?)),
         })
     }
 
-    /// Plans `path` against `budget` and opens it.
-    pub fn open(path: &Path, budget: u64, seed: u64) -> Result<Beta> {
-        let cfg = PoolConfig { budget, draws_per_row: 1.0, seed, window: None };
+    /// Plans `path` against `budget` and opens it, a pool keeping each block for `draws_per_row`
+    /// draws per transition.
+    pub fn open(path: &Path, budget: u64, draws_per_row: u32, seed: u64) -> Result<Beta> {
+        let cfg = PoolConfig { budget, draws_per_row: draws_per_row as f64, seed, window: None };
         let layout = Layout::open(path)?;
         Ok(match Plan::of(&layout, budget)? {
             Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),

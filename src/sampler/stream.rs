@@ -105,7 +105,7 @@ impl BatchSource {
                 let pool = Pool::window(layout, rows, cfg.seed)?;
                 return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
             }
-            Budget::Bytes(b) => {
+            Budget::Bytes { bytes: b, draws_per_row } => {
                 // Planned from the footers before anything is loaded.
                 let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
                 match Plan::of(&layout, b)? {
@@ -118,7 +118,8 @@ impl BatchSource {
                                  known; leave --is-beta unset, or give a budget that holds the data"
                             );
                         }
-                        let pool_cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed: cfg.seed, window: None };
+                        let pool_cfg =
+                            PoolConfig { budget: b, draws_per_row: draws_per_row as f64, seed: cfg.seed, window: None };
                         let pool = Pool::start(Arc::new(layout), pool_cfg, slots, reservoir, (0, 0))?;
                         return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
                     }

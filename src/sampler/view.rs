@@ -150,12 +150,21 @@ pub enum Budget {
     /// The whole table in memory (today's samplers, number for number).
     #[default]
     Unbounded,
-    /// At most this many bytes: the whole table when it fits, an out-of-core pool otherwise.
-    Bytes(u64),
+    /// At most `bytes`: the whole table when it fits, an out-of-core pool otherwise, which keeps
+    /// each block resident for `draws_per_row` draws per transition it holds (1: a pass of draws
+    /// reads the table once; 2 reads half as much, for samplers faster than their reading).
+    Bytes { bytes: u64, draws_per_row: u32 },
     /// One shard at a time, the next (in folder order) after this many drawn rows, with every
     /// goal from the held shard: Horizon Reduction's reload scheme, emulated to measure what
     /// drawing from the whole table changes (`--shard-window`).
     ShardWindow(u64),
+}
+
+impl Budget {
+    /// At most `bytes`, each block kept for one draw per transition.
+    pub fn bytes(bytes: u64) -> Budget {
+        Budget::Bytes { bytes, draws_per_row: 1 }
+    }
 }
 
 /// A size as `--memory-budget` and `memory_budget=` take it: bytes, or a number with a unit,

@@ -315,6 +315,16 @@ def test_pool_stats_count_the_disk_waits_of_a_pool_and_none_when_held_whole(tabl
         with pgser.Sampler(small, layout=layout, batch_size=256) as s:
             s.sample()
             assert s.pool_stats() is None
+        # Blocks kept for two draws per transition: half the swaps for the same batches asked.
+        with pgser.Sampler(small, layout=layout, memory_budget=350_000, batch_size=256, seed=1, prefetch=1,
+                           draws_per_row=2) as s:
+            for _ in range(60):
+                s.sample()
+            twice = s.pool_stats()["swaps"]
+        assert abs(twice - st["swaps"] / 2) <= 3, (layout, twice, st)
+    for kw, msg in ((dict(draws_per_row=0), "draws_per_row=0"), (dict(draws_per_row=2), "needs memory_budget")):
+        with pytest.raises(ValueError, match=msg):
+            pgser.Sampler(small, layout="ogbench", **kw)
     # With a pool, what is resident depends on the batches drawn before: the same calls give the
     # same bytes whether they come back to back (the queue never full) or after it has filled.
     import time

@@ -169,12 +169,12 @@ impl Source {
         };
         let pool = match budget {
             Budget::Unbounded => unreachable!("held whole above"),
-            Budget::ShardWindow(_) | Budget::Bytes(_) if task.goal_dim != task.obs_dim => return Err(refuse()),
+            Budget::ShardWindow(_) | Budget::Bytes { .. } if task.goal_dim != task.obs_dim => return Err(refuse()),
             Budget::ShardWindow(rows) => Pool::window(layout, rows, seed)?,
-            Budget::Bytes(b) => match Plan::of(&layout, b)? {
+            Budget::Bytes { bytes: b, draws_per_row } => match Plan::of(&layout, b)? {
                 Plan::Whole => return whole(layout.into_scored().expect("attached above")),
                 Plan::Pool { slots, reservoir } => {
-                    let cfg = PoolConfig { budget: b, draws_per_row: 1.0, seed, window: None };
+                    let cfg = PoolConfig { budget: b, draws_per_row: draws_per_row as f64, seed, window: None };
                     Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?
                 }
             },
