@@ -15,8 +15,9 @@
 //!   [`Plan`]). Every transition is drawn uniformly from the episodes resident at the time.
 //! - **A loader thread** reads blocks in a random permutation of all the table's blocks (a fresh
 //!   one each pass, seeded), checks each against its checksums, decodes it to float32 (into the
-//!   arrays of a block that left, handed back to it) and hands it over through a channel of one. The pool swaps it in for its oldest block **when as many
-//!   transitions have been drawn as the leaving block holds** (times `draws_per_row`). So one pass
+//!   arrays of a block that left, handed back to it) and hands it over through a channel of one.
+//!   The pool swaps it in for its oldest block **when as many transitions have been drawn as the
+//!   leaving block holds** (times `draws_per_row`, `--draws-per-row`). So one pass
 //!   of draws (as many as the table holds) is one pass of loading, in which every block is
 //!   resident once for about the same number of draws: the long-run share of each shard, episode
 //!   and step is its share of the table. The swap points depend on the draws alone, never on the
