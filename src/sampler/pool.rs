@@ -142,12 +142,11 @@ impl Beta {
     /// Plans `path` against `budget` and opens it, a pool keeping each block for `draws_per_row`
     /// draws per transition.
     pub fn open(path: &Path, budget: u64, draws_per_row: u32, seed: u64) -> Result<Beta> {
-        let cfg = PoolConfig { budget, draws_per_row: draws_per_row as f64, seed, window: None };
         let layout = Layout::open(path)?;
         Ok(match Plan::of(&layout, budget)? {
             Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
             Plan::Pool { slots, reservoir } => {
-                Beta::Pool(Box::new(Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?))
+                Beta::Pool(Box::new(Pool::planned(layout, (budget, draws_per_row), seed, (slots, reservoir))?))
             }
         })
     }
@@ -267,6 +266,18 @@ impl Pool {
         pool.materialize()?;
         settle_after_open();
         Ok(pool)
+    }
+
+    /// A fresh pool of `layout` within `(budget, draws_per_row)`, as [`Plan::of`] split that
+    /// budget into `slots` resident blocks and a reservoir of `reservoir` goals.
+    pub fn planned(
+        layout: Layout,
+        (budget, draws_per_row): (u64, u32),
+        seed: u64,
+        (slots, reservoir): (usize, usize),
+    ) -> Result<Pool> {
+        let cfg = PoolConfig { budget, draws_per_row: draws_per_row as f64, seed, window: None };
+        Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))
     }
 
     /// Fills every reservoir slot's vectors from the block its key names: resident blocks from

@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::pool::{Beta, Layout, Plan, Pool, PoolConfig, ScoredDraw};
+use super::pool::{Beta, Layout, Plan, Pool, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
 use super::view::{Budget, View};
@@ -118,9 +118,7 @@ impl BatchSource {
                                  known; leave --is-beta unset, or give a budget that holds the data"
                             );
                         }
-                        let pool_cfg =
-                            PoolConfig { budget: b, draws_per_row: draws_per_row as f64, seed: cfg.seed, window: None };
-                        let pool = Pool::start(Arc::new(layout), pool_cfg, slots, reservoir, (0, 0))?;
+                        let pool = Pool::planned(layout, (b, draws_per_row), cfg.seed, (slots, reservoir))?;
                         return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
                     }
                 }

@@ -21,7 +21,7 @@ use anyhow::{Context, Result, bail};
 use super::{At, Goal, GoalKind};
 use crate::nprandom::NpRandom;
 use crate::sampler::RowKey;
-use crate::sampler::pool::{Beta, Layout, Plan, Pool, PoolConfig};
+use crate::sampler::pool::{Beta, Layout, Plan, Pool};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
 use crate::sampler::view::{Budget, View};
@@ -173,10 +173,7 @@ impl Source {
             Budget::ShardWindow(rows) => Pool::window(layout, rows, seed)?,
             Budget::Bytes { bytes: b, draws_per_row } => match Plan::of(&layout, b)? {
                 Plan::Whole => return whole(layout.into_scored().expect("attached above")),
-                Plan::Pool { slots, reservoir } => {
-                    let cfg = PoolConfig { budget: b, draws_per_row: draws_per_row as f64, seed, window: None };
-                    Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))?
-                }
+                Plan::Pool { slots, reservoir } => Pool::planned(layout, (b, draws_per_row), seed, (slots, reservoir))?,
             },
         };
         if !pool.goals_are_observations() {

@@ -247,14 +247,12 @@ impl Layout {
             v.clear();
             if floats == 0 {
                 *v = Vec::new();
-            } else {
+            } else if v.capacity() < floats {
                 // At least the mmap threshold, so every array is a mapping of its own, returned
                 // whole when it is freed (`keep_large_buffers_returnable`); untouched pages cost
                 // no memory. A recycled array of a block as large or larger reserves nothing.
-                if v.capacity() < floats {
-                    v.reserve(floats.max(super::loader::MMAP_THRESHOLD / 4));
-                    super::loader::advise_huge_pages(v, floats);
-                }
+                v.reserve(floats.max(super::loader::MMAP_THRESHOLD / 4));
+                super::loader::advise_huge_pages(v, floats);
             }
         }
         let mut row = b.first_row;
