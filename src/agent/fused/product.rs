@@ -118,12 +118,15 @@ pub(in crate::agent) fn check_operands(
     a: (&[f32], usize, usize),
     b: (&[f32], usize, usize),
 ) {
+    // Checked arithmetic: a stride product that wrapped (release builds do not trap) would pass
+    // a bound it does not meet, and the kernels would read outside the slice.
     let last = |rows: usize, cols: usize, (v, rs, cs): (&[f32], usize, usize)| {
-        assert!(rows == 0 || cols == 0 || (rows - 1) * rs + (cols - 1) * cs < v.len(), "product operand out of bounds");
+        let end = || (rows - 1).checked_mul(rs)?.checked_add((cols - 1).checked_mul(cs)?);
+        assert!(rows == 0 || cols == 0 || end().is_some_and(|e| e < v.len()), "product operand out of bounds");
     };
     last(m, k, a);
     last(k, n, b);
-    assert!(dst.len() >= m * n, "product output out of bounds");
+    assert!(m.checked_mul(n).is_some_and(|mn| dst.len() >= mn), "product output out of bounds");
 }
 
 /// `dst` (`m × n`, row-major, row stride n) = A·B in the portable order, A and B each given as
@@ -386,4 +389,25 @@ mod avx512 {
     }
 
     vector_path!("avx512f");
+}
+
+#[cfg(test)]
+mod bounds {
+    use super::check_operands;
+
+    /// Strides whose reach wraps past usize::MAX (to 0 here, 2 · 2^63) are out of bounds; in a
+    /// release build an unchecked product wrapped, passed the check, and the kernels read far
+    /// outside A.
+    #[test]
+    #[should_panic(expected = "product operand out of bounds")]
+    fn a_stride_that_wraps_is_out_of_bounds() {
+        let (a, b, dst) = (vec![0.0f32; 4], vec![0.0f32; 4], vec![0.0f32; 6]);
+        check_operands(3, 2, 2, &dst, (&a, 1 << 63, 1), (&b, 2, 1));
+    }
+
+    #[test]
+    fn operands_that_fit_pass() {
+        let (a, b, dst) = (vec![0.0f32; 6], vec![0.0f32; 4], vec![0.0f32; 6]);
+        check_operands(3, 2, 2, &dst, (&a, 2, 1), (&b, 2, 1));
+    }
 }
