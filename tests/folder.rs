@@ -123,6 +123,14 @@ fn disagreeing_shards_and_changed_folders_are_refused_by_name() {
     let e = text(&o.stderr);
     assert!(!o.status.success() && e.contains(&format!("{NAME}-2.npz")) && e.contains("float64 where"), "{e}");
     assert!(!out.exists(), "a refused convert left {}", out.display());
+    // A validation shard that disagrees with the training shards: refused before any shard is
+    // written (it was once found after the training table was converted).
+    let src = shards(&dir.path().join("val64"), 1, &["--val-float64"]);
+    let o = run_convert(&[&src], &out);
+    let e = text(&o.stderr);
+    assert!(!o.status.success() && e.contains(&format!("{NAME}-val.npz")), "{e}");
+    assert!(e.contains("the validation shards must agree with the training shards"), "{e}");
+    assert!(!out.exists(), "a refused convert left {}", out.display());
 
     let src = shards(&dir.path().join("ok"), 1, &[]);
     let busy = dir.path().join("busy");

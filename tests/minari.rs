@@ -334,7 +334,10 @@ fn bad_datasets_fail_in_one_line_and_leave_nothing() {
     // A folder that is no dataset (before, `convert DIR` said "No such device (os error 19)").
     let empty = work.join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    convert(&empty, &["empty: a folder, but not a Minari dataset"]);
+    convert(
+        &empty,
+        &["empty: a folder, but not a Minari dataset", "nor OGBench shards", "OGBench .npz files and folders"],
+    );
     // A dataset among pickles.
     let pkl = repo().join("data/fetch_reach_expert_50.pkl");
     fails(&["convert", s(&pkl), s(&missing), "-o", s(&out)], &["a folder (a Minari dataset) among 2 inputs"], &d, 0);

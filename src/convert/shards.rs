@@ -101,38 +101,37 @@ fn refuse_flags(opts: &ConvertOptions) -> Result<()> {
 fn plans(opts: &ConvertOptions, shards: &[PathBuf], out: &Path) -> Result<Vec<ConvertPlan>> {
     let plans: Vec<ConvertPlan> =
         shards.par_iter().map(|s| ogbench::check(&shard_opts(opts, s, out), s)).collect::<Result<_>>()?;
-    let first = &plans[0];
     for (p, s) in plans.iter().zip(shards).skip(1) {
-        let (a, b) = (&first.task, &p.task);
-        let differs = [
-            (a.name != b.name).then(|| format!("environment {} where {} has {}", b.name, shards[0].display(), a.name)),
-            (a.t != b.t).then(|| format!("episodes of {} rows where {} has {}", b.t, shards[0].display(), a.t)),
-            ((a.obs_dim, a.goal_dim, a.act_dim) != (b.obs_dim, b.goal_dim, b.act_dim)).then(|| {
-                format!(
-                    "obs {}, goal {}, act {} where {} has obs {}, goal {}, act {}",
-                    b.obs_dim,
-                    b.goal_dim,
-                    b.act_dim,
-                    shards[0].display(),
-                    a.obs_dim,
-                    a.goal_dim,
-                    a.act_dim
-                )
-            }),
-            (first.float_type != p.float_type).then(|| {
-                format!(
-                    "{} where {} is {} (pass --float32 to store both as float32)",
-                    p.float_type.name(),
-                    shards[0].display(),
-                    first.float_type.name()
-                )
-            }),
-        ];
-        if let Some(d) = differs.into_iter().flatten().next() {
-            bail!("{}: {d}: the shards of one table must agree", s.display());
-        }
+        agree((&plans[0], &shards[0]), (p, s), "the shards of one table must agree")?;
     }
     Ok(plans)
+}
+
+/// Refuses shard `s` (planned as `p`) unless its environment, episode length, widths and float
+/// type are those of `shards0` (planned as `first`).
+fn agree((first, shard0): (&ConvertPlan, &Path), (p, s): (&ConvertPlan, &Path), why: &str) -> Result<()> {
+    let (a, b, at) = (&first.task, &p.task, shard0.display());
+    let differs = [
+        (a.name != b.name).then(|| format!("environment {} where {at} has {}", b.name, a.name)),
+        (a.t != b.t).then(|| format!("episodes of {} rows where {at} has {}", b.t, a.t)),
+        ((a.obs_dim, a.goal_dim, a.act_dim) != (b.obs_dim, b.goal_dim, b.act_dim)).then(|| {
+            format!(
+                "obs {}, goal {}, act {} where {at} has obs {}, goal {}, act {}",
+                b.obs_dim, b.goal_dim, b.act_dim, a.obs_dim, a.goal_dim, a.act_dim
+            )
+        }),
+        (first.float_type != p.float_type).then(|| {
+            format!(
+                "{} where {at} is {} (pass --float32 to store both as float32)",
+                p.float_type.name(),
+                first.float_type.name()
+            )
+        }),
+    ];
+    if let Some(d) = differs.into_iter().flatten().next() {
+        bail!("{}: {d}: {why}", s.display());
+    }
+    Ok(())
 }
 
 pub(super) fn check(opts: &ConvertOptions, files: &[PathBuf]) -> Result<ConvertPlan> {
@@ -226,12 +225,11 @@ fn prepare(out: &Path, shards: &[PathBuf], settings: &serde_json::Value) -> Resu
 /// The shards converted into `out` (those already finished kept), then its manifest.
 fn convert_into(
     opts: &ConvertOptions,
-    shards: &[PathBuf],
+    (shards, plans): (&[PathBuf], Vec<ConvertPlan>),
     out: &Path,
     validation: bool,
     bar: &ProgressBar,
 ) -> Result<(ConvertSummary, usize)> {
-    let plans = plans(opts, shards, out)?;
     let settings = settings(opts);
     let same = prepare(out, shards, &settings)?;
     bar.set_length(plans.iter().map(|p| (p.episodes_taken[0] * p.task.t) as u64).sum());
@@ -283,10 +281,19 @@ pub(super) fn convert(opts: &ConvertOptions, files: &[PathBuf], bar: &ProgressBa
     refuse_flags(opts)?;
     crate::output::check_not_an_input(&opts.output, files)?;
     let (train, val) = split(files)?;
-    let (mut summary, _) = convert_into(opts, &train, &opts.output, !val.is_empty(), bar)?;
+    // Every shard planned, and the validation shards checked against the training ones, before
+    // anything is written: a validation shard of another task would otherwise be found after
+    // the training table was converted.
+    let dir = opts.output.join(VALIDATION);
+    let train_plans = plans(opts, &train, &opts.output)?;
+    let val_plans = if val.is_empty() { Vec::new() } else { plans(opts, &val, &dir)? };
+    if let Some(v) = val_plans.first() {
+        let why = "the validation shards must agree with the training shards";
+        agree((&train_plans[0], &train[0]), (v, &val[0]), why)?;
+    }
+    let (mut summary, _) = convert_into(opts, (&train, train_plans), &opts.output, !val.is_empty(), bar)?;
     if !val.is_empty() {
-        let dir = opts.output.join(VALIDATION);
-        let (v, _) = convert_into(opts, &val, &dir, false, &ProgressBar::hidden())?;
+        let (v, _) = convert_into(opts, (&val, val_plans), &dir, false, &ProgressBar::hidden())?;
         summary.notes.push(format!(
             "{}: the validation table, {} episodes, {} rows (from {})",
             dir.display(),

@@ -51,8 +51,9 @@ pub fn data_folder(dir: &Path) -> Result<PathBuf> {
         }
     }
     bail!(
-        "{}: a folder, but not a Minari dataset: neither data/metadata.json nor metadata.json is in it \
-         (convert reads WGCSL pickles and Minari dataset folders)",
+        "{}: a folder, but not a Minari dataset: neither data/metadata.json nor metadata.json is in it, nor OGBench \
+         shards (.npz files) (convert reads WGCSL pickles, OGBench .npz files and folders of them, and Minari \
+         dataset folders)",
         dir.display()
     )
 }
