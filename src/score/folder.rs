@@ -133,7 +133,15 @@ pub(super) fn score(o: &ScoreOptions, bar: &ProgressBar, start: Instant) -> Resu
         let blocks = read::Blocks::open(&beta.dir.join(&shard.file), job.chunk_episodes, o.include_original)?
             .map(move |b| b.map(|(e, block)| (first + e, block)));
         let (rows, q) = job.score_blocks(blocks, &[STREAM_SWAP, i as u64], &mut writer, bar)?;
-        assert_eq!(rows, shard.episodes * t1 * job.per, "every transition of shard {i} was scored");
+        if rows != shard.episodes * t1 * job.per {
+            bail!(
+                "{}: {rows} rows scored where its {} episodes in the folder's manifest make {}: the shard changed \
+                 since the folder was opened; score it again",
+                beta.dir.join(&shard.file).display(),
+                shard.episodes,
+                shard.episodes * t1 * job.per
+            );
+        }
         let mut footer = job.footer(shard.episodes, rows, q.finish(), &dest)?;
         footer.shard = Some(of);
         writer.finish(&serde_json::to_value(&footer)?)?;
