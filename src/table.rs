@@ -356,18 +356,31 @@ impl Verifier {
     /// Checks `columns` (leaf indices) of the row groups `groups` only: what a reader that
     /// decodes some row groups (the out-of-core pool) pays for.
     pub fn check_row_groups(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
+        self.check_chunks(groups, columns, true)
+    }
+
+    /// As [`Verifier::check_row_groups`], on the calling thread alone: for a thread that must
+    /// not wait on the global rayon pool (the out-of-core pool's loader: `pool/loader.rs` says
+    /// why).
+    pub fn check_row_groups_here(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
+        self.check_chunks(groups, columns, false)
+    }
+
+    fn check_chunks(&self, groups: &[usize], columns: &[usize], parallel: bool) -> Result<()> {
         let Some(sums) = &self.sums else { return Ok(()) };
         let chunks: Vec<(usize, usize)> = groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
-        let bad = chunks
-            .par_iter()
-            .map(|&(rg, c)| {
-                let (start, len) = self.ranges[rg][c];
-                let got = crc_range(&self.file, start, len).with_context(|| {
-                    format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
-                })?;
-                Ok((got != sums[rg][c]).then_some((rg, c, got)))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let one = |&(rg, c): &(usize, usize)| -> Result<Option<(usize, usize, u32)>> {
+            let (start, len) = self.ranges[rg][c];
+            let got = crc_range(&self.file, start, len).with_context(|| {
+                format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
+            })?;
+            Ok((got != sums[rg][c]).then_some((rg, c, got)))
+        };
+        let bad = if parallel {
+            chunks.par_iter().map(one).collect::<Result<Vec<_>>>()?
+        } else {
+            chunks.iter().map(one).collect::<Result<Vec<_>>>()?
+        };
         if let Some((rg, c, got)) = bad.into_iter().flatten().min() {
             let (start, len) = self.ranges[rg][c];
             bail!(

@@ -492,18 +492,19 @@ fn prepare(cell: &Cell, command: &str, device: Device) -> Result<(Run, Agent)> {
     let (data_path, out, cfg) = (&cell.data, &cell.out, &cell.cfg);
     crate::output::check_not_an_input(out, &[data_path.to_path_buf()])?;
     let stream = cfg.stream();
-    let source = BatchSource::open_within(data_path, &stream, cfg.budget())?;
-
     let data_sha = crate::trajectory::folder::digest(data_path)?;
+    // A resumed run's checkpoint first: its pool is opened where the run stopped, once.
+    let restored = if cell.resume { Some(restore(out, cfg, &data_sha, device.clone())?) } else { None };
+    let first = restored.as_ref().map_or(0, |(agent, _, _)| agent.updates);
+    let source = BatchSource::open_resuming(data_path, &stream, cfg.budget(), first)?;
+
     let mut extra = BTreeMap::new();
     extra.insert("train".to_string(), serde_json::to_string(cfg)?);
     extra.insert("data".to_string(), data_path.display().to_string());
     extra.insert("data_sha256".to_string(), data_sha.clone());
     extra.insert("command".to_string(), command.to_string());
 
-    let (agent, batches, metrics) = if cell.resume {
-        let (agent, rng, metrics) = restore(out, cfg, &data_sha, device)?;
-        let first = agent.updates;
+    let (agent, batches, metrics) = if let Some((agent, rng, metrics)) = restored {
         (agent, source.resume(&stream, rng, first)?, metrics)
     } else {
         // The goal normalizer sees achieved goals too: HER and swapping train on them.

@@ -164,12 +164,12 @@ fn the_same_seed_gives_the_same_batches_and_another_seed_others() {
 fn the_cli_draws_the_same_bytes_at_any_thread_count() {
     let dir = tempfile::tempdir().unwrap();
     let data = folder(dir.path());
-    let out = |threads: &str| {
-        let path = dir.path().join(format!("batches-{threads}.parquet"));
+    let out = |threads: &str, (count, rows): (&str, &str)| {
+        let path = dir.path().join(format!("batches-{threads}-{rows}.parquet"));
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_pgser-train"))
             .args(["batches", "--data"])
             .arg(&data)
-            .args(["--count", "300", "--batch-size", "98", "--swap", "random", "--memory-budget", "240kB", "-o"])
+            .args(["--count", count, "--batch-size", rows, "--swap", "random", "--memory-budget", "240kB", "-o"])
             .arg(&path)
             .env("RAYON_NUM_THREADS", threads)
             .output()
@@ -178,7 +178,10 @@ fn the_cli_draws_the_same_bytes_at_any_thread_count() {
         common::read_table(&path).0.columns().to_vec()
     };
     // The columns (the footer records the command line, which names each output).
-    assert!(out("1") == out("2"), "other batches on one thread than on two");
+    assert!(out("1", ("300", "98")) == out("2", ("300", "98")), "other batches on one thread than on two");
+    // Batches of 8192 rows of 10 observation values (past `gather_rows`' 65,536 floats) on 4
+    // threads copy their rows on the thread pool; on 1, on the drawing thread.
+    assert!(out("1", ("12", "8192")) == out("4", ("12", "8192")), "other batches on four threads than on one");
 }
 
 #[test]
@@ -227,7 +230,13 @@ fn a_resumed_stream_draws_what_an_uninterrupted_one_does() {
         whole.next_batch().unwrap();
     }
     let rng = whole.rng().clone();
-    let mut resumed = open().resume(&cfg, rng, stop).unwrap();
+    // A pool opened for a fresh stream is refused for a resumed one: resuming it would read a
+    // second pool while the first still held its blocks (twice the budget, seen at 297 MB for a
+    // 150 MB one). It is opened where the stream resumes instead.
+    let e = open().resume(&cfg, rng.clone(), stop).err().expect("a pool opened at batch 0 resumed at another");
+    assert!(e.to_string().contains("opened for batch 0") && e.to_string().contains("open_resuming"), "{e}");
+    let mut resumed =
+        BatchSource::open_resuming(&data, &cfg, Budget::bytes(BUDGET), stop).unwrap().resume(&cfg, rng, stop).unwrap();
     for _ in 0..PASS_BATCHES {
         assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
     }
@@ -267,7 +276,8 @@ fn blocks_kept_for_two_draws_a_row_read_half_as_much_and_keep_every_shards_share
     for _ in 0..stop {
         whole.next_batch().unwrap();
     }
-    let mut resumed = open().resume(&cfg, whole.rng().clone(), stop).unwrap();
+    let resuming = BatchSource::open_resuming(&data, &cfg, budget, stop).unwrap();
+    let mut resumed = resuming.resume(&cfg, whole.rng().clone(), stop).unwrap();
     for _ in 0..PASS_BATCHES / 2 {
         assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
     }
@@ -340,7 +350,8 @@ fn a_shard_window_holds_one_shard_in_folder_order_and_draws_every_goal_from_it()
     for _ in 0..stop {
         whole.next_batch().unwrap();
     }
-    let mut resumed = open().resume(&cfg, whole.rng().clone(), stop).unwrap();
+    let resuming = BatchSource::open_resuming(&data, &cfg, Budget::ShardWindow(window * BATCH as u64), stop).unwrap();
+    let mut resumed = resuming.resume(&cfg, whole.rng().clone(), stop).unwrap();
     for _ in 0..100 {
         assert_eq!(whole.next_batch().unwrap(), resumed.next_batch().unwrap());
     }
@@ -352,4 +363,91 @@ fn a_shard_window_holds_one_shard_in_folder_order_and_draws_every_goal_from_it()
         .unwrap();
     let e = common::text(&o.stderr);
     assert!(!o.status.success() && e.contains("--shard-window") && e.contains("--memory-budget"), "{e}");
+}
+
+#[test]
+fn a_pool_drawn_while_every_rayon_worker_is_held_still_reads_its_blocks() {
+    // pgser-train draws each cell's batch inside the global pool (a `par_iter_mut`), so a draw
+    // that waits for a block holds a worker. Here every worker is held: one draws a pass (96
+    // swaps), the others wait for it. A loader that needed a worker (to check a block's chunks
+    // in parallel, as it once did) would never deliver, and the draw would wait for ever.
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::Random, 0.5, 0.5, 12);
+    let s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let stream = std::sync::Mutex::new(s);
+    let drawn = std::sync::atomic::AtomicBool::new(false);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let swaps = rayon::broadcast(|ctx| {
+            if ctx.index() == 0 {
+                let mut s = stream.lock().unwrap();
+                for _ in 0..PASS_BATCHES {
+                    s.next_batch().unwrap();
+                }
+                drawn.store(true, std::sync::atomic::Ordering::SeqCst);
+                Some(s.pool().unwrap().stats().swaps)
+            } else {
+                while !drawn.load(std::sync::atomic::Ordering::SeqCst) {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
+                None
+            }
+        });
+        tx.send(swaps[0]).unwrap();
+    });
+    let Ok(swaps) = rx.recv_timeout(std::time::Duration::from_secs(120)) else {
+        // The global pool stays held, so every other test of this binary would wait too: end it.
+        eprintln!("a_pool_drawn_while_every_rayon_worker_is_held: the draws hang with every worker held");
+        std::process::exit(1);
+    };
+    assert_eq!(swaps, Some((EPISODES / GROUP_EPISODES) as u64));
+}
+
+#[test]
+fn a_failed_block_read_fails_every_later_batch_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    // The actions of shard 3's last row group: a column the first fill does not read, of a block
+    // not resident at the start for this seed, so the fault is met by the loader mid-stream.
+    let shard = data.join("coded-3.parquet");
+    let meta = parquet::file::serialized_reader::SerializedFileReader::new(std::fs::File::open(&shard).unwrap())
+        .map(|r| parquet::file::reader::FileReader::metadata(&r).clone())
+        .unwrap();
+    let last = meta.num_row_groups() - 1;
+    let rg = meta.row_group(last);
+    let chunk = (0..rg.num_columns()).map(|c| rg.column(c)).find(|c| c.column_path().string().starts_with("action"));
+    let (start, len) = chunk.expect("an action column").byte_range();
+    let mut bytes = std::fs::read(&shard).unwrap();
+    bytes[(start + len / 2) as usize] ^= 0x10;
+    std::fs::write(&shard, &bytes).unwrap();
+    let cfg = config(Swap::None, 0.5, 0.5, 1);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let first = (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("the corrupt block is read");
+    let first = format!("{first:#}");
+    assert!(first.contains("coded-3.parquet") && first.contains(&format!("row group {last}")), "{first}");
+    // No batch from blocks that should have left: every later call fails with the same fault.
+    for _ in 0..3 {
+        let again = s.next_batch().err().expect("a batch drawn after the pool failed");
+        assert_eq!(format!("{again:#}"), first);
+    }
+}
+
+#[test]
+fn a_shard_replaced_after_the_pool_opened_is_refused_as_changed_not_corrupt() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::None, 0.5, 0.5, 1);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    // A shard of the same size put in its place: one byte of its data changed, written beside
+    // it and renamed over it, as a re-run of convert or a copy would.
+    let shard = data.join("coded-1.parquet");
+    let mut bytes = std::fs::read(&shard).unwrap();
+    let i = bytes.len() / 2;
+    bytes[i] ^= 0x01;
+    std::fs::write(data.join("coded-1.parquet.new"), &bytes).unwrap();
+    std::fs::rename(data.join("coded-1.parquet.new"), &shard).unwrap();
+    let e = (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("a block of the replaced shard is read");
+    let e = format!("{e:#}");
+    assert!(e.contains("coded-1.parquet") && e.contains("changed since the pool opened it"), "{e}");
 }

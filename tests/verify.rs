@@ -218,7 +218,10 @@ fn every_reader_refuses_a_corrupt_table() {
     // The scored table's sampler checks the columns it reads (q and the keys).
     let bad_scored = tmp.path().join("bad_scored.parquet");
     flipped(&scored, &bad_scored, middle_of(&scored, "q"), 0);
-    let e = pgser::sampler::scored::ScoredTable::open(&bad_scored).err().expect("a corrupt q column is refused");
+    let e = pgser::sampler::scored::ScoredTable::open(&bad_scored)
+        .and_then(|t| t.check_whole())
+        .err()
+        .expect("a corrupt q column is refused");
     assert!(format!("{e:#}").contains("column q") && names_the_file(&e, &bad_scored), "{e:#}");
 }
 
@@ -322,7 +325,10 @@ fn inputs_the_fuzzers_found_fail_in_one_line() {
                 "{cmd}: {line}"
             );
         }
-        let e = pgser::sampler::scored::ScoredTable::open(&p).err().expect("a corrupt scored table opened");
+        let e = pgser::sampler::scored::ScoredTable::open(&p)
+            .and_then(|t| t.check_whole())
+            .err()
+            .expect("a corrupt scored table opened and checked");
         assert!(names_the_file(&e, &p), "{e:#}");
     }
     assert!(found > 0, "no inputs in {folders:?}");

@@ -283,6 +283,19 @@ impl OgbenchStream {
         Ok(b)
     }
 
+    /// Whether drawing `n` rows now would take a block into the pool (never for β held whole).
+    pub fn would_swap(&self, n: usize) -> bool {
+        self.source.pool().is_some_and(|p| p.swaps_within(n))
+    }
+
+    /// Forgets `rows` draws of batches drawn ahead and dropped, none of which took a block in
+    /// ([`OgbenchStream::would_swap`]): the next batch is drawn from the pool as it was before them.
+    pub fn drop_ahead(&mut self, rows: usize) {
+        if let Some(p) = self.source.pool_mut() {
+            p.unrefresh(rows);
+        }
+    }
+
     /// Batch `k` of the stream, of `n` rows (not moving the stream on): the view is refreshed
     /// for `n` draws first, so a pool's resident data follow the rows drawn.
     pub fn batch(&mut self, k: u64, n: usize) -> Result<OgbenchBatch> {

@@ -69,13 +69,13 @@
 
 use std::collections::VecDeque;
 use std::path::Path;
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use anyhow::{Result, anyhow};
+use anyhow::{Result, bail};
 use rayon::prelude::*;
 
+mod buffers;
 mod layout;
 mod loader;
 mod schedule;
@@ -84,9 +84,10 @@ use super::view::{GoalSource, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
 use crate::trajectory::Episodes;
-use layout::{Arrays, Block};
+use buffers::Floats;
+use layout::{Block, IN_FLIGHT};
 pub use layout::{Layout, Plan};
-use loader::{advise_huge_pages, keep_large_buffers_returnable, settle_after_open, spawn_loader};
+use loader::Loader;
 use schedule::{Entries, Keys};
 
 /// Options of a pool besides its budget.
@@ -100,6 +101,19 @@ pub struct PoolConfig {
     pub seed: u64,
     /// A shard window: one shard resident, the next in table order after this many draws.
     pub window: Option<u64>,
+}
+
+/// Where a stream opens a pool: after `batches` batches of `rows` draws each (a resumed run's
+/// position), so the pool it holds is the one an uninterrupted run holds there, read once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Position {
+    pub batches: u64,
+    pub rows: usize,
+}
+
+impl Position {
+    /// A fresh stream's: before its first batch.
+    pub const START: Position = Position { batches: 0, rows: 0 };
 }
 
 /// β for a sampler within a budget: whole, or a pool.
@@ -129,24 +143,25 @@ impl Beta {
         }
     }
 
-    /// A trajectory table (a file or a table folder) held within `budget`.
-    pub fn within(path: &Path, budget: super::view::Budget, seed: u64) -> Result<Beta> {
+    /// A trajectory table (a file or a table folder) held within `budget`, a pool as it is at
+    /// `at`.
+    pub fn within(path: &Path, budget: super::view::Budget, seed: u64, at: Position) -> Result<Beta> {
         use super::view::Budget;
         Ok(match budget {
             Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
-            Budget::Bytes { bytes, draws_per_row } => Beta::open(path, bytes, draws_per_row, seed)?,
-            Budget::ShardWindow(rows) => Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, seed)?)),
+            Budget::Bytes { bytes, draws_per_row } => Beta::open(path, bytes, draws_per_row, seed, at)?,
+            Budget::ShardWindow(rows) => Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, seed, at)?)),
         })
     }
 
     /// Plans `path` against `budget` and opens it, a pool keeping each block for `draws_per_row`
-    /// draws per transition.
-    pub fn open(path: &Path, budget: u64, draws_per_row: u32, seed: u64) -> Result<Beta> {
+    /// draws per transition, as it is at `at`.
+    pub fn open(path: &Path, budget: u64, draws_per_row: u32, seed: u64, at: Position) -> Result<Beta> {
         let layout = Layout::open(path)?;
         Ok(match Plan::of(&layout, budget)? {
             Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
             Plan::Pool { slots, reservoir } => {
-                Beta::Pool(Box::new(Pool::planned(layout, (budget, draws_per_row), seed, (slots, reservoir))?))
+                Beta::Pool(Box::new(Pool::planned(layout, (budget, draws_per_row), seed, (slots, reservoir), at)?))
             }
         })
     }
@@ -187,37 +202,41 @@ pub struct Pool {
     next_entry: u64,
     /// Resident blocks, oldest first.
     resident: VecDeque<Block>,
-    /// Resident episode → (position in `resident`, episode within it).
-    index: Vec<(u32, u32)>,
-    /// The first resident episode number of each position in `resident`.
-    starts: Vec<usize>,
+    /// Every block that enters gets the next sequence number (wrapping); the oldest resident's.
+    front_seq: u32,
+    /// Resident episode → (its block's sequence number, episode within the block). Blocks leave
+    /// oldest first and enter last, so a swap pops the leaving block's episodes off the front and
+    /// pushes the new one's at the back: its cost is the two blocks' episodes, not the resident
+    /// ones', and resident episode numbers are those a rebuilt index would give.
+    index: VecDeque<(u32, u32)>,
+    /// Each resident block's first episode, counted over every episode that ever entered.
+    starts: VecDeque<u64>,
+    /// Episodes that ever entered.
+    entered: u64,
     keys: Keys,
     /// The reservoir's vectors, slot by slot, and the table-wide (episode, step) of each.
     goal_at: Vec<(u64, u32)>,
-    goal_ag: Vec<f32>,
-    goal_obs: Vec<f32>,
+    goal_ag: Floats,
+    goal_obs: Floats,
     /// Transitions drawn since the last swap.
     drawn: f64,
-    loader: Mutex<Receiver<Result<Block>>>,
-    /// Leaving blocks' arrays, back to the loader.
-    spare: SyncSender<Arrays>,
+    /// Started once the pool is filled (`start`), so opening holds no block in flight.
+    loader: Mutex<Option<Loader>>,
+    /// A swap that failed: every later refresh fails with it, so no batch is drawn from blocks
+    /// that should have left.
+    failed: Option<String>,
     stats: PoolStats,
 }
 
 impl Pool {
-    /// The pool after `batches` batches of `rows` draws each (0 for a fresh one): the swaps and
-    /// reservoir refreshes those draws made are replayed on block sizes alone, then the resident
-    /// blocks are read (in parallel) and the reservoir's vectors filled from the blocks its
-    /// entries name (observations and achieved goals only), and the loader starts at the next
-    /// entry. A resumed run thus draws what an uninterrupted one does, number for number.
-    pub fn start(
-        layout: Arc<Layout>,
-        cfg: PoolConfig,
-        slots: usize,
-        reservoir: usize,
-        (batches, rows): (u64, usize),
-    ) -> Result<Pool> {
-        keep_large_buffers_returnable();
+    /// The pool at `at` (after `at.batches` batches of `at.rows` draws each; none for a fresh
+    /// one): the swaps and reservoir refreshes those draws made are replayed on block sizes alone,
+    /// then the resident blocks are read (in parallel) and the reservoir's vectors filled from the
+    /// blocks its entries name (observations and achieved goals only), and the loader starts at
+    /// the next entry. A resumed run thus draws what an uninterrupted one does, number for number,
+    /// and reads its blocks once.
+    pub fn start(layout: Arc<Layout>, cfg: PoolConfig, slots: usize, reservoir: usize, at: Position) -> Result<Pool> {
+        let Position { batches, rows } = at;
         let mut entries = entries(&layout, &cfg, slots);
         let mut queue: VecDeque<usize> = (0..slots as u64).map(|i| entries.get(i)).collect();
         let mut next_entry = slots as u64;
@@ -240,50 +259,54 @@ impl Pool {
         }
         let resident: VecDeque<Block> = queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
         let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
-        let (loader, spare) = spawn_loader(layout.clone(), cfg, slots, next_entry);
-        let (mut goal_ag, mut goal_obs) = (vec![0.0; reservoir * gd], vec![0.0; reservoir * od]);
-        advise_huge_pages(&mut goal_ag, reservoir * gd);
-        advise_huge_pages(&mut goal_obs, reservoir * od);
+        let (goal_ag, goal_obs) = (Floats::zeros(reservoir * gd)?, Floats::zeros(reservoir * od)?);
         let mut pool = Pool {
             layout,
             cfg,
             slots,
             entries,
             next_entry,
-            resident,
-            index: Vec::new(),
-            starts: Vec::new(),
+            resident: VecDeque::with_capacity(slots),
+            front_seq: 0,
+            index: VecDeque::new(),
+            starts: VecDeque::with_capacity(slots),
+            entered: 0,
             keys,
             goal_at: vec![(0, 0); reservoir],
             goal_ag,
             goal_obs,
             drawn,
-            loader: Mutex::new(loader),
-            spare,
+            loader: Mutex::new(None),
+            failed: None,
             stats: PoolStats::default(),
         };
-        pool.reindex();
+        for b in resident {
+            pool.enter(b);
+        }
         pool.materialize()?;
-        settle_after_open();
+        let layout = pool.layout.clone();
+        *pool.loader.get_mut().expect("not shared yet") = Some(Loader::spawn(layout, cfg, slots, pool.next_entry));
         Ok(pool)
     }
 
-    /// A fresh pool of `layout` within `(budget, draws_per_row)`, as [`Plan::of`] split that
+    /// The pool of `layout` within `(budget, draws_per_row)` at `at`, as [`Plan::of`] split that
     /// budget into `slots` resident blocks and a reservoir of `reservoir` goals.
     pub fn planned(
         layout: Layout,
         (budget, draws_per_row): (u64, u32),
         seed: u64,
         (slots, reservoir): (usize, usize),
+        at: Position,
     ) -> Result<Pool> {
         let cfg = PoolConfig { budget, draws_per_row: draws_per_row as f64, seed, window: None };
-        Pool::start(Arc::new(layout), cfg, slots, reservoir, (0, 0))
+        Pool::start(Arc::new(layout), cfg, slots, reservoir, at)
     }
 
     /// Fills every reservoir slot's vectors from the block its key names: resident blocks from
-    /// memory, the others read (observations and achieved goals only), a block per thread, each
-    /// dropped as soon as its entries are copied out, so memory is the reservoir and one block
-    /// per thread, never the table's columns.
+    /// memory, the others read (observations and achieved goals only), at most `IN_FLIGHT` at a
+    /// time whatever the core count (the plan sets that much aside), each dropped as soon as its
+    /// entries are copied out, so memory is the reservoir and those blocks, never the table's
+    /// columns.
     fn materialize(&mut self) -> Result<()> {
         let mut by_block: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
         for (slot, &(id, _, _)) in self.keys.slots.iter().enumerate() {
@@ -310,14 +333,16 @@ impl Pool {
         let mut entries: Vec<Entries> =
             by_block.iter().filter_map(|(id, slots)| resident.get(id).map(|b| take(b, slots))).collect();
         let others: Vec<(&usize, &Vec<usize>)> = by_block.iter().filter(|(id, _)| !resident.contains_key(id)).collect();
-        entries.extend(
-            others
-                .into_par_iter()
-                .map(|(&id, slots)| {
-                    Ok(take(&layout.read_columns(id, &[true, true, false, false], Default::default())?, slots))
-                })
-                .collect::<Result<Vec<_>>>()?,
-        );
+        for group in others.chunks(IN_FLIGHT as usize) {
+            entries.extend(
+                group
+                    .par_iter()
+                    .map(|&(&id, slots)| {
+                        Ok(take(&layout.read_columns(id, &[true, true, false, false], Default::default())?, slots))
+                    })
+                    .collect::<Result<Vec<_>>>()?,
+            );
+        }
         for (slots, at, ag, obs) in entries {
             for (i, slot) in slots.into_iter().enumerate() {
                 self.set_goal(slot, at[i], &ag[i * gd..][..gd], &obs[i * od..][..od]);
@@ -332,12 +357,12 @@ impl Pool {
     /// Reduction's loop, shard 0 serves one batch less than the others), no reservoir: every goal, random ones included, comes from the
     /// held shard. Loading still runs ahead in the loader thread, so this emulates what the scheme
     /// draws, not its pauses (bench/ogbench_peer.py measures those).
-    pub fn window(layout: Layout, rows: u64, seed: u64) -> Result<Pool> {
+    pub fn window(layout: Layout, rows: u64, seed: u64, at: Position) -> Result<Pool> {
         if rows == 0 {
             anyhow::bail!("--shard-window must be at least 1 update");
         }
         let cfg = PoolConfig { budget: 0, draws_per_row: 1.0, seed, window: Some(rows) };
-        Pool::start(Arc::new(layout.by_shard()), cfg, 1, 0, (0, 0))
+        Pool::start(Arc::new(layout.by_shard()), cfg, 1, 0, at)
     }
 
     /// Whether this is a shard window (`Pool::window`).
@@ -345,10 +370,18 @@ impl Pool {
         self.cfg.window.is_some()
     }
 
-    /// The same pool as it is after `batches` batches of `rows` draws: what a resumed run
-    /// continues from. Reads the blocks again.
-    pub fn resumed(&self, batches: u64, rows: usize) -> Result<Pool> {
-        Pool::start(self.layout.clone(), self.cfg, self.slots, self.goal_at.len(), (batches, rows))
+    /// Whether `refresh(rows)` would take a block in: a sampler that draws batches ahead stops
+    /// there until it knows the next batch's size (`python/src/sampler/ogbench.rs`).
+    pub fn swaps_within(&self, rows: usize) -> bool {
+        let leaving = self.resident.front().expect("a pool holds blocks");
+        self.drawn + rows as f64 >= due(&self.layout, &self.cfg, leaving.id)
+    }
+
+    /// Takes back `rows` draws that `refresh` counted and that took no block in (batches drawn
+    /// ahead, then dropped): the pool is then as it was before them.
+    pub fn unrefresh(&mut self, rows: usize) {
+        assert!(self.drawn >= rows as f64, "only draws counted since the last swap are taken back");
+        self.drawn -= rows as f64;
     }
 
     /// What waiting for the disk has cost so far.
@@ -382,13 +415,27 @@ impl Pool {
         )
     }
 
-    fn reindex(&mut self) {
-        self.index.clear();
-        self.starts.clear();
-        for (slot, b) in self.resident.iter().enumerate() {
-            self.starts.push(self.index.len());
-            self.index.extend((0..b.n).map(|e| (slot as u32, e as u32)));
-        }
+    /// Places `b` after the resident blocks, its episodes after theirs.
+    fn enter(&mut self, b: Block) {
+        let seq = self.front_seq.wrapping_add(self.resident.len() as u32);
+        self.index.extend((0..b.n as u32).map(|e| (seq, e)));
+        self.starts.push_back(self.entered);
+        self.entered += b.n as u64;
+        self.resident.push_back(b);
+    }
+
+    /// Takes the oldest block out, and its episodes.
+    fn leave(&mut self) -> Block {
+        let b = self.resident.pop_front().expect("a pool holds blocks");
+        self.index.drain(..b.n);
+        self.starts.pop_front();
+        self.front_seq = self.front_seq.wrapping_add(1);
+        b
+    }
+
+    /// The position in `resident` of the block with sequence number `seq`.
+    fn slot(&self, seq: u32) -> usize {
+        seq.wrapping_sub(self.front_seq) as usize
     }
 
     /// Whether the blocks carry a scored table's rows (`-mem`).
@@ -404,11 +451,13 @@ impl Pool {
         let steps = self.layout.t - 1;
         (0..k)
             .map(|_| {
-                let (slot, _) = self.index[rng.below(self.index.len())];
-                let aug = self.resident[slot as usize].aug.as_ref().expect("every block carries its scored rows");
+                let (seq, _) = self.index[rng.below(self.index.len())];
+                let slot = self.slot(seq);
+                let aug = self.resident[slot].aug.as_ref().expect("every block carries its scored rows");
                 let row = aug.tree.find(rng.random() * aug.tree.total());
                 let (local, step) = (row / (steps * per), (row / per) % steps);
-                ScoredDraw { e: self.starts[slot as usize] + local, step, slot: slot as usize, row }
+                let first = (self.starts[slot] - self.starts[0]) as usize;
+                ScoredDraw { e: first + local, step, slot, row }
             })
             .collect()
     }
@@ -423,7 +472,7 @@ impl Pool {
     /// the observation it was taken from.
     pub fn goals_are_observations(&self) -> bool {
         self.layout.task.goal_dim == self.layout.task.obs_dim
-            && self.resident.iter().all(|b| b.ag.iter().zip(&b.obs).all(|(a, o)| a.to_bits() == o.to_bits()))
+            && self.resident.iter().all(|b| b.ag.iter().zip(b.obs.iter()).all(|(a, o)| a.to_bits() == o.to_bits()))
     }
 
     /// The table-wide (episode, step) of the goal a drawn row was scored with: only when the
@@ -443,36 +492,28 @@ impl Pool {
     fn swap(&mut self) -> Result<()> {
         let t0 = Instant::now();
         let mut wait = Duration::ZERO;
-        let next = {
-            let rx = self.loader.get_mut().expect("the loader's channel is never poisoned");
-            match rx.try_recv() {
-                Ok(b) => b,
-                Err(_) => {
-                    let b = rx.recv().map_err(|_| anyhow!("the pool's loader stopped"))?;
-                    wait = t0.elapsed();
-                    self.stats.waits += 1;
-                    self.stats.waited += wait;
-                    self.stats.longest_wait = self.stats.longest_wait.max(wait);
-                    b
-                }
+        let loader = self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started");
+        let next = match loader.ready() {
+            Some(b) => b,
+            None => {
+                let b = loader.wait();
+                wait = t0.elapsed();
+                self.stats.waits += 1;
+                self.stats.waited += wait;
+                self.stats.longest_wait = self.stats.longest_wait.max(wait);
+                b
             }
         }?;
         let want = self.entries.get(self.next_entry);
-        assert_eq!(next.id, want, "the loader and the pool agree on the order of entries");
+        if next.id != want {
+            bail!("the pool's loader sent block {} where block {want} was due", next.id);
+        }
         self.next_entry += 1;
         self.stats.swaps += 1;
-        let mut leaving = self.resident.pop_front().expect("a pool holds blocks");
-        // Its arrays go back to the loader to be filled again (`spawn_loader`). What is freed
-        // (its scored rows; the arrays when the loader has a spare already) returns its pages to
-        // the system (`keep_large_buffers_returnable`), milliseconds for a large block: done off
-        // the drawing thread, so no batch waits for it.
-        let unused = match self.spare.try_send(leaving.take_arrays()) {
-            Err(TrySendError::Full(a) | TrySendError::Disconnected(a)) => Some(a),
-            Ok(()) => None,
-        };
-        if unused.is_some() || leaving.aug.is_some() {
-            std::thread::spawn(move || drop((leaving, unused)));
-        }
+        // The leaving block goes back whole: the loader fills its arrays with a later block and
+        // drops the rest (its scored rows), off the drawing thread.
+        let leaving = self.leave();
+        self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started").give_back(leaving);
         let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
         let len = self.goal_at.len();
         for j in self.keys.feed(&self.layout, next.id) {
@@ -481,8 +522,7 @@ impl Pool {
             let (e, s) = (e as usize, s as usize);
             self.set_goal(slot, (next.first_episode + e as u64, s as u32), next.ag(e, s, t, gd), next.obs(e, s, t, od));
         }
-        self.resident.push_back(next);
-        self.reindex();
+        self.enter(next);
         self.stats.longest_swap = self.stats.longest_swap.max(t0.elapsed().saturating_sub(wait));
         Ok(())
     }
@@ -490,13 +530,13 @@ impl Pool {
     /// Reservoir slot `slot` now holds the goal of table-wide (episode, step) `at`.
     fn set_goal(&mut self, slot: usize, at: (u64, u32), ag: &[f32], obs: &[f32]) {
         self.goal_at[slot] = at;
-        self.goal_ag[slot * ag.len()..][..ag.len()].copy_from_slice(ag);
-        self.goal_obs[slot * obs.len()..][..obs.len()].copy_from_slice(obs);
+        self.goal_ag.as_mut_slice()[slot * ag.len()..][..ag.len()].copy_from_slice(ag);
+        self.goal_obs.as_mut_slice()[slot * obs.len()..][..obs.len()].copy_from_slice(obs);
     }
 
     fn block(&self, e: usize) -> (&Block, usize) {
-        let (slot, local) = self.index[e];
-        (&self.resident[slot as usize], local as usize)
+        let (seq, local) = self.index[e];
+        (&self.resident[self.slot(seq)], local as usize)
     }
 }
 
@@ -579,6 +619,9 @@ impl View for Pool {
         &self.goal_obs[g.slot as usize * d..][..d]
     }
     fn refresh(&mut self, rows: usize) -> Result<()> {
+        if let Some(e) = &self.failed {
+            bail!("{e}");
+        }
         self.drawn += rows as f64;
         loop {
             let leaving = self.resident.front().expect("at least two blocks resident");
@@ -586,8 +629,12 @@ impl View for Pool {
             if self.drawn < due {
                 return Ok(());
             }
+            if let Err(e) = self.swap() {
+                let e = format!("{e:#}");
+                self.failed = Some(e.clone());
+                bail!("{e}");
+            }
             self.drawn -= due;
-            self.swap()?;
         }
     }
 }

@@ -84,7 +84,13 @@ struct ScoredFile {
     metadata: ArrowReaderMetadata,
     /// The table's number of the file's first row.
     first_row: usize,
+    /// Its chunks' checksums: each reader checks the chunks it reads, when it reads them.
+    verifier: crate::table::Verifier,
 }
+
+/// The columns the in-memory samplers read from every row (q, and the keys that name each
+/// row's transition and goal): [`ScoredTable::check_whole`] checks them.
+const WHOLE: [&str; 5] = ["q", "episode", "step", "goal_episode", "goal_step"];
 
 impl ScoredTable {
     /// The scored table at `path` (a file whose footer says so, or a scored folder), or None when
@@ -124,10 +130,11 @@ impl ScoredTable {
                 group_starts.push(group_starts.last().unwrap() + n);
                 group_at.push((i as u32, g as u32));
             }
-            // The sampler reads these columns only: their chunks are checked once, here.
+            // Nothing table-wide is read here: a pool reads a block's rows at a time and checks
+            // them then (`read_goals`); the samplers that hold the table check it first
+            // (`check_whole`).
             let verifier = crate::table::Verifier::new(&p, metadata.metadata())?;
-            verifier.check(&verifier.columns_of(&["q", "episode", "step", "goal_episode", "goal_step"]))?;
-            files.push(ScoredFile { path: p, metadata, first_row });
+            files.push(ScoredFile { path: p, metadata, first_row, verifier });
         }
         let rows = *group_starts.last().unwrap();
         if rows == 0 {
@@ -147,6 +154,15 @@ impl ScoredTable {
             group_at,
             source,
         })
+    }
+
+    /// Checks the chunks of every row group's columns that the in-memory samplers read (q and
+    /// the keys), in parallel: what a sampler that holds the whole table calls before reading it.
+    pub fn check_whole(&self) -> Result<()> {
+        for f in &self.files {
+            f.verifier.check(&f.verifier.columns_of(&WHOLE))?;
+        }
+        Ok(())
     }
 
     /// The trajectory table β this one was made from, and its recorded sha256.
@@ -216,6 +232,9 @@ impl ScoredTable {
             let file = &self.files[f as usize];
             let at = format!("{} (row group {local})", file.path.display());
             let (a, b) = (row - start, r1.min(end) - start);
+            // Every column read (the stored goal too, which the pool trains on), on this thread:
+            // the pool's loader calls this and must not wait on the global pool.
+            file.verifier.check_row_groups_here(&[local as usize], &file.verifier.columns_of(names))?;
             let builder = self.builder(file)?;
             let mask = ProjectionMask::columns(builder.parquet_schema(), names.iter().copied());
             let mut selectors = Vec::new();
@@ -447,6 +466,7 @@ impl ScoredSampler {
         first: u64,
         in_memory: bool,
     ) -> Result<ScoredSampler> {
+        table.check_whole()?;
         let q = table.read_q()?;
         let tree = Arc::new(SumTree::new(
             cfg.priorities(q, table.gamma).with_context(|| format!("{}", table.path.display()))?,

@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::pool::{Beta, Layout, Plan, Pool, ScoredDraw};
+use super::pool::{Beta, Layout, Plan, Pool, Position, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
 use super::view::{Budget, View};
@@ -54,6 +54,8 @@ pub struct RowIds {
 pub struct BatchSource {
     pub data: Beta,
     scored: Option<ScoredTable>,
+    /// The batch a pool was opened at: the stream must start there.
+    first: u64,
 }
 
 impl BatchSource {
@@ -67,13 +69,22 @@ impl BatchSource {
     /// As [`BatchSource::open`], with β held within `budget` (`--memory-budget`): whole when it
     /// fits (the same batches as `open`), an out-of-core pool otherwise (`pool.rs`).
     pub fn open_within(path: &Path, cfg: &StreamConfig, budget: Budget) -> Result<BatchSource> {
+        BatchSource::open_resuming(path, cfg, budget, 0)
+    }
+
+    /// As [`BatchSource::open_within`], for a stream that resumes at batch `first`
+    /// ([`BatchSource::resume`]): a pool is opened as it is there, so a resumed run reads its
+    /// blocks and fills its reservoir once, and never holds a second pool.
+    pub fn open_resuming(path: &Path, cfg: &StreamConfig, budget: Budget, first: u64) -> Result<BatchSource> {
         if cfg.batch_size == 0 {
             bail!("--batch-size must be at least 1");
         }
         cfg.priority.validate()?;
+        // Every batch of a pool's stream draws `batch_size` rows, its scored ones included.
+        let at = Position { batches: first, rows: cfg.batch_size };
         let source = match ScoredTable::open_if_scored(path)? {
-            Some(table) => BatchSource::open_scored(path, table, cfg, budget)?,
-            None => BatchSource { data: Beta::within(path, budget, cfg.seed)?, scored: None },
+            Some(table) => BatchSource::open_scored(path, table, cfg, budget, at)?,
+            None => BatchSource { data: Beta::within(path, budget, cfg.seed, at)?, scored: None, first },
         };
         if source.data.view().t() < 2 {
             bail!("{}: episodes of {} step(s) hold no transition", path.display(), source.data.view().t());
@@ -84,7 +95,14 @@ impl BatchSource {
     /// A scored table and its original data: β whole with the prioritized rows drawn from the
     /// whole scored table when both fit `budget`, else a pool whose blocks carry their scored rows
     /// (`pool.rs`, "PGSER within a budget").
-    fn open_scored(path: &Path, table: ScoredTable, cfg: &StreamConfig, budget: Budget) -> Result<BatchSource> {
+    fn open_scored(
+        path: &Path,
+        table: ScoredTable,
+        cfg: &StreamConfig,
+        budget: Budget,
+        pos: Position,
+    ) -> Result<BatchSource> {
+        let first = pos.batches;
         let at = path.display();
         if cfg.sampler.swap != Swap::None {
             bail!(
@@ -102,8 +120,8 @@ impl BatchSource {
                     bail!("{at}: --is-beta {beta} with --shard-window: priorities are the held shard's own");
                 }
                 let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
-                let pool = Pool::window(layout, rows, cfg.seed)?;
-                return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
+                let pool = Pool::window(layout, rows, cfg.seed, pos)?;
+                return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None, first });
             }
             Budget::Bytes { bytes: b, draws_per_row } => {
                 // Planned from the footers before anything is loaded.
@@ -118,14 +136,14 @@ impl BatchSource {
                                  known; leave --is-beta unset, or give a budget that holds the data"
                             );
                         }
-                        let pool = Pool::planned(layout, (b, draws_per_row), cfg.seed, (slots, reservoir))?;
-                        return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None });
+                        let pool = Pool::planned(layout, (b, draws_per_row), cfg.seed, (slots, reservoir), pos)?;
+                        return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None, first });
                     }
                 }
             }
         };
         let data = beta_at(&table, &source)?;
-        Ok(BatchSource { data: Beta::Whole(Arc::new(data)), scored: Some(table) })
+        Ok(BatchSource { data: Beta::Whole(Arc::new(data)), scored: Some(table), first })
     }
 
     /// Whether the data is a scored table (batches then mix in prioritized swapped rows).
@@ -145,7 +163,15 @@ impl BatchSource {
 
     /// The stream from batch `first` on, with the original data's generator as it was after
     /// batch `first − 1` (a resumed run's saved state): the batches an uninterrupted run draws.
+    /// A pool must have been opened there ([`BatchSource::open_resuming`]).
     pub fn resume(self, cfg: &StreamConfig, rng: NpRandom, first: u64) -> Result<BatchStream> {
+        if matches!(self.data, Beta::Pool(_)) && first != self.first {
+            bail!(
+                "a pool opened for batch {} cannot start at batch {first}: open it where the stream resumes \
+                 (BatchSource::open_resuming)",
+                self.first
+            );
+        }
         let k_aug = if self.is_scored() { ((cfg.batch_size as f64) * cfg.aug_ratio).round() as usize } else { 0 };
         let aug = match (self.scored, &self.data) {
             (Some(t), Beta::Whole(data)) => {
@@ -154,12 +180,7 @@ impl BatchSource {
             (Some(_), Beta::Pool(_)) => unreachable!("a pool carries its scored rows in its blocks (open_scored)"),
             (None, _) => None,
         };
-        let data = match self.data {
-            // Every batch of a pool's stream draws `batch_size` rows, its scored ones included.
-            Beta::Pool(pool) if first > 0 => Beta::Pool(Box::new(pool.resumed(first, cfg.batch_size)?)),
-            data => data,
-        };
-        Ok(BatchStream { data, aug, k_aug, rng, cfg: cfg.clone() })
+        Ok(BatchStream { data: self.data, aug, k_aug, rng, cfg: cfg.clone() })
     }
 }
 

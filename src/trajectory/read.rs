@@ -323,8 +323,33 @@ pub(crate) fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Fo
 /// action) the rows with step < T − 1, whose last-step row may be null. Rows already passed
 /// [`check_keys`], so row r of the batch is table row `first_row + r`. Errors name the row,
 /// episode, step and column; the caller adds the file.
+/// Where [`append`] writes a column's values: a `Vec`, or the out-of-core pool's own arrays
+/// (`sampler/pool/buffers.rs`).
+pub(crate) trait Sink {
+    fn len(&self) -> usize;
+    fn push_slice(&mut self, v: &[f32]);
+    fn push_each(&mut self, v: impl Iterator<Item = f32>);
+    /// The values from `from` on.
+    fn tail(&self, from: usize) -> &[f32];
+}
+
+impl Sink for Vec<f32> {
+    fn len(&self) -> usize {
+        Vec::len(self)
+    }
+    fn push_slice(&mut self, v: &[f32]) {
+        self.extend_from_slice(v);
+    }
+    fn push_each(&mut self, v: impl Iterator<Item = f32>) {
+        self.extend(v);
+    }
+    fn tail(&self, from: usize) -> &[f32] {
+        &self[from..]
+    }
+}
+
 pub(crate) fn append(
-    out: &mut Vec<f32>,
+    out: &mut impl Sink,
     col: &ArrayRef,
     name: &str,
     dim: usize,
@@ -359,10 +384,10 @@ pub(crate) fn append(
         }
         let start = out.len();
         match values.data_type() {
-            DataType::Float32 => out.extend_from_slice(&values.as_primitive::<Float32Type>().values()[a..b]),
-            _ => out.extend(values.as_primitive::<Float64Type>().values()[a..b].iter().map(|&v| v as f32)),
+            DataType::Float32 => out.push_slice(&values.as_primitive::<Float32Type>().values()[a..b]),
+            _ => out.push_each(values.as_primitive::<Float64Type>().values()[a..b].iter().map(|&v| v as f32)),
         }
-        if let Some(j) = out[start..].iter().position(|v| !v.is_finite()) {
+        if let Some(j) = out.tail(start).iter().position(|v| !v.is_finite()) {
             let i = a + j;
             let source = match values.data_type() {
                 DataType::Float32 => values.as_primitive::<Float32Type>().value(i) as f64,

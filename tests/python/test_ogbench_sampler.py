@@ -326,20 +326,26 @@ def test_pool_stats_count_the_disk_waits_of_a_pool_and_none_when_held_whole(tabl
         with pytest.raises(ValueError, match=msg):
             pgser.Sampler(small, layout="ogbench", **kw)
     # With a pool, what is resident depends on the batches drawn before: the same calls give the
-    # same bytes whether they come back to back (the queue never full) or after it has filled.
+    # same bytes whether they come back to back (the queue never full) or after it has filled,
+    # and whatever the queue's length (batches drawn ahead and dropped for another size once
+    # moved the pool on by as many as the queue held). Sizes cross many swaps (a block leaves
+    # after 490 draws).
     import time
-    sizes = [256, 256, 100, 256, 300, 256, 256]
+    sizes = [256, 256, 100, 256, 300, 256, 256, 50, 256, 256, 256, 400, 256, 256]
 
-    def run(pause):
-        with pgser.Sampler(small, layout="ogbench", memory_budget=350_000, batch_size=256, seed=4) as s:
+    def run(pause, prefetch):
+        with pgser.Sampler(small, layout="ogbench", memory_budget=350_000, batch_size=256, seed=4,
+                           prefetch=prefetch) as s:
             out = []
             for n in sizes:
                 time.sleep(pause)
                 out.append(s.sample(n))
             return out
 
-    for a, b in zip(run(0.0), run(0.05)):
-        assert all(np.array_equal(a[k], b[k]) for k in a)
+    want = run(0.0, 4)
+    for pause, prefetch in ((0.02, 4), (0.02, 1), (0.02, 16), (0.0, 16)):
+        for i, (a, b) in enumerate(zip(want, run(pause, prefetch))):
+            assert all(np.array_equal(a[k], b[k]) for k in a), (pause, prefetch, i)
 
 
 def test_same_seed_same_bytes_whatever_the_sizes_asked(folder):

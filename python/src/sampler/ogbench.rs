@@ -113,10 +113,13 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
 /// worker keeps batches k, k+1, … of the default size ready and, asked for another size, drops
 /// them and draws batch k at that size. A request for the default size is answered as soon as
 /// batch k is ready, before the queue is topped up, so a learner waits for a draw only when it
-/// has used up the queue. Which batches are drawn (and, for a pool, which data are resident)
-/// still depends only on the requests made, never on timing: the default-size batches are drawn
-/// in order whoever asks when, and a request for another size first fills the queue, as if it had
-/// waited for it, so the same seed and the same calls give the same bytes.
+/// has used up the queue.
+///
+/// The bytes depend on the calls alone, never on `prefetch` or timing. A pool's resident data
+/// follow the rows drawn, so batches are drawn ahead only while they take no block in: those
+/// dropped for a request of another size are taken back (`drop_ahead`), and the pool is as if
+/// they had never been drawn. The batch that takes a block in is drawn once its request comes,
+/// at the size asked: a short wait once a block's worth of draws (a swap, and one draw).
 pub(super) fn og_worker(
     mut stream: OgbenchStream,
     (size, prefetch): (usize, usize),
@@ -126,14 +129,20 @@ pub(super) fn og_worker(
 ) {
     let mut ready: VecDeque<OgDrawn> = VecDeque::new();
     let mut k = 0u64;
-    // Draws the next default-size batch into the queue, unless it is full or ends in an error.
+    // Draws the next default-size batch into the queue, unless it is full, ends in an error, or
+    // the batch would take a block in (then it waits for its request).
     let top_up = |stream: &mut OgbenchStream, ready: &mut VecDeque<OgDrawn>, k: u64| -> bool {
-        if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) {
+        if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) || stream.would_swap(size) {
             return false;
         }
         ready.push_back(stream.batch(k + ready.len() as u64, size));
         *pool.lock().unwrap() = stream.pool_stats();
         true
+    };
+    let on_request = |stream: &mut OgbenchStream, n: usize, k: u64| {
+        let b = stream.batch(k, n);
+        *pool.lock().unwrap() = stream.pool_stats();
+        b
     };
     loop {
         let n = match req.try_recv() {
@@ -151,15 +160,16 @@ pub(super) fn og_worker(
         let b = if n == size {
             match ready.pop_front() {
                 Some(b) => b,
-                None => {
-                    top_up(&mut stream, &mut ready, k);
-                    ready.pop_front().expect("an empty queue takes a batch")
-                }
+                None => on_request(&mut stream, n, k),
             }
+        } else if let Some(failed) = ready.iter().position(|b| b.is_err()) {
+            // A queued failure (a block the pool could not read) is the answer: dropping it with
+            // the queue would lose the error.
+            ready.drain(..).nth(failed).expect("found")
         } else {
-            while top_up(&mut stream, &mut ready, k) {}
+            stream.drop_ahead(ready.len() * size);
             ready.clear();
-            stream.batch(k, n)
+            on_request(&mut stream, n, k)
         };
         k += 1;
         let failed = b.is_err();

@@ -21,7 +21,7 @@ use anyhow::{Context, Result, bail};
 use super::{At, Goal, GoalKind};
 use crate::nprandom::NpRandom;
 use crate::sampler::RowKey;
-use crate::sampler::pool::{Beta, Layout, Plan, Pool};
+use crate::sampler::pool::{Beta, Layout, Plan, Pool, Position};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
 use crate::sampler::view::{Budget, View};
@@ -91,6 +91,14 @@ impl Source {
         }
     }
 
+    /// The pool, mutably, when β is one.
+    pub(super) fn pool_mut(&mut self) -> Option<&mut Pool> {
+        match self {
+            Source::Plain(Beta::Pool(p)) | Source::Pool(p) => Some(p),
+            _ => None,
+        }
+    }
+
     /// The pool, when β is one.
     pub(super) fn pool(&self) -> Option<&Pool> {
         match self {
@@ -124,12 +132,12 @@ impl Source {
                      score), and this is a trajectory table; give its scored table or folder, or p_swapgoal = 0"
                 );
             }
-            return Ok(Source::Plain(Beta::within(path, budget, seed)?));
+            return Ok(Source::Plain(Beta::within(path, budget, seed, Position::START)?));
         };
         let source = crate::sampler::stream::checked_source(&table)?;
         if p_swapgoal == 0.0 {
             // Its original data alone: no scored rows held for nothing.
-            return Ok(Source::Plain(Beta::within(&source, budget, seed)?));
+            return Ok(Source::Plain(Beta::within(&source, budget, seed, Position::START)?));
         }
         priority.validate()?;
         if let Some(b) = priority.is_beta {
@@ -143,6 +151,7 @@ impl Source {
         }
         let whole = |table: ScoredTable| -> Result<Source> {
             let data = crate::sampler::stream::beta_at(&table, &source)?;
+            table.check_whole()?;
             let q = table.read_q()?;
             let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
             let keys = table.read_keys(&data)?;
@@ -170,10 +179,12 @@ impl Source {
         let pool = match budget {
             Budget::Unbounded => unreachable!("held whole above"),
             Budget::ShardWindow(_) | Budget::Bytes { .. } if task.goal_dim != task.obs_dim => return Err(refuse()),
-            Budget::ShardWindow(rows) => Pool::window(layout, rows, seed)?,
+            Budget::ShardWindow(rows) => Pool::window(layout, rows, seed, Position::START)?,
             Budget::Bytes { bytes: b, draws_per_row } => match Plan::of(&layout, b)? {
                 Plan::Whole => return whole(layout.into_scored().expect("attached above")),
-                Plan::Pool { slots, reservoir } => Pool::planned(layout, (b, draws_per_row), seed, (slots, reservoir))?,
+                Plan::Pool { slots, reservoir } => {
+                    Pool::planned(layout, (b, draws_per_row), seed, (slots, reservoir), Position::START)?
+                }
             },
         };
         if !pool.goals_are_observations() {

@@ -8,6 +8,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
 
+use super::buffers::Floats;
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
 use crate::task::Task;
@@ -29,6 +30,32 @@ pub(super) struct Shard {
     /// The shard's own footer (its own rows and episodes): what `check_keys` checks rows against.
     pub(super) footer: Footer,
     pub(super) meta: ArrowReaderMetadata,
+    /// The file as it was opened: a block read from another file (replaced, rewritten) is
+    /// refused as changed, not read against metadata that is no longer its own.
+    identity: Identity,
+}
+
+/// What tells one file from another at the same path: device, inode, size, modification time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Identity {
+    dev: u64,
+    ino: u64,
+    len: u64,
+    modified: Option<std::time::SystemTime>,
+}
+
+impl Identity {
+    fn of(file: &std::fs::File, path: &Path) -> Result<Identity> {
+        let m = file.metadata().with_context(|| format!("{}: cannot stat", path.display()))?;
+        #[cfg(unix)]
+        let (dev, ino) = {
+            use std::os::unix::fs::MetadataExt;
+            (m.dev(), m.ino())
+        };
+        #[cfg(not(unix))]
+        let (dev, ino) = (0, 0);
+        Ok(Identity { dev, ino, len: m.len(), modified: m.modified().ok() })
+    }
 }
 
 /// One block: a row group of a shard, holding whole episodes.
@@ -94,11 +121,14 @@ impl Layout {
         }
         for (i, (p, f, first_episode)) in shards.into_iter().enumerate() {
             let file = crate::output::open_input(&p)?;
+            let identity = Identity::of(&file, &p)?;
             let meta = ArrowReaderMetadata::load(&file, ArrowReaderOptions::new())
                 .with_context(|| format!("{}: not a readable Parquet file", p.display()))?;
             let mut row = 0usize;
             for (g, rg) in meta.metadata().row_groups().iter().enumerate() {
-                let rows = rg.num_rows() as usize;
+                let Ok(rows) = usize::try_from(rg.num_rows()) else {
+                    bail!("{}: row group {g} has a negative row count: the file is corrupt", p.display());
+                };
                 if row % t != 0 || rows % t != 0 {
                     bail!(
                         "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
@@ -121,7 +151,7 @@ impl Layout {
             if row != f.rows {
                 bail!("{}: its row groups hold {row} rows but its footer says {}", p.display(), f.rows);
             }
-            opened.push(Shard { path: p, footer: f, meta });
+            opened.push(Shard { path: p, footer: f, meta, identity });
         }
         Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks, scored: None })
     }
@@ -196,9 +226,20 @@ impl Layout {
         self.episodes * self.episode_bytes()
     }
 
-    /// Bytes of one reservoir entry: an achieved goal, an observation, and where they came from.
+    /// Bytes of one reservoir entry: an achieved goal, an observation, where they came from
+    /// (16 bytes: `Pool::goal_at`) and its key (12 bytes: `Keys::slots`).
     pub(super) fn entry_bytes(&self) -> u64 {
-        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16
+        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16 + 12
+    }
+
+    /// Where block `id` is, for messages: its shard and row group(s).
+    pub(super) fn at(&self, id: usize) -> String {
+        let b = self.blocks[id];
+        let path = self.shards[b.shard].path.display();
+        match b.groups {
+            1 => format!("{path} (row group {})", b.group),
+            n => format!("{path} (row groups {}..{})", b.group, b.group + n),
+        }
     }
 
     /// Reads block `id`: its chunks checked against the shard's checksums, every row checked as
@@ -213,16 +254,19 @@ impl Layout {
     pub(super) fn read_columns(&self, id: usize, which: &[bool; 4], into: Arrays) -> Result<Block> {
         let b = self.blocks[id];
         let shard = &self.shards[b.shard];
-        let at = match b.groups {
-            1 => format!("{} (row group {})", shard.path.display(), b.group),
-            n => format!("{} (row groups {}..{})", shard.path.display(), b.group, b.group + n),
-        };
+        let at = self.at(id);
         let groups: Vec<usize> = (b.group..b.group + b.groups).collect();
         let file = crate::output::open_input(&shard.path)?;
+        if Identity::of(&file, &shard.path)? != shard.identity {
+            bail!(
+                "{at}: the file changed since the pool opened it (replaced or rewritten while training); start again \
+                 on data that stays as it is"
+            );
+        }
         let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
         let mut names = vec!["episode", "step"];
         names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
-        verifier.check_row_groups(&groups, &verifier.columns_of(&names))?;
+        verifier.check_row_groups_here(&groups, &verifier.columns_of(&names))?;
         let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
         let schema = builder.schema().clone();
         let roots = names
@@ -241,18 +285,16 @@ impl Layout {
             .with_context(|| format!("{at}: cannot read"))?;
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
+        let largest = self.blocks.iter().map(|b| b.episodes).max().unwrap_or(0);
         let mut out = into.0;
         for (k, v) in out.iter_mut().enumerate() {
-            let floats = if which[k] { b.episodes * steps[k] * dims[k] } else { 0 };
             v.clear();
-            if floats == 0 {
-                *v = Vec::new();
-            } else if v.capacity() < floats {
-                // At least the mmap threshold, so every array is a mapping of its own, returned
-                // whole when it is freed (`keep_large_buffers_returnable`); untouched pages cost
-                // no memory. A recycled array of a block as large or larger reserves nothing.
-                v.reserve(floats.max(super::loader::MMAP_THRESHOLD / 4));
-                super::loader::advise_huge_pages(v, floats);
+            if !which[k] {
+                *v = Floats::default();
+            } else {
+                // Room for the largest block, so an array recycled from a short block (a shard's
+                // last row group) takes any later one; the plan counts every block at that size.
+                v.reserve(largest * steps[k] * dims[k])?;
             }
         }
         let mut row = b.first_row;
@@ -348,17 +390,17 @@ impl Plan {
 /// A block's four arrays (in [`VECTORS`] order), emptied: a leaving block's are handed back to
 /// the loader and filled with the next block's rows (`loader.rs` says why).
 #[derive(Default)]
-pub(super) struct Arrays([Vec<f32>; 4]);
+pub(super) struct Arrays([Floats; 4]);
 
 /// A resident block.
 pub(super) struct Block {
     pub(super) id: usize,
     pub(super) n: usize,
     pub(super) first_episode: u64,
-    pub(super) obs: Vec<f32>,
-    pub(super) ag: Vec<f32>,
-    pub(super) g: Vec<f32>,
-    pub(super) u: Vec<f32>,
+    pub(super) obs: Floats,
+    pub(super) ag: Floats,
+    pub(super) g: Floats,
+    pub(super) u: Floats,
     /// With `-mem`: the scored rows of its transitions.
     pub(super) aug: Option<ScoredRows>,
 }
