@@ -206,14 +206,7 @@ fn a_corrupt_block_is_named_by_file_and_row_group() {
     // The manifest's sizes still agree, so the folder opens; the block read finds the fault,
     // at the first fill (observations and goals) or when the loader reaches it.
     let cfg = config(Swap::None, 0.5, 0.5, 0);
-    let e = match BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)) {
-        Err(e) => e,
-        Ok(src) => {
-            let mut s = src.start(&cfg).unwrap();
-            (0..3 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("the corrupt block is read in 3 passes")
-        }
-    };
-    let e = format!("{e:#}");
+    let e = common::coded::first_failure(&data, &cfg, Budget::bytes(BUDGET), 3 * PASS_BATCHES);
     assert!(e.contains("coded-2.parquet") && e.contains("row group"), "{e}");
 }
 
@@ -410,17 +403,7 @@ fn a_failed_block_read_fails_every_later_batch_by_name() {
     let data = folder(dir.path());
     // The actions of shard 3's last row group: a column the first fill does not read, of a block
     // not resident at the start for this seed, so the fault is met by the loader mid-stream.
-    let shard = data.join("coded-3.parquet");
-    let meta = parquet::file::serialized_reader::SerializedFileReader::new(std::fs::File::open(&shard).unwrap())
-        .map(|r| parquet::file::reader::FileReader::metadata(&r).clone())
-        .unwrap();
-    let last = meta.num_row_groups() - 1;
-    let rg = meta.row_group(last);
-    let chunk = (0..rg.num_columns()).map(|c| rg.column(c)).find(|c| c.column_path().string().starts_with("action"));
-    let (start, len) = chunk.expect("an action column").byte_range();
-    let mut bytes = std::fs::read(&shard).unwrap();
-    bytes[(start + len / 2) as usize] ^= 0x10;
-    std::fs::write(&shard, &bytes).unwrap();
+    let last = common::coded::flip_in_last_chunk(&data.join("coded-3.parquet"), "action", 0x10);
     let cfg = config(Swap::None, 0.5, 0.5, 1);
     let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
     let first = (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("the corrupt block is read");

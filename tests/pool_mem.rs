@@ -319,23 +319,8 @@ fn mem_within_a_budget_resumes_to_the_same_batches_and_refuses_weights() {
     // bit in the last row group's `goal` chunk of the last shard is met in a pass, by name.
     let folder = pgser::score::folder::ScoredFolder::open(&out).unwrap();
     let shard = folder.shard_paths().pop().unwrap();
-    let meta = parquet::file::serialized_reader::SerializedFileReader::new(std::fs::File::open(&shard).unwrap())
-        .map(|r| parquet::file::reader::FileReader::metadata(&r).clone())
-        .unwrap();
-    let rg = meta.row_group(meta.num_row_groups() - 1);
-    let goal = rg.columns().iter().find(|c| c.column_path().string().starts_with("goal.")).unwrap();
-    let (start, len) = goal.byte_range();
-    let mut bytes = std::fs::read(&shard).unwrap();
-    bytes[(start + len / 2) as usize] ^= 0x04;
-    std::fs::write(&shard, &bytes).unwrap();
-    let e = match BatchSource::open_within(&out, &cfg, Budget::bytes(BUDGET)) {
-        Err(e) => e,
-        Ok(src) => {
-            let mut s = src.start(&cfg).unwrap();
-            (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("the corrupt goals are read in 2 passes")
-        }
-    };
-    let e = format!("{e:#}");
+    common::coded::flip_in_last_chunk(&shard, "goal.", 0x04);
+    let e = common::coded::first_failure(&out, &cfg, Budget::bytes(BUDGET), 2 * PASS_BATCHES);
     assert!(e.contains(&*shard.file_name().unwrap().to_string_lossy()) && e.contains("column goal"), "{e}");
     assert!(e.contains("checksum mismatch"), "{e}");
 }

@@ -168,3 +168,36 @@ pub fn score_options(
         command: "test".into(),
     }
 }
+
+/// Flips bits `mask` of the byte in the middle of the chunk of the first column whose path
+/// starts with `leaf` ("action", "goal.") in the last row group of `file`; returns that row group.
+pub fn flip_in_last_chunk(file: &Path, leaf: &str, mask: u8) -> usize {
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+    let reader = SerializedFileReader::new(std::fs::File::open(file).unwrap()).unwrap();
+    let last = reader.metadata().num_row_groups() - 1;
+    let rg = reader.metadata().row_group(last);
+    let chunk = rg.columns().iter().find(|c| c.column_path().string().starts_with(leaf)).expect("such a column");
+    let (start, len) = chunk.byte_range();
+    let mut bytes = std::fs::read(file).unwrap();
+    bytes[(start + len / 2) as usize] ^= mask;
+    std::fs::write(file, &bytes).unwrap();
+    last
+}
+
+/// The first error of `data` within `budget`: at opening, or in the first `batches` batches.
+pub fn first_failure(
+    data: &Path,
+    cfg: &pgser::sampler::stream::StreamConfig,
+    budget: pgser::sampler::view::Budget,
+    batches: usize,
+) -> String {
+    use pgser::sampler::stream::BatchSource;
+    let e = match BatchSource::open_within(data, cfg, budget) {
+        Err(e) => e,
+        Ok(src) => {
+            let mut s = src.start(cfg).unwrap();
+            (0..batches).find_map(|_| s.next_batch().err()).expect("the fault is met")
+        }
+    };
+    format!("{e:#}")
+}

@@ -73,25 +73,6 @@ impl Floats {
         Ok(())
     }
 
-    /// Appends `values` (within the room reserved).
-    pub(super) fn extend_from_slice(&mut self, values: &[f32]) {
-        assert!(self.len + values.len() <= self.cap, "a block's array holds what was reserved for it");
-        // SAFETY: the destination lies within the mapping (checked above) and cannot overlap
-        // `values`, which is borrowed from elsewhere while `self` is borrowed mutably.
-        unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), self.ptr.add(self.len), values.len()) };
-        self.len += values.len();
-    }
-
-    /// Appends each of `values` (within the room reserved).
-    pub(super) fn extend(&mut self, values: impl Iterator<Item = f32>) {
-        for v in values {
-            assert!(self.len < self.cap, "a block's array holds what was reserved for it");
-            // SAFETY: within the mapping, checked above.
-            unsafe { self.ptr.add(self.len).write(v) };
-            self.len += 1;
-        }
-    }
-
     /// The values, mutably.
     pub(super) fn as_mut_slice(&mut self) -> &mut [f32] {
         if self.cap == 0 {
@@ -122,15 +103,25 @@ impl Drop for Floats {
     }
 }
 
+/// Values are appended within the room reserved: a block's arrays are sized before it is read.
 impl crate::trajectory::read::Sink for Floats {
     fn len(&self) -> usize {
         self.len
     }
-    fn push_slice(&mut self, v: &[f32]) {
-        self.extend_from_slice(v);
+    fn push_slice(&mut self, values: &[f32]) {
+        assert!(self.len + values.len() <= self.cap, "a block's array holds what was reserved for it");
+        // SAFETY: the destination lies within the mapping (checked above) and cannot overlap
+        // `values`, which is borrowed from elsewhere while `self` is borrowed mutably.
+        unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), self.ptr.add(self.len), values.len()) };
+        self.len += values.len();
     }
-    fn push_each(&mut self, v: impl Iterator<Item = f32>) {
-        self.extend(v);
+    fn push_each(&mut self, values: impl Iterator<Item = f32>) {
+        for v in values {
+            assert!(self.len < self.cap, "a block's array holds what was reserved for it");
+            // SAFETY: within the mapping, checked above.
+            unsafe { self.ptr.add(self.len).write(v) };
+            self.len += 1;
+        }
     }
     fn tail(&self, from: usize) -> &[f32] {
         &self[from..]
@@ -205,20 +196,21 @@ fn advise_huge_pages(start: usize, bytes: usize) {
 #[cfg(test)]
 mod tests {
     use super::Floats;
+    use crate::trajectory::read::Sink;
 
     #[test]
     fn values_written_are_read_back_and_a_larger_reserve_maps_anew() {
         let mut f = Floats::default();
         assert!(f.is_empty());
         f.reserve(5).unwrap();
-        f.extend_from_slice(&[1.0, 2.0]);
-        f.extend([3.0f32, 4.0].into_iter());
+        f.push_slice(&[1.0, 2.0]);
+        f.push_each([3.0f32, 4.0].into_iter());
         assert_eq!(&f[..], &[1.0, 2.0, 3.0, 4.0]);
         f.clear();
         f.reserve(3).unwrap();
         assert_eq!(f.len(), 0);
         f.reserve(1 << 20).unwrap();
-        f.extend_from_slice(&vec![7.0; 1 << 20]);
+        f.push_slice(&vec![7.0; 1 << 20]);
         assert!(f.iter().all(|&v| v == 7.0));
         let z = Floats::zeros(1000).unwrap();
         assert_eq!(z.len(), 1000);
@@ -230,6 +222,6 @@ mod tests {
     fn writing_past_the_reserve_panics_rather_than_writing_outside() {
         let mut f = Floats::default();
         f.reserve(2).unwrap();
-        f.extend_from_slice(&[1.0, 2.0, 3.0]);
+        f.push_slice(&[1.0, 2.0, 3.0]);
     }
 }
