@@ -288,6 +288,14 @@ impl OgbenchStream {
         self.source.pool().is_some_and(|p| p.swaps_within(n))
     }
 
+    /// Readies the block the next swap takes in, waiting for the loader (a no-op for β held
+    /// whole): see `Pool::stage`.
+    pub fn stage(&mut self) {
+        if let Some(p) = self.source.pool_mut() {
+            p.stage();
+        }
+    }
+
     /// Forgets `rows` draws of batches drawn ahead and dropped, none of which took a block in
     /// ([`OgbenchStream::would_swap`]): the next batch is drawn from the pool as it was before them.
     pub fn drop_ahead(&mut self, rows: usize) {

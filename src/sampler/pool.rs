@@ -222,6 +222,8 @@ pub struct Pool {
     drawn: f64,
     /// Started once the pool is filled (`start`), so opening holds no block in flight.
     loader: Mutex<Option<Loader>>,
+    /// The next block, taken from the loader ahead of its swap (`stage`).
+    staged: Option<Result<Block>>,
     /// A swap that failed: every later refresh fails with it, so no batch is drawn from blocks
     /// that should have left.
     failed: Option<String>,
@@ -277,6 +279,7 @@ impl Pool {
             goal_obs,
             drawn,
             loader: Mutex::new(None),
+            staged: None,
             failed: None,
             stats: PoolStats::default(),
         };
@@ -491,19 +494,11 @@ impl Pool {
     /// Takes the next block from the loader in place of the oldest, and feeds the reservoir.
     fn swap(&mut self) -> Result<()> {
         let t0 = Instant::now();
-        let mut wait = Duration::ZERO;
-        let loader = self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started");
-        let next = match loader.ready() {
-            Some(b) => b,
-            None => {
-                let b = loader.wait();
-                wait = t0.elapsed();
-                self.stats.waits += 1;
-                self.stats.waited += wait;
-                self.stats.longest_wait = self.stats.longest_wait.max(wait);
-                b
-            }
-        }?;
+        let (next, wait) = match self.staged.take() {
+            Some(b) => (b, Duration::ZERO),
+            None => self.next_block(),
+        };
+        let next = next?;
         let want = self.entries.get(self.next_entry);
         if next.id != want {
             bail!("the pool's loader sent block {} where block {want} was due", next.id);
@@ -525,6 +520,32 @@ impl Pool {
         self.enter(next);
         self.stats.longest_swap = self.stats.longest_swap.max(t0.elapsed().saturating_sub(wait));
         Ok(())
+    }
+
+    /// The next block from the loader, waiting for it when it is not ready (counted in the
+    /// stats), and how long that took.
+    fn next_block(&mut self) -> (Result<Block>, Duration) {
+        let t0 = Instant::now();
+        let loader = self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started");
+        if let Some(b) = loader.ready() {
+            return (b, Duration::ZERO);
+        }
+        let b = loader.wait();
+        let wait = t0.elapsed();
+        self.stats.waits += 1;
+        self.stats.waited += wait;
+        self.stats.longest_wait = self.stats.longest_wait.max(wait);
+        (b, wait)
+    }
+
+    /// Takes the next block from the loader ahead of the swap that needs it, waiting for it if
+    /// need be, so that swap does not wait: what a sampler that stops drawing ahead at a swap
+    /// (`python/src/sampler/ogbench.rs`) does while its learner uses up the batches ready. The
+    /// block counts among the plan's blocks in flight (it left the loader's channel).
+    pub fn stage(&mut self) {
+        if self.staged.is_none() && self.failed.is_none() {
+            self.staged = Some(self.next_block().0);
+        }
     }
 
     /// Reservoir slot `slot` now holds the goal of table-wide (episode, step) `at`.

@@ -119,7 +119,8 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
 /// follow the rows drawn, so batches are drawn ahead only while they take no block in: those
 /// dropped for a request of another size are taken back (`drop_ahead`), and the pool is as if
 /// they had never been drawn. The batch that takes a block in is drawn once its request comes,
-/// at the size asked: a short wait once a block's worth of draws (a swap, and one draw).
+/// at the size asked, its block read and taken from the loader beforehand (`stage`): a short
+/// wait once a block's worth of draws (placing the block, and one draw).
 pub(super) fn og_worker(
     mut stream: OgbenchStream,
     (size, prefetch): (usize, usize),
@@ -130,9 +131,14 @@ pub(super) fn og_worker(
     let mut ready: VecDeque<OgDrawn> = VecDeque::new();
     let mut k = 0u64;
     // Draws the next default-size batch into the queue, unless it is full, ends in an error, or
-    // the batch would take a block in (then it waits for its request).
+    // the batch would take a block in: then it readies that block (waiting for the loader while
+    // the learner uses up the queue) and the batch waits for its request.
     let top_up = |stream: &mut OgbenchStream, ready: &mut VecDeque<OgDrawn>, k: u64| -> bool {
-        if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) || stream.would_swap(size) {
+        if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) {
+            return false;
+        }
+        if stream.would_swap(size) {
+            stream.stage();
             return false;
         }
         ready.push_back(stream.batch(k + ready.len() as u64, size));
