@@ -78,6 +78,7 @@ use rayon::prelude::*;
 mod buffers;
 mod layout;
 mod loader;
+mod resident;
 mod schedule;
 
 use super::view::{GoalSource, View};
@@ -88,6 +89,7 @@ use buffers::Floats;
 use layout::{Block, IN_FLIGHT};
 pub use layout::{Layout, Plan};
 use loader::Loader;
+use resident::Resident;
 use schedule::{Entries, Keys};
 
 /// Options of a pool besides its budget.
@@ -200,19 +202,8 @@ pub struct Pool {
     entries: Entries,
     /// The next entry to swap in.
     next_entry: u64,
-    /// Resident blocks, oldest first.
-    resident: VecDeque<Block>,
-    /// Every block that enters gets the next sequence number (wrapping); the oldest resident's.
-    front_seq: u32,
-    /// Resident episode → (its block's sequence number, episode within the block). Blocks leave
-    /// oldest first and enter last, so a swap pops the leaving block's episodes off the front and
-    /// pushes the new one's at the back: its cost is the two blocks' episodes, not the resident
-    /// ones', and resident episode numbers are those a rebuilt index would give.
-    index: VecDeque<(u32, u32)>,
-    /// Each resident block's first episode, counted over every episode that ever entered.
-    starts: VecDeque<u64>,
-    /// Episodes that ever entered.
-    entered: u64,
+    /// Resident blocks, oldest first, and their episodes.
+    resident: Resident,
     keys: Keys,
     /// The reservoir's vectors, slot by slot, and the table-wide (episode, step) of each.
     goal_at: Vec<(u64, u32)>,
@@ -268,11 +259,7 @@ impl Pool {
             slots,
             entries,
             next_entry,
-            resident: VecDeque::with_capacity(slots),
-            front_seq: 0,
-            index: VecDeque::new(),
-            starts: VecDeque::with_capacity(slots),
-            entered: 0,
+            resident: Resident::new(slots),
             keys,
             goal_at: vec![(0, 0); reservoir],
             goal_ag,
@@ -284,7 +271,7 @@ impl Pool {
             stats: PoolStats::default(),
         };
         for b in resident {
-            pool.enter(b);
+            pool.resident.enter(b);
         }
         pool.materialize()?;
         let layout = pool.layout.clone();
@@ -394,7 +381,7 @@ impl Pool {
 
     /// Resident episodes now.
     pub fn resident_episodes(&self) -> usize {
-        self.index.len()
+        self.resident.episodes()
     }
 
     /// Blocks resident, and blocks in the table.
@@ -418,29 +405,6 @@ impl Pool {
         )
     }
 
-    /// Places `b` after the resident blocks, its episodes after theirs.
-    fn enter(&mut self, b: Block) {
-        let seq = self.front_seq.wrapping_add(self.resident.len() as u32);
-        self.index.extend((0..b.n as u32).map(|e| (seq, e)));
-        self.starts.push_back(self.entered);
-        self.entered += b.n as u64;
-        self.resident.push_back(b);
-    }
-
-    /// Takes the oldest block out, and its episodes.
-    fn leave(&mut self) -> Block {
-        let b = self.resident.pop_front().expect("a pool holds blocks");
-        self.index.drain(..b.n);
-        self.starts.pop_front();
-        self.front_seq = self.front_seq.wrapping_add(1);
-        b
-    }
-
-    /// The position in `resident` of the block with sequence number `seq`.
-    fn slot(&self, seq: u32) -> usize {
-        seq.wrapping_sub(self.front_seq) as usize
-    }
-
     /// Whether the blocks carry a scored table's rows (`-mem`).
     pub fn is_scored(&self) -> bool {
         self.layout.scored.is_some()
@@ -454,12 +418,10 @@ impl Pool {
         let steps = self.layout.t - 1;
         (0..k)
             .map(|_| {
-                let (seq, _) = self.index[rng.below(self.index.len())];
-                let slot = self.slot(seq);
+                let (slot, first) = self.resident.slot_of(rng.below(self.resident.episodes()));
                 let aug = self.resident[slot].aug.as_ref().expect("every block carries its scored rows");
                 let row = aug.tree.find(rng.random() * aug.tree.total());
                 let (local, step) = (row / (steps * per), (row / per) % steps);
-                let first = (self.starts[slot] - self.starts[0]) as usize;
                 ScoredDraw { e: first + local, step, slot, row }
             })
             .collect()
@@ -507,7 +469,7 @@ impl Pool {
         self.stats.swaps += 1;
         // The leaving block goes back whole: the loader fills its arrays with a later block and
         // drops the rest (its scored rows), off the drawing thread.
-        let leaving = self.leave();
+        let leaving = self.resident.leave();
         self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started").give_back(leaving);
         let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
         let len = self.goal_at.len();
@@ -517,7 +479,7 @@ impl Pool {
             let (e, s) = (e as usize, s as usize);
             self.set_goal(slot, (next.first_episode + e as u64, s as u32), next.ag(e, s, t, gd), next.obs(e, s, t, od));
         }
-        self.enter(next);
+        self.resident.enter(next);
         self.stats.longest_swap = self.stats.longest_swap.max(t0.elapsed().saturating_sub(wait));
         Ok(())
     }
@@ -556,8 +518,7 @@ impl Pool {
     }
 
     fn block(&self, e: usize) -> (&Block, usize) {
-        let (seq, local) = self.index[e];
-        (&self.resident[self.slot(seq)], local as usize)
+        self.resident.episode(e)
     }
 }
 
@@ -583,7 +544,7 @@ impl View for Pool {
         &self.layout.task
     }
     fn episodes(&self) -> usize {
-        self.index.len()
+        self.resident.episodes()
     }
     fn t(&self) -> usize {
         self.layout.t
@@ -615,7 +576,7 @@ impl View for Pool {
     fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
         if self.goal_at.is_empty() {
             // A shard window: uniform over the held shard's observations; the slot is the row.
-            let (e, s) = (rng.below(self.index.len()), rng.below(self.layout.t));
+            let (e, s) = (rng.below(self.resident.episodes()), rng.below(self.layout.t));
             let (episode, slot) = (self.episode_number(e), (e * self.layout.t + s) as u64);
             return GoalSource { episode, step: s as u32, slot };
         }

@@ -79,6 +79,9 @@ pub struct Layout {
     pub(super) episodes: u64,
     pub(super) shards: Vec<Shard>,
     pub(super) blocks: Vec<BlockInfo>,
+    /// Episodes of the largest block: the size the plan counts every block at, and that every
+    /// block's arrays are made for.
+    pub(super) largest: usize,
     /// With `-mem`: the scored table whose rows each block carries.
     pub(super) scored: Option<Scored>,
 }
@@ -153,7 +156,16 @@ impl Layout {
             }
             opened.push(Shard { path: p, footer: f, meta, identity });
         }
-        Ok(Layout { task: footer.task(), t, episodes: footer.episodes as u64, shards: opened, blocks, scored: None })
+        let largest = largest(&blocks);
+        Ok(Layout {
+            task: footer.task(),
+            t,
+            episodes: footer.episodes as u64,
+            shards: opened,
+            blocks,
+            largest,
+            scored: None,
+        })
     }
 
     /// The layout with `table`'s rows carried by each block: refused unless `table` scored every
@@ -196,6 +208,7 @@ impl Layout {
                 _ => merged.push(b),
             }
         }
+        self.largest = largest(&merged);
         self.blocks = merged;
         self
     }
@@ -285,7 +298,7 @@ impl Layout {
             .with_context(|| format!("{at}: cannot read"))?;
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
-        let largest = self.blocks.iter().map(|b| b.episodes).max().unwrap_or(0);
+        let largest = self.largest;
         let mut out = into.0;
         for (k, v) in out.iter_mut().enumerate() {
             v.clear();
@@ -333,6 +346,10 @@ impl Layout {
     }
 }
 
+fn largest(blocks: &[BlockInfo]) -> usize {
+    blocks.iter().map(|b| b.episodes).max().unwrap_or(0)
+}
+
 /// Rows the loader decodes at a time: as many as keep the widest column's decoded array near
 /// 256 kB, below glibc's mmap threshold, so the decoder's arrays come from the loader's heap and
 /// are reused block after block instead of being mapped and zeroed anew (a whole block at once
@@ -362,7 +379,7 @@ impl Plan {
         if layout.bytes() <= budget {
             return Ok(Plan::Whole);
         }
-        let block = layout.blocks.iter().map(|b| b.episodes as u64).max().unwrap_or(0) * layout.episode_bytes();
+        let block = layout.largest as u64 * layout.episode_bytes();
         let observations = layout.episodes * layout.t as u64;
         let reservoir =
             ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
