@@ -62,26 +62,28 @@ fn scored_rows(dir: &Path) -> Vec<((usize, usize), f32)> {
 /// row it was: its transition, its goal's observation, and (with `swap_actor_goals`) the same
 /// actor goal. Returns the swapped rows' scored rows.
 fn check_rows(b: &OgbenchBatch, rows: &[((usize, usize), f32)]) -> Vec<usize> {
-    let od = b.obs_dim;
+    let int = |k: &str, i: usize| b.i64(k).unwrap_or_else(|| panic!("no {k}"))[i];
+    let first = |k: &str, i: usize| b.row(k, i).unwrap_or_else(|| panic!("no {k}"))[0];
+    let kind = |k: &str, i: usize| b.kinds(k).unwrap_or_else(|| panic!("no {k}"))[i];
     let mut swapped = Vec::new();
     for i in 0..b.n {
-        let (e, s) = (b.episode[i] as usize, b.step[i] as usize);
-        assert_eq!(decode(b.observations[i * od]), (e, s));
-        assert_eq!(decode(b.next_observations[i * od]), (e, s + 1));
-        let value_goal = (b.value_goal_episode[i] as usize, b.value_goal_step[i] as usize);
-        assert_eq!(decode(b.value_goals[i * od]), value_goal, "row {i}'s value goal is the observation it names");
-        let actor_goal = (b.actor_goal_episode[i] as usize, b.actor_goal_step[i] as usize);
-        assert_eq!(decode(b.actor_goals[i * od]), actor_goal);
+        let (e, s) = (int("episode", i) as usize, int("step", i) as usize);
+        assert_eq!(decode(first("observations", i)), (e, s));
+        assert_eq!(decode(first("next_observations", i)), (e, s + 1));
+        let value_goal = (int("value_goal_episode", i) as usize, int("value_goal_step", i) as usize);
+        assert_eq!(decode(first("value_goals", i)), value_goal, "row {i}'s value goal is the observation it names");
+        let actor_goal = (int("actor_goal_episode", i) as usize, int("actor_goal_step", i) as usize);
+        assert_eq!(decode(first("actor_goals", i)), actor_goal);
         let success = value_goal == (e, s);
-        assert_eq!(b.masks[i], if success { 0.0 } else { 1.0 });
-        let Ok(r) = usize::try_from(b.scored_row[i]) else {
-            assert_ne!(b.value_goal_kind[i], GoalKind::Swapped);
+        assert_eq!(b.f64("masks").unwrap()[i], if success { 0.0 } else { 1.0 });
+        let Ok(r) = usize::try_from(int("scored_row", i)) else {
+            assert_ne!(kind("value_goal_kind", i), GoalKind::Swapped);
             continue;
         };
-        assert_eq!(b.value_goal_kind[i], GoalKind::Swapped);
+        assert_eq!(kind("value_goal_kind", i), GoalKind::Swapped);
         assert_eq!(r / SWAPS, e * (T - 1) + s, "scored row {r} is the transition of episode {e} step {s}");
         assert_eq!(value_goal, rows[r].0, "scored row {r}'s goal");
-        assert_eq!((b.actor_goal_kind[i], actor_goal), (GoalKind::Swapped, value_goal));
+        assert_eq!((kind("actor_goal_kind", i), actor_goal), (GoalKind::Swapped, value_goal));
         swapped.push(r);
     }
     swapped
@@ -133,11 +135,13 @@ fn swapped_rows_with_beta_in_memory_are_scored_rows_by_priority_with_their_goals
     // trajectory goal of the row's episode).
     let cfg = OgbenchConfig { swap_actor_goals: false, ..with_swaps(P_SWAP) };
     let b = open(&out, Budget::Unbounded, cfg).unwrap().next_batch(2000).unwrap();
-    let own = (0..b.n).filter(|&i| b.scored_row[i] >= 0).collect::<Vec<_>>();
+    let int = |k: &str| b.i64(k).unwrap();
+    let own = (0..b.n).filter(|&i| int("scored_row")[i] >= 0).collect::<Vec<_>>();
     assert!(!own.is_empty());
     for i in own {
-        assert_eq!((b.actor_goal_kind[i], b.actor_goal_episode[i]), (GoalKind::Trajectory, b.episode[i]));
-        assert!(b.actor_goal_step[i] >= b.step[i]);
+        let kind = b.kinds("actor_goal_kind").unwrap()[i];
+        assert_eq!((kind, int("actor_goal_episode")[i]), (GoalKind::Trajectory, int("episode")[i]));
+        assert!(int("actor_goal_step")[i] >= int("step")[i]);
     }
 
     // Refused, naming why: swapped goals without a scored table; weights; goals that are not

@@ -5,7 +5,8 @@ Shadow Hand environments, from the same Rust library as the `pgser-etl` / `pgser
 - ``convert(...)`` / ``score(...)``: ``pgser-etl convert`` and ``pgser-etl score``.
 - ``Sampler(path, ...)``: the batches ``pgser-train`` trains on, as dicts of numpy arrays;
   ``Sampler(path, layout="ogbench", config=agent_config)``: OGBench's goal-conditioned batches
-  (``GCDataset.sample(batch_size)``'s dict), the one object an OGBench JAX agent replaces.
+  (``GCDataset`` / ``HGCDataset.sample(batch_size)``'s dict), the one object an OGBench JAX
+  agent replaces; ``layout="horizon_reduction"``: Horizon Reduction's classes (SHARSA, ...).
 - ``make(task)`` / ``VectorEnv(task, n)``: gymnasium environments (ids ``pgser/FetchPush-v4`` ...).
 - ``Policy(task, "expert")``: the scripted experts, random actions, or a checkpoint's actor;
   ``Policy("run.ckpt").act(observations, goals)``: a checkpoint's actor on batches.
@@ -33,6 +34,9 @@ from . import envs  # noqa: E402,F401
 
 __version__ = _pgser.__version__
 long_version = _pgser.long_version
+
+# What a batch's `*_kind` codes (uint8) name: where a goal came from.
+GOAL_KINDS = ("current", "trajectory", "random", "swapped")
 
 TASKS = (
     "FetchReach-v4",
@@ -63,6 +67,7 @@ def VectorEnv(task, num_envs, seed=None):  # noqa: N802 (a class to its users)
 
 
 __all__ = [
+    "GOAL_KINDS",
     "Policy",
     "ogbench_goal",
     "Sampler",

@@ -21,7 +21,7 @@ use std::time::Duration;
 
 use numpy::{IntoPyArray, PyArrayMethods};
 use pgser::agent::Batch;
-use pgser::sampler::ogbench::{OgbenchBatch, OgbenchConfig, OgbenchStream};
+use pgser::sampler::ogbench::{Code, OgbenchBatch, OgbenchConfig, OgbenchStream};
 use pgser::sampler::pool::PoolStats;
 use pgser::sampler::priority::{PriorityConfig, PriorityKind};
 use pgser::sampler::stream::{BatchSource, RowIds, StreamConfig};
@@ -32,7 +32,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 use crate::{existing, py_err};
-use ogbench::{config_batch_size, og_dict, og_worker, ogbench_config};
+use ogbench::{Overrides, Request, config_batch_size, env_of, og_dict, og_worker, ogbench_config};
 
 mod ogbench;
 
@@ -67,11 +67,27 @@ enum Kind {
     /// A worker that sends batches of `batch_size`, `num_batches` of them, in order.
     Pgser { rx: Mutex<Option<Receiver<Drawn>>>, worker: Mutex<Option<JoinHandle<()>>>, dims: (usize, usize, usize) },
     /// A worker that answers requests for batches of any size ([`og_worker`]).
-    Ogbench { chan: Mutex<Option<OgChannel>>, worker: Mutex<Option<JoinHandle<()>>> },
+    Ogbench {
+        chan: Mutex<Option<OgChannel>>,
+        worker: Mutex<Option<JoinHandle<()>>>,
+        live: Box<Mutex<Live>>,
+        provenance: bool,
+    },
+}
+
+/// The agent's config as the sampler last read it. Their dataset classes read the config at
+/// every `sample`, and an agent may set a key after its dataset was made (Horizon Reduction's
+/// double SHARSA sets `low_discount` in `create`), so the config is read again at every batch
+/// and a change is sent to the worker before the batch is asked for.
+struct Live {
+    config: Option<Py<PyAny>>,
+    code: Code,
+    overrides: Overrides,
+    current: OgbenchConfig,
 }
 
 struct OgChannel {
-    req: Sender<usize>,
+    req: Sender<Request>,
     rx: Receiver<OgDrawn>,
     /// Answers still owed to requests whose wait was interrupted (Ctrl-C): read and dropped first.
     stale: usize,
@@ -147,7 +163,8 @@ impl Sampler {
         num_batches=None, prefetch=4, memory_budget=None, config=None, discount=None, value_p_curgoal=None,
         value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
         actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None,
-        p_swapgoal=None, swap_actor_goals=None, draws_per_row=None))]
+        p_swapgoal=None, swap_actor_goals=None, draws_per_row=None, oracle_reps=None, clip_actions=None,
+        env_name=None, provenance=true))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -181,6 +198,10 @@ impl Sampler {
         p_swapgoal: Option<f64>,
         swap_actor_goals: Option<bool>,
         draws_per_row: Option<u32>,
+        oracle_reps: Option<bool>,
+        clip_actions: Option<f64>,
+        env_name: Option<&str>,
+        provenance: bool,
     ) -> PyResult<Sampler> {
         existing(&path)?;
         let budget = parse_budget(memory_budget, draws_per_row)?;
@@ -252,15 +273,52 @@ impl Sampler {
                     prefetch,
                 )
             }
-            "ogbench" => {
+            "ogbench" | "horizon_reduction" => {
                 misplaced(&mut pgser_args.iter().filter(|k| k.1).map(|k| k.0), "pgser")?;
                 if batch_size == 0 {
                     return Err(PyValueError::new_err("batch_size=0: must be at least 1"));
                 }
-                let cfg = ogbench_config(config, &kw, &kw_bools)?;
-                Self::ogbench(py, path, budget, (cfg, priorities), seed, batch_size, num_batches, prefetch)
+                let code = if layout == "ogbench" { Code::Ogbench } else { Code::HorizonReduction };
+                // `env_name`: OGBench's dataset or environment name; `-oraclerep` asks for oracle
+                // representations, as OGBench's `make_env_and_datasets` reads it.
+                let env = env_name.map(env_of);
+                let oracle_reps = match (oracle_reps, &env) {
+                    (Some(o), Some((_, named))) if o != *named => {
+                        return Err(PyValueError::new_err(format!(
+                            "oracle_reps={} and env_name={:?} disagree: an -oraclerep name asks for oracle \
+                             representations; give one of the two",
+                            if o { "True" } else { "False" },
+                            env_name.unwrap_or_default()
+                        )));
+                    }
+                    (Some(o), _) => Some(o),
+                    (None, Some((_, named))) => Some(*named),
+                    (None, None) => None,
+                };
+                let overrides = Overrides { floats: kw.to_vec(), bools: kw_bools.to_vec(), oracle_reps, clip_actions };
+                let cfg = ogbench_config(code, config, &overrides)?;
+                let live = Live {
+                    config: config.filter(|c| !c.is_none()).map(|c| c.clone().unbind()),
+                    code,
+                    overrides,
+                    current: cfg.clone(),
+                };
+                let env = env.map(|(e, _)| (e, env_name.unwrap_or_default().to_string()));
+                Self::ogbench(
+                    py,
+                    path,
+                    budget,
+                    (cfg, priorities),
+                    seed,
+                    batch_size,
+                    num_batches,
+                    prefetch,
+                    (live, provenance, env),
+                )
             }
-            o => Err(PyValueError::new_err(format!("layout={o:?}: use \"pgser\" or \"ogbench\""))),
+            o => {
+                Err(PyValueError::new_err(format!("layout={o:?}: use \"pgser\", \"ogbench\" or \"horizon_reduction\"")))
+            }
         }
     }
 
@@ -398,13 +456,23 @@ impl Sampler {
         batch_size: usize,
         num_batches: Option<u64>,
         prefetch: usize,
+        (live, provenance, env): (Live, bool, Option<(String, String)>),
     ) -> PyResult<Sampler> {
+        let layout = cfg.code.layout();
         let stream = py.detach(|| OgbenchStream::open(&path, budget, cfg, &priority, seed)).map_err(py_err)?;
+        let task = stream.view().task().name.clone();
+        // `env_name` must name the table's environment; checked before anything is drawn.
+        if let Some((env, name)) = env
+            && env != task
+        {
+            return Err(PyValueError::new_err(format!(
+                "env_name={name:?} names the environment {env:?}, and the table holds {task:?}"
+            )));
+        }
         let pool = Arc::new(Mutex::new(stream.pool_stats()));
         let shared = pool.clone();
-        let task = stream.view().task().name.clone();
         let scored = stream.is_scored();
-        let (req_tx, req_rx) = channel::<usize>();
+        let (req_tx, req_rx) = channel::<Request>();
         let (tx, rx) = sync_channel::<OgDrawn>(1);
         let worker = std::thread::Builder::new()
             .name("pgser-py-ogbench".into())
@@ -414,11 +482,13 @@ impl Sampler {
             kind: Kind::Ogbench {
                 chan: Mutex::new(Some(OgChannel { req: req_tx, rx, stale: 0 })),
                 worker: Mutex::new(Some(worker)),
+                live: Box::new(Mutex::new(live)),
+                provenance,
             },
             task,
             batch_size,
             scored,
-            layout: "ogbench".into(),
+            layout: layout.into(),
             num_batches,
             handed: AtomicU64::new(0),
             pool,
@@ -442,7 +512,20 @@ impl Sampler {
                 let (b, ids) = drawn.map_err(py_err)?;
                 pgser_dict(py, *dims, b, ids)?
             }
-            Kind::Ogbench { chan, .. } => {
+            Kind::Ogbench { chan, live, provenance, .. } => {
+                let changed = {
+                    let mut live = live.lock().unwrap();
+                    match &live.config {
+                        Some(c) => {
+                            let now = ogbench_config(live.code, Some(c.bind(py)), &live.overrides)?;
+                            (now != live.current).then(|| {
+                                live.current = now.clone();
+                                now
+                            })
+                        }
+                        None => None,
+                    }
+                };
                 // The channel is locked with the GIL released, so a thread that waits for it never
                 // holds the GIL that the one holding it needs to check for Ctrl-C.
                 let got = py.detach(|| -> PyResult<OgDrawn> {
@@ -453,7 +536,10 @@ impl Sampler {
                         let _stale = c.rx.recv().map_err(|_| ended())?;
                         c.stale -= 1;
                     }
-                    c.req.send(n).map_err(|_| ended())?;
+                    if let Some(cfg) = changed {
+                        c.req.send(Request::Config(Box::new(cfg))).map_err(|_| ended())?;
+                    }
+                    c.req.send(Request::Batch(n)).map_err(|_| ended())?;
                     loop {
                         match c.rx.recv_timeout(TICK) {
                             Ok(b) => return Ok(b),
@@ -467,7 +553,7 @@ impl Sampler {
                         }
                     }
                 })?;
-                og_dict(py, got.map_err(py_err)?)?
+                og_dict(py, got.map_err(py_err)?, *provenance)?
             }
         };
         self.handed.fetch_add(1, Ordering::SeqCst);
@@ -484,7 +570,7 @@ impl Sampler {
                     let _ = w.join();
                 }
             }
-            Kind::Ogbench { chan, worker } => {
+            Kind::Ogbench { chan, worker, .. } => {
                 chan.lock().unwrap().take();
                 if let Some(w) = worker.lock().unwrap().take() {
                     let _ = w.join();

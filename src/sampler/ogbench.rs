@@ -1,8 +1,16 @@
-//! OGBench's goal-conditioned batches from a pgser table: the dict OGBench's and Horizon
-//! Reduction's JAX agents (GCIQL, GCIVL, CRL, HIQL, QRL, SHARSA's flat part) train on, drawn by
-//! the rules of their `GCDataset.sample` / `sample_goals` (`impls/utils/datasets.py` in OGBench,
-//! `utils/datasets.py` in Horizon Reduction), so that such an agent switches to pgser by
-//! replacing its dataset object with `pgser.Sampler(path, layout="ogbench")`.
+//! OGBench's goal-conditioned batches from a pgser table: the dicts OGBench's and Horizon
+//! Reduction's JAX agents train on, drawn by the rules of their dataset classes, so that such an
+//! agent switches to pgser by replacing its dataset object with `pgser.Sampler(path,
+//! layout=..., config=config)`. Whose classes a stream follows is the user's choice ([`Code`]):
+//! OGBench's (`impls/utils/datasets.py`: GCIQL, GCIVL, CRL, QRL, GCBC, HIQL) or Horizon
+//! Reduction's (`utils/datasets.py`: its flow BC, IQL, CRL, SAC+BC, FQL, and the hierarchical
+//! SHARSA, double SHARSA, n-step SAC+BC, hierarchical flow BC, HIQL); `dataset_class` picks
+//! `GCDataset` (this file) or `HGCDataset` (`hierarchical.rs`) within it.
+//!
+//! The two codes' `GCDataset`s draw alike; Horizon Reduction's takes goals from `oracle_reps`
+//! where the dataset has them ([`OgbenchConfig::oracle_reps`]: the table's achieved goals),
+//! loads the compact layout (its batches carry `valids`, 1 on every drawn row, and
+//! `oracle_reps`), and its loader clips actions ([`OgbenchConfig::clip_actions`]).
 //!
 //! # What OGBench draws, and the same here
 //! OGBench's datasets hold T − 1 transitions per episode in either of its layouts: the regular
@@ -28,8 +36,8 @@
 //!   OGBench decides with two uniforms: current if u₁ < p_curgoal, else trajectory if
 //!   u₂ < p_trajgoal / (1 − p_curgoal), else random; with p_curgoal = 1 every goal is current.
 //!   The same comparisons are made here, with the same floating-point quotient.
-//! - goals are **observations** at the goal's (episode, step) (OGBench's default; `oracle_reps`
-//!   datasets are not pgser tables);
+//! - goals are **observations** at the goal's (episode, step), or with `oracle_reps` the
+//!   table's achieved goals there;
 //! - `successes = (goal == transition)`, compared as OGBench compares indices, by (episode, step)
 //!   of the value goal: always for a current goal, for a trajectory goal when s = L, and for a
 //!   random goal that lands on the row itself. `masks = 1 − successes`, `rewards = successes − 1`
@@ -51,8 +59,13 @@
 //! too: `swapped.rs`.
 //!
 //! # What is left out
-//! - OGBench's `frame_stack` and `p_aug` (pixel-based tasks: stacked frames, random crops), and
-//!   Horizon Reduction's `HGCDataset` (subgoal keys of the hierarchical agents).
+//! - OGBench's `frame_stack` and `p_aug` (pixel-based tasks: stacked frames, random crops).
+//!
+//! # Provenance
+//! Every batch says where each row and each goal came from: `episode`, `step` (table-wide
+//! episode numbers, shard order across a folder), and for each goal key `K`s (`value_goals`,
+//! `high_actor_targets`, …) `K_episode`, `K_step` and `K_kind` ([`GoalKind`]), and
+//! `scored_row` (the scored table's row of a swapped row, −1 for the others).
 //!
 //! # Streams
 //! Batch k of a stream draws from its own generator, `NpRandom::spawned(seed, [STREAM_OGBENCH,
@@ -69,18 +82,53 @@ use super::pool::{Beta, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::view::{Budget, View};
 use crate::nprandom::NpRandom;
+pub use batch::{Column, Key, OgbenchBatch};
 use swapped::{Source, Swapper};
 
+mod batch;
+mod hierarchical;
 mod swapped;
 
 /// Spawn key of OGBench-layout batches ("OGBN"), beside the batch streams' 1–4 and the pool's 5–6.
 pub const STREAM_OGBENCH: u64 = 0x4f47_424e;
 
+/// Whose dataset classes a stream follows: the user says which (`layout=`), never guessed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Code {
+    /// OGBench's `impls/utils/datasets.py`.
+    #[default]
+    Ogbench,
+    /// Horizon Reduction's `utils/datasets.py`.
+    HorizonReduction,
+}
+
+impl Code {
+    pub fn layout(self) -> &'static str {
+        match self {
+            Code::Ogbench => "ogbench",
+            Code::HorizonReduction => "horizon_reduction",
+        }
+    }
+}
+
+/// `config["dataset_class"]`, as the agents' `main.py` picks it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum DatasetClass {
+    #[default]
+    GCDataset,
+    HGCDataset,
+}
+
 /// OGBench's dataset settings, under the names and defaults of its agents' configs (GCIQL's,
-/// GCIVL's and HIQL's defaults; CRL's, QRL's and GCBC's differ only in these values).
+/// GCIVL's and HIQL's defaults; CRL's, QRL's and GCBC's differ only in these values), and the
+/// hierarchical classes' keys.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OgbenchConfig {
+    /// Whose classes: OGBench's or Horizon Reduction's.
+    pub code: Code,
+    pub dataset_class: DatasetClass,
     /// The geometric offsets' parameter is 1 − discount.
     pub discount: f64,
     pub value_p_curgoal: f64,
@@ -94,6 +142,22 @@ pub struct OgbenchConfig {
     pub actor_geom_sample: bool,
     /// Rewards 0 at the goal and −1 elsewhere (true), or 1 and 0 (false).
     pub gc_negative: bool,
+    /// HGCDataset: steps to a subgoal (both classes); Horizon Reduction's takes the value and
+    /// actor steps apart where they are given.
+    pub subgoal_steps: Option<u64>,
+    pub value_subgoal_steps: Option<u64>,
+    pub actor_subgoal_steps: Option<u64>,
+    /// Horizon Reduction's HGCDataset: the config has a `low_discount` key (even one set to
+    /// None), so batches carry low-level value goals.
+    pub low_value_goals: bool,
+    /// Their geometric offsets' discount; None: `discount` (their `sample_goals` default).
+    pub low_discount: Option<f64>,
+    /// Goals, high-level actions and `high_value_reps` are the table's achieved goals, OGBench's
+    /// oracle representations (Horizon Reduction's classes, on an `-oraclerep` dataset).
+    pub oracle_reps: bool,
+    /// Actions clipped to ±(1 − clip_actions), as Horizon Reduction's `make_env_and_datasets`
+    /// does with 1e-5; None: as stored.
+    pub clip_actions: Option<f64>,
     /// PGSER's prioritized swapped rows, a fraction of each batch (needs a scored table).
     pub p_swapgoal: f64,
     /// A swapped row's actor goal is its swapped goal (true) or drawn by the actor's fractions.
@@ -103,6 +167,8 @@ pub struct OgbenchConfig {
 impl Default for OgbenchConfig {
     fn default() -> Self {
         OgbenchConfig {
+            code: Code::Ogbench,
+            dataset_class: DatasetClass::GCDataset,
             discount: 0.99,
             value_p_curgoal: 0.2,
             value_p_trajgoal: 0.5,
@@ -113,6 +179,13 @@ impl Default for OgbenchConfig {
             actor_p_randomgoal: 0.0,
             actor_geom_sample: false,
             gc_negative: true,
+            subgoal_steps: None,
+            value_subgoal_steps: None,
+            actor_subgoal_steps: None,
+            low_value_goals: false,
+            low_discount: None,
+            oracle_reps: false,
+            clip_actions: None,
             p_swapgoal: 0.0,
             swap_actor_goals: true,
         }
@@ -120,9 +193,12 @@ impl Default for OgbenchConfig {
 }
 
 impl OgbenchConfig {
-    /// Refuses what OGBench refuses (fractions that do not sum to 1, by `np.isclose`) and what its
-    /// numpy calls would (a discount outside [0, 1) gives `geometric` a p outside (0, 1]).
+    /// Refuses what OGBench refuses (fractions that do not sum to 1, by `np.isclose`), what its
+    /// numpy calls would (a discount outside [0, 1) gives `geometric` a p outside (0, 1]), and a
+    /// key the chosen class does not read (a config meant for another class, or another code's,
+    /// would otherwise train on batches it did not ask for).
     pub fn validate(&self) -> Result<()> {
+        let layout = self.code.layout();
         if !(0.0..1.0).contains(&self.discount) {
             bail!("discount = {}: must be in [0, 1) (geometric goal offsets take p = 1 − discount)", self.discount);
         }
@@ -144,11 +220,74 @@ impl OgbenchConfig {
                 bail!("{who}_p_curgoal + {who}_p_trajgoal + {who}_p_randomgoal = {sum}: must be 1");
             }
         }
+        if let Some(eps) = self.clip_actions
+            && !(0.0..1.0).contains(&eps)
+        {
+            bail!("clip_actions = {eps}: must be in [0, 1) (actions are clipped to ±(1 − clip_actions))");
+        }
+        if self.oracle_reps && self.code == Code::Ogbench {
+            bail!(
+                "oracle_reps = True: OGBench's GCDataset and HGCDataset take observations as goals whatever the dataset \
+                 holds; Horizon Reduction's read oracle representations: use layout=\"horizon_reduction\""
+            );
+        }
+        let subgoal_keys = [
+            ("subgoal_steps", self.subgoal_steps),
+            ("value_subgoal_steps", self.value_subgoal_steps),
+            ("actor_subgoal_steps", self.actor_subgoal_steps),
+        ];
+        let low = self
+            .low_value_goals
+            .then(|| format!("low_discount = {}", self.low_discount.map_or("None".to_string(), |d| d.to_string())));
+        let set = subgoal_keys.iter().filter_map(|(k, v)| v.map(|v| format!("{k} = {v}"))).chain(low.clone());
+        if self.dataset_class == DatasetClass::GCDataset {
+            if let Some(k) = set.into_iter().next() {
+                bail!("{k}: a key of HGCDataset, and dataset_class is GCDataset (layout=\"{layout}\")");
+            }
+            return Ok(());
+        }
+        if self.code == Code::Ogbench {
+            let hr =
+                [("value_subgoal_steps", self.value_subgoal_steps), ("actor_subgoal_steps", self.actor_subgoal_steps)];
+            if let Some(k) = hr.iter().filter_map(|(k, v)| v.map(|v| format!("{k} = {v}"))).chain(low).next() {
+                bail!(
+                    "{k}: a key of Horizon Reduction's HGCDataset, which OGBench's does not read (it takes \
+                     subgoal_steps alone): use layout=\"horizon_reduction\", or leave it out"
+                );
+            }
+        }
+        let (value, actor) = self.subgoal_steps_of()?;
+        for (k, v) in [("value subgoal steps", value), ("actor subgoal steps", actor)] {
+            if v == 0 {
+                bail!("{k} = 0: a subgoal is at least one step ahead");
+            }
+        }
+        if let Some(d) = self.low_discount
+            && !(d > 0.0 && d < 1.0)
+        {
+            bail!("low_discount = {d}: must be in (0, 1)");
+        }
         Ok(())
+    }
+
+    /// HGCDataset's value and actor subgoal steps: `value_subgoal_steps` / `actor_subgoal_steps`
+    /// where Horizon Reduction's class reads them and they are set, `subgoal_steps` otherwise.
+    pub fn subgoal_steps_of(&self) -> Result<(u64, u64)> {
+        let need = |own: Option<u64>, which: &str| -> Result<u64> {
+            own.or(self.subgoal_steps).ok_or_else(|| match self.code {
+                Code::Ogbench => anyhow::anyhow!("HGCDataset needs subgoal_steps; the config has none"),
+                Code::HorizonReduction => {
+                    anyhow::anyhow!("HGCDataset needs subgoal_steps (or {which}_subgoal_steps); the config has neither")
+                }
+            })
+        };
+        Ok((need(self.value_subgoal_steps, "value")?, need(self.actor_subgoal_steps, "actor")?))
     }
 }
 
-/// Which of OGBench's three sources, or PGSER's swapped rows, a goal came from.
+/// Which of OGBench's three sources, or PGSER's swapped rows, a goal came from; a subgoal
+/// derived from the row's own episode (a target, a low-level goal) is `Trajectory`, or
+/// `Current` where it is the row's own step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum GoalKind {
     Current,
@@ -157,33 +296,16 @@ pub enum GoalKind {
     Swapped,
 }
 
-/// One batch, as flat row-major arrays (`n` rows; vectors of `obs_dim` or `act_dim` floats).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct OgbenchBatch {
-    pub n: usize,
-    pub obs_dim: usize,
-    pub act_dim: usize,
-    pub observations: Vec<f32>,
-    pub next_observations: Vec<f32>,
-    pub actions: Vec<f32>,
-    /// 1 on an episode's last transition (OGBench's regular `terminals`).
-    pub terminals: Vec<f32>,
-    pub rewards: Vec<f32>,
-    pub masks: Vec<f32>,
-    pub value_goals: Vec<f32>,
-    pub actor_goals: Vec<f32>,
-    /// The transition's table-wide episode number (shard order across a folder) and step.
-    pub episode: Vec<i64>,
-    pub step: Vec<i64>,
-    /// Where each goal is: table-wide episode and step of the observation it is.
-    pub value_goal_episode: Vec<i64>,
-    pub value_goal_step: Vec<i64>,
-    pub actor_goal_episode: Vec<i64>,
-    pub actor_goal_step: Vec<i64>,
-    pub value_goal_kind: Vec<GoalKind>,
-    pub actor_goal_kind: Vec<GoalKind>,
-    /// The scored table's row of a swapped row; −1 for rows drawn by OGBench's rules.
-    pub scored_row: Vec<i64>,
+impl GoalKind {
+    /// The uint8 code a Python batch gives a kind (`pgser.GOAL_KINDS` names them in order).
+    pub fn code(self) -> u8 {
+        match self {
+            GoalKind::Current => 0,
+            GoalKind::Trajectory => 1,
+            GoalKind::Random => 2,
+            GoalKind::Swapped => 3,
+        }
+    }
 }
 
 /// A goal drawn for row (e, s): its kind, table-wide (episode, step), and where to read it.
@@ -231,10 +353,7 @@ impl OgbenchStream {
     }
 
     fn of(source: Source, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
-        cfg.validate()?;
-        if source.view().t() < 2 {
-            bail!("episodes of {} step(s) hold no transition", source.view().t());
-        }
+        check(source.view(), &cfg)?;
         Ok(OgbenchStream { source, cfg, seed, next: 0 })
     }
 
@@ -249,7 +368,7 @@ impl OgbenchStream {
         seed: u64,
     ) -> Result<OgbenchStream> {
         cfg.validate()?;
-        let source = Source::open(path, budget, cfg.p_swapgoal, priority, seed)?;
+        let source = Source::open(path, budget, &cfg, priority, seed)?;
         Self::of(source, cfg, seed).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
@@ -269,6 +388,19 @@ impl OgbenchStream {
 
     pub fn config(&self) -> &OgbenchConfig {
         &self.cfg
+    }
+
+    /// Draws the batches from here on with `cfg` (a Python agent that sets a config key after
+    /// its dataset was made, as Horizon Reduction's double SHARSA sets `low_discount`); refused,
+    /// and the stream unchanged, if this table or the open stream cannot take it.
+    pub fn reconfigure(&mut self, cfg: OgbenchConfig) -> Result<()> {
+        let fixed = |c: &OgbenchConfig| (c.code, c.oracle_reps, c.p_swapgoal > 0.0);
+        if fixed(&cfg) != fixed(&self.cfg) {
+            bail!("a config change of layout, oracle_reps or p_swapgoal's use needs a new sampler");
+        }
+        check(self.source.view(), &cfg)?;
+        self.cfg = cfg;
+        Ok(())
     }
 
     /// The index of the batch `next_batch` draws next.
@@ -312,94 +444,272 @@ impl OgbenchStream {
         }
         self.source.refresh(n)?;
         let mut rng = NpRandom::spawned(self.seed, &[STREAM_OGBENCH, k]);
-        Ok(draw(self.source.view(), self.source.swapper(), &self.cfg, &mut rng, n))
+        let ctx = Ctx { view: self.source.view(), swap: self.source.swapper(), cfg: &self.cfg };
+        Ok(match self.cfg.dataset_class {
+            DatasetClass::GCDataset => draw(&ctx, &mut rng, n),
+            DatasetClass::HGCDataset => hierarchical::draw(&ctx, &mut rng, n),
+        })
     }
 }
 
-/// `n` rows of OGBench's layout from `view`, with swapped rows from `swap` (the module doc).
-/// The rows and goals are drawn in turn from `rng`; their vectors are then copied in parallel, in
-/// chunks of rows (copying is most of a batch's time on wide observations, and it does not touch
-/// the generator, so the batch is the same at any thread count).
-fn draw(
-    view: &dyn View,
-    swap: Option<&dyn Swapper>,
-    cfg: &OgbenchConfig,
-    rng: &mut NpRandom,
-    n: usize,
-) -> OgbenchBatch {
-    let (t, od, ad) = (view.t(), view.task().obs_dim, view.task().act_dim);
-    let steps = t - 1;
-    let value = (cfg.value_p_curgoal, cfg.value_p_trajgoal, cfg.value_geom_sample);
-    let actor = (cfg.actor_p_curgoal, cfg.actor_p_trajgoal, cfg.actor_geom_sample);
-    let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
-    let mut scored_rows = Vec::with_capacity(n);
-    let rows: Vec<(usize, usize, Goal, Goal)> = (0..n)
-        .map(|_| {
-            if let Some(swap) = swap.filter(|_| cfg.p_swapgoal > 0.0 && rng.random() < cfg.p_swapgoal) {
-                let (e, s, vg, row) = swap.pick(rng);
-                let ag = if cfg.swap_actor_goals { vg } else { goal(view, cfg, rng, e, s, actor) };
-                scored_rows.push(row as i64);
-                return (e, s, vg, ag);
-            }
-            let row = rng.below(view.episodes() * steps);
-            let (e, s) = (row / steps, row % steps);
-            let vg = goal(view, cfg, rng, e, s, value);
-            let ag = goal(view, cfg, rng, e, s, actor);
-            scored_rows.push(-1);
-            (e, s, vg, ag)
-        })
-        .collect();
-    let mut b = OgbenchBatch { n, obs_dim: od, act_dim: ad, scored_row: scored_rows, ..OgbenchBatch::default() };
-    for &(e, s, vg, ag) in &rows {
-        let number = view.episode_number(e);
-        b.terminals.push(if s + 2 == t { 1.0 } else { 0.0 });
-        let success = if (vg.episode, vg.step) == (number, s) { 1.0 } else { 0.0 };
-        b.masks.push(1.0 - success);
-        b.rewards.push(success - offset);
-        for (g, ep, st, kind) in [
-            (vg, &mut b.value_goal_episode, &mut b.value_goal_step, &mut b.value_goal_kind),
-            (ag, &mut b.actor_goal_episode, &mut b.actor_goal_step, &mut b.actor_goal_kind),
-        ] {
-            ep.push(g.episode as i64);
-            st.push(g.step as i64);
-            kind.push(g.kind);
-        }
-        b.episode.push(number as i64);
-        b.step.push(s as i64);
+/// What a table must hold for `cfg`: a transition per episode, subgoals that fit an episode, and
+/// achieved goals that are oracle representations where `oracle_reps` reads them.
+fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
+    cfg.validate()?;
+    let t = view.t();
+    if t < 2 {
+        bail!("episodes of {t} step(s) hold no transition");
     }
-    let goal_obs = |g: &Goal| match g.at {
-        At::Resident(e, s) => view.obs(e, s),
-        At::Source(src) => view.goal_obs(src),
-        At::Scored(d) => swap.expect("a scored goal comes from the swapper").scored_obs(&d),
-    };
-    b.observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1));
-    b.next_observations = super::gather_rows(&rows, od, |r| view.obs(r.0, r.1 + 1));
-    b.actions = super::gather_rows(&rows, ad, |r| view.action(r.0, r.1));
-    b.value_goals = super::gather_rows(&rows, od, |r| goal_obs(&r.2));
-    b.actor_goals = super::gather_rows(&rows, od, |r| goal_obs(&r.3));
-    b
+    if cfg.dataset_class == DatasetClass::HGCDataset {
+        let (value, actor) = cfg.subgoal_steps_of()?;
+        for (k, v) in [("value subgoal steps", value), ("actor subgoal steps", actor)] {
+            if v >= t as u64 {
+                bail!("{k} = {v}: longer than this table's episodes ({} transitions each)", t - 1);
+            }
+        }
+    }
+    if cfg.oracle_reps {
+        oracle_reps_of(view.task())?;
+    }
+    Ok(())
+}
+
+/// The families whose table goals are OGBench's oracle representations (`add_oracle_reps`):
+/// a maze's x, y (`qpos[:2]`, which its observations start with), and each cube's position
+/// centred on (0.425, 0, 0) and scaled by 10 (the goal map's cube values, OGBench's
+/// `compute_oracle_observation`, which tests/ogbench.rs checks row for row). Puzzle and scene
+/// tables are not converted yet, and a table converted with `--full-goal` has whole
+/// observations as goals.
+fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
+    let family = task.name.split('-').next().unwrap_or_default();
+    let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
+    if !["pointmaze", "antmaze", "humanoidmaze", "cube"].contains(&family) || full {
+        bail!(
+            "oracle_reps = True: {}'s table goals are not OGBench's oracle representations ({}); pgser has them for \
+             tables of pointmaze, antmaze, humanoidmaze and cube datasets converted without --full-goal",
+            task.name,
+            if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" }
+        );
+    }
+    Ok(())
+}
+
+/// What a batch is drawn from, and with which settings.
+struct Ctx<'a> {
+    view: &'a dyn View,
+    swap: Option<&'a dyn Swapper>,
+    cfg: &'a OgbenchConfig,
+}
+
+/// Which vector of a point a key reads.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Read {
+    /// Its observation.
+    Obs,
+    /// Its goal representation: the achieved goal with `oracle_reps`, else the observation.
+    Rep,
+}
+
+impl Ctx<'_> {
+    /// A row's transition (resident episode, step), and its swapped goal and scored row when it
+    /// is one of PGSER's rows: decided first, with its own uniform, and only when
+    /// `p_swapgoal > 0`, so other settings draw exactly as without.
+    fn pick(&self, rng: &mut NpRandom) -> (usize, usize, Option<(Goal, u64)>) {
+        if let Some(swap) = self.swap.filter(|_| self.cfg.p_swapgoal > 0.0 && rng.random() < self.cfg.p_swapgoal) {
+            let (e, s, vg, row) = swap.pick(rng);
+            return (e, s, Some((vg, row)));
+        }
+        let steps = self.view.t() - 1;
+        let row = rng.below(self.view.episodes() * steps);
+        (row / steps, row % steps, None)
+    }
+
+    /// The last transition's step, L = T − 2: OGBench's "final state" of every episode.
+    fn last(&self) -> usize {
+        self.view.t() - 2
+    }
+
+    /// Point (e, step) of resident episode `e`, a subgoal derived from row (e, s).
+    fn point(&self, e: usize, s: usize, step: usize) -> Goal {
+        let kind = if step == s { GoalKind::Current } else { GoalKind::Trajectory };
+        Goal { kind, episode: self.view.episode_number(e), step, at: At::Resident(e, step) }
+    }
+
+    /// Whether goal `g` is the row's own step: OGBench's `idxs == goal_idxs`.
+    fn reaches(&self, e: usize, s: usize, g: &Goal) -> bool {
+        (g.episode, g.step) == (self.view.episode_number(e), s)
+    }
+
+    fn read(&self, g: &Goal, read: Read) -> &[f32] {
+        let rep = read == Read::Rep && self.cfg.oracle_reps;
+        match g.at {
+            At::Resident(e, s) if rep => self.view.ag(e, s),
+            At::Resident(e, s) => self.view.obs(e, s),
+            At::Source(src) if rep => self.view.goal_ag(src),
+            At::Source(src) => self.view.goal_obs(src),
+            // The scored row's stored goal: its achieved goal, which is the observation it was
+            // taken from where goals are whole observations (checked at open) and the oracle
+            // representation with `oracle_reps`.
+            At::Scored(d) => self.swap.expect("a scored goal comes from the swapper").scored_goal(&d),
+        }
+    }
+
+    fn width(&self, read: Read) -> usize {
+        let task = self.view.task();
+        if read == Read::Rep && self.cfg.oracle_reps { task.goal_dim } else { task.obs_dim }
+    }
+
+    /// The batch's keys every class has: the transitions (observations, next_observations,
+    /// actions clipped by `clip_actions`, terminals; Horizon Reduction's compact datasets'
+    /// `valids` too), then the keys of `points`, the class's `scalars`, and the provenance. The vectors are copied in
+    /// parallel, in chunks of rows (copying is most of a batch's time on wide observations, and
+    /// it does not touch the generator, so the batch is the same at any thread count).
+    fn batch(
+        &self,
+        rows: &[(usize, usize)],
+        scored: Vec<i64>,
+        points: Vec<(&str, Read, Vec<Goal>)>,
+        scalars: Vec<(String, Column)>,
+    ) -> OgbenchBatch {
+        let (view, n) = (self.view, rows.len());
+        let (od, ad) = (view.task().obs_dim, view.task().act_dim);
+        let mut b = OgbenchBatch { n, keys: Vec::new() };
+        let floats = |dim, values| Column::F32 { dim: Some(dim), values };
+        b.push("observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1))));
+        b.push("next_observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1 + 1))));
+        let mut actions = super::gather_rows(rows, ad, |r| view.action(r.0, r.1));
+        if let Some(eps) = self.cfg.clip_actions {
+            // np.clip(float32, −1 + eps, 1 − eps): the bounds as float32, NaN kept.
+            let (lo, hi) = ((-1.0 + eps) as f32, (1.0 - eps) as f32);
+            actions.iter_mut().for_each(|a| *a = a.clamp(lo, hi));
+        }
+        b.push("actions", floats(ad, actions));
+        let t = view.t();
+        let terminals = rows.iter().map(|&(_, s)| if s + 2 == t { 1.0 } else { 0.0 }).collect();
+        b.push("terminals", Column::F32 { dim: None, values: terminals });
+        if self.cfg.code == Code::HorizonReduction {
+            b.push("valids", Column::F32 { dim: None, values: vec![1.0; n] });
+            if self.cfg.oracle_reps {
+                let gd = view.task().goal_dim;
+                b.push("oracle_reps", floats(gd, super::gather_rows(rows, gd, |r| view.ag(r.0, r.1))));
+            }
+        }
+        for (name, read, goals) in &points {
+            let dim = self.width(*read);
+            b.push(name, floats(dim, super::gather_rows(goals, dim, |g| self.read(g, *read))));
+        }
+        for (name, column) in scalars {
+            b.push(&name, column);
+        }
+        b.push_provenance("episode", Column::I64(rows.iter().map(|r| view.episode_number(r.0) as i64).collect()));
+        b.push_provenance("step", Column::I64(rows.iter().map(|r| r.1 as i64).collect()));
+        for (name, _, goals) in &points {
+            // value_goals → value_goal_episode, high_actor_targets → high_actor_target_step.
+            let stem = name.strip_suffix('s').unwrap_or(name);
+            b.push_provenance(
+                &format!("{stem}_episode"),
+                Column::I64(goals.iter().map(|g| g.episode as i64).collect()),
+            );
+            b.push_provenance(&format!("{stem}_step"), Column::I64(goals.iter().map(|g| g.step as i64).collect()));
+            b.push_provenance(&format!("{stem}_kind"), Column::Kind(goals.iter().map(|g| g.kind).collect()));
+        }
+        b.push_provenance("scored_row", Column::I64(scored));
+        b
+    }
+}
+
+/// `n` rows of the flat class, `GCDataset.sample` (OGBench's, and Horizon Reduction's, which
+/// reads oracle representations as goals where the dataset has them): the module doc.
+fn draw(ctx: &Ctx, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
+    let cfg = ctx.cfg;
+    let (value, actor) = (cfg.value(), cfg.actor());
+    let (mut rows, mut scored) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let (mut value_goals, mut actor_goals) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for _ in 0..n {
+        let (e, s, swapped) = ctx.pick(rng);
+        let (vg, ag) = match swapped {
+            Some((vg, row)) => {
+                scored.push(row as i64);
+                (vg, if cfg.swap_actor_goals { vg } else { goal(ctx, rng, e, s, actor) })
+            }
+            None => {
+                scored.push(-1);
+                let vg = goal(ctx, rng, e, s, value);
+                (vg, goal(ctx, rng, e, s, actor))
+            }
+        };
+        rows.push((e, s));
+        value_goals.push(vg);
+        actor_goals.push(ag);
+    }
+    let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
+    let successes = successes(ctx, &rows, &value_goals);
+    ctx.batch(
+        &rows,
+        scored,
+        vec![("value_goals", Read::Rep, value_goals), ("actor_goals", Read::Rep, actor_goals)],
+        rewards_and_masks("", &successes, offset),
+    )
+}
+
+/// 1 where a row's goal is its own step (OGBench's `idxs == goal_idxs`), else 0.
+fn successes(ctx: &Ctx, rows: &[(usize, usize)], goals: &[Goal]) -> Vec<f64> {
+    rows.iter().zip(goals).map(|(&(e, s), g)| if ctx.reaches(e, s, g) { 1.0 } else { 0.0 }).collect()
+}
+
+/// `{prefix}rewards` and `{prefix}masks` of one-step successes: `successes − 1` with
+/// `gc_negative` (`offset` 1), else `successes`; masks `1 − successes`. Float64, as numpy's
+/// `.astype(float)` gives them.
+fn rewards_and_masks(prefix: &str, successes: &[f64], offset: f64) -> Vec<(String, Column)> {
+    vec![
+        (format!("{prefix}rewards"), Column::F64(successes.iter().map(|x| x - offset).collect())),
+        (format!("{prefix}masks"), Column::F64(successes.iter().map(|x| 1.0 - x).collect())),
+    ]
+}
+
+/// A goal source's fractions: (p_curgoal, p_trajgoal, geom_sample, discount).
+type Fractions = (f64, f64, bool, f64);
+
+impl OgbenchConfig {
+    fn value(&self) -> Fractions {
+        (self.value_p_curgoal, self.value_p_trajgoal, self.value_geom_sample, self.discount)
+    }
+    fn actor(&self) -> Fractions {
+        (self.actor_p_curgoal, self.actor_p_trajgoal, self.actor_geom_sample, self.discount)
+    }
 }
 
 /// One goal for transition (e, s) by OGBench's `sample_goals` (the module doc).
-fn goal(view: &dyn View, cfg: &OgbenchConfig, rng: &mut NpRandom, e: usize, s: usize, p: (f64, f64, bool)) -> Goal {
-    let (p_cur, p_traj, geom) = p;
-    let number = view.episode_number(e);
-    let current = Goal { kind: GoalKind::Current, episode: number, step: s, at: At::Resident(e, s) };
+fn goal(ctx: &Ctx, rng: &mut NpRandom, e: usize, s: usize, p: Fractions) -> Goal {
+    let (p_cur, p_traj, geom, discount) = p;
+    let view = ctx.view;
     if p_cur == 1.0 || rng.random() < p_cur {
-        return current;
+        return ctx.point(e, s, s);
     }
     if rng.random() < p_traj / (1.0 - p_cur) {
-        let last = view.t() - 2;
-        let step = if geom {
-            let k = geometric(rng, 1.0 - cfg.discount);
-            (s as u64).saturating_add(k).min(last as u64) as usize
-        } else {
-            let d = rng.random();
-            let near = (s + 1).min(last) as f64;
-            (near * d + last as f64 * (1.0 - d)).round_ties_even() as usize
-        };
-        return Goal { kind: GoalKind::Trajectory, episode: number, step, at: At::Resident(e, step) };
+        let step = trajectory_step(ctx, rng, s, geom, discount);
+        return Goal { kind: GoalKind::Trajectory, ..ctx.point(e, s, step) };
     }
+    random_goal(view, rng)
+}
+
+/// A later step of the row's episode: geometric, `min(s + k, L)`, or OGBench's rounded uniform
+/// between `min(s + 1, L)` and L.
+fn trajectory_step(ctx: &Ctx, rng: &mut NpRandom, s: usize, geom: bool, discount: f64) -> usize {
+    let last = ctx.last();
+    if geom {
+        let k = geometric(rng, 1.0 - discount);
+        (s as u64).saturating_add(k).min(last as u64) as usize
+    } else {
+        let d = rng.random();
+        let near = (s + 1).min(last) as f64;
+        (near * d + last as f64 * (1.0 - d)).round_ties_even() as usize
+    }
+}
+
+/// A transition uniform over the whole table (OGBench's `get_random_idxs`): the view draws over
+/// all T observations of an episode, so a draw of step T − 1 is drawn again.
+fn random_goal(view: &dyn View, rng: &mut NpRandom) -> Goal {
     let last_obs = view.t() - 1;
     loop {
         let g = view.random_goal(rng);

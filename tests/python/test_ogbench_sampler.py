@@ -33,6 +33,7 @@ OGBENCH_DTYPES = {
 }
 PROVENANCE = ("episode", "step", "value_goal_episode", "value_goal_step", "actor_goal_episode", "actor_goal_step",
               "scored_row")
+KINDS = ("value_goal_kind", "actor_goal_kind")
 # GCIQL's sampling defaults; the peer reads them as its command line does.
 DEFAULTS = dict(discount=0.99, value_p_curgoal=0.2, value_p_trajgoal=0.5, actor_p_curgoal=0.0, actor_p_trajgoal=1.0)
 
@@ -91,7 +92,7 @@ def test_keys_shapes_and_dtypes_are_ogbenchs(folder, peer_data):
     with pgser.Sampler(table, layout="ogbench", seed=0) as s:
         ours = s.sample(256)
         assert (s.layout, s.task, s.batch_size) == ("ogbench", "pointmaze-medium-v0", 512)
-    assert set(ours) == set(OGBENCH_DTYPES) | set(PROVENANCE)
+    assert set(ours) == set(OGBENCH_DTYPES) | set(PROVENANCE) | set(KINDS)
     # The peer's dict is OGBench's less `terminals`; every key of it is here with its shape.
     assert set(theirs) <= set(ours)
     for k, v in theirs.items():
@@ -100,6 +101,9 @@ def test_keys_shapes_and_dtypes_are_ogbenchs(folder, peer_data):
         assert ours[k].dtype == dtype, k
     for k in PROVENANCE:
         assert ours[k].dtype == np.int64 and ours[k].shape == (256,), k
+    for k in KINDS:
+        assert ours[k].dtype == np.uint8 and set(np.unique(ours[k])) <= {0, 1, 2}, k
+    assert pgser.GOAL_KINDS[ours["value_goal_kind"][0]] in ("current", "trajectory", "random")
 
 
 def test_rows_are_the_tables_transitions_and_goals_its_observations(folder):
@@ -233,7 +237,8 @@ def test_an_ogbench_agent_config_is_taken_unchanged(folder):
     bad = [
         (dict(config, frame_stack=3), "frame_stack"),
         (dict(config, p_aug=0.5), "p_aug"),
-        (dict(config, dataset_class="HGCDataset"), "HGCDataset"),
+        (dict(config, dataset_class="HGCDataset"), "HGCDataset needs subgoal_steps"),
+        (dict(config, dataset_class="WGCSLDataset"), "pgser draws GCDataset's and HGCDataset's"),
         (dict(config, value_p_randomgoal=0.4), "must be 1"),
         (dict(config, discount=1.0), "discount = 1"),
         (dict(config, actor_p_curgoal="a lot"), "not a number"),

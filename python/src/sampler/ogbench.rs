@@ -6,7 +6,7 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use numpy::{IntoPyArray, PyArrayMethods};
-use pgser::sampler::ogbench::{OgbenchBatch, OgbenchConfig, OgbenchStream};
+use pgser::sampler::ogbench::{Code, Column, OgbenchBatch, OgbenchConfig, OgbenchStream};
 use pgser::sampler::pool::PoolStats;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -15,7 +15,7 @@ use pyo3::types::PyDict;
 use super::OgDrawn;
 use crate::py_err;
 
-/// OGBench's config keys this sampler reads; any other key of an agent's config is ignored.
+/// The config keys this sampler reads; any other key of an agent's config is ignored.
 pub(super) const OG_FLOATS: [&str; 8] = [
     "discount",
     "p_swapgoal",
@@ -27,21 +27,29 @@ pub(super) const OG_FLOATS: [&str; 8] = [
     "actor_p_randomgoal",
 ];
 pub(super) const OG_BOOLS: [&str; 4] = ["value_geom_sample", "actor_geom_sample", "gc_negative", "swap_actor_goals"];
+/// HGCDataset's subgoal steps (Horizon Reduction's class reads the value and actor ones apart).
+const OG_STEPS: [&str; 3] = ["subgoal_steps", "value_subgoal_steps", "actor_subgoal_steps"];
 
-/// OGBench's settings: its defaults, then an agent's `config` (any mapping: a dict, an
-/// `ml_collections.ConfigDict`), then the keyword arguments. Keys OGBench's GCDataset reads but
-/// pgser does not draw (`frame_stack`, `p_aug`, a `dataset_class` other than GCDataset) are
-/// refused when set, so a config is never silently trained on other batches than it asks for.
-pub(super) fn ogbench_config<'py>(
-    config: Option<&Bound<'py, PyAny>>,
-    kw: &[(&str, Option<f64>)],
-    kw_bools: &[(&str, Option<bool>)],
-) -> PyResult<OgbenchConfig> {
-    let mut values = serde_json::to_value(OgbenchConfig::default()).expect("a plain struct");
+/// What the keyword arguments set over an agent's config.
+#[derive(Clone, Default)]
+pub(super) struct Overrides {
+    pub floats: Vec<(&'static str, Option<f64>)>,
+    pub bools: Vec<(&'static str, Option<bool>)>,
+    pub oracle_reps: Option<bool>,
+    pub clip_actions: Option<f64>,
+}
+
+/// The settings of `code`'s classes: pgser's defaults, then an agent's `config` (any mapping: a
+/// dict, an `ml_collections.ConfigDict`), then the keyword arguments. Keys a class reads but
+/// pgser does not draw (`frame_stack`, `p_aug`) are refused when set, and so is a key of another
+/// class or another code's ([`OgbenchConfig::validate`]), so a config is never silently trained
+/// on other batches than it asks for.
+pub(super) fn ogbench_config(code: Code, config: Option<&Bound<'_, PyAny>>, kw: &Overrides) -> PyResult<OgbenchConfig> {
+    let mut values = serde_json::to_value(OgbenchConfig { code, ..OgbenchConfig::default() }).expect("a plain struct");
     let obj = values.as_object_mut().expect("a struct is an object");
     if let Some(c) = config.filter(|c| !c.is_none()) {
         // A key that is absent or None is not set (ConfigDict's placeholders are None).
-        let get = |k: &str| -> PyResult<Option<Bound<'py, PyAny>>> {
+        let get = |k: &str| -> PyResult<Option<Bound<'_, PyAny>>> {
             if !c.contains(k)? {
                 return Ok(None);
             }
@@ -59,10 +67,33 @@ pub(super) fn ogbench_config<'py>(
                 obj.insert(k.into(), v.is_truthy()?.into());
             }
         }
+        for k in OG_STEPS {
+            if let Some(v) = get(k)? {
+                let x: i64 = v.extract().map_err(|_| {
+                    PyValueError::new_err(format!("config[{k:?}] = {}: not a whole number of steps", repr(&v)))
+                })?;
+                if x < 0 {
+                    return Err(PyValueError::new_err(format!(
+                        "config[{k:?}] = {x}: a subgoal is at least one step ahead"
+                    )));
+                }
+                obj.insert(k.into(), x.into());
+            }
+        }
+        // Horizon Reduction's class asks `'low_discount' in config`: the key, even at None.
+        if c.contains("low_discount")? {
+            obj.insert("low_value_goals".into(), true.into());
+            if let Some(v) = get("low_discount")? {
+                let x: f64 = v.extract().map_err(|_| {
+                    PyValueError::new_err(format!("config[\"low_discount\"] = {}: not a number", repr(&v)))
+                })?;
+                obj.insert("low_discount".into(), x.into());
+            }
+        }
         if let Some(v) = get("frame_stack")? {
             return Err(PyValueError::new_err(format!(
                 "config[\"frame_stack\"] = {}: frame stacking (OGBench's pixel tasks) is not drawn by pgser; use None",
-                v.repr()?
+                repr(&v)
             )));
         }
         if let Some(v) = get("p_aug")?
@@ -70,31 +101,68 @@ pub(super) fn ogbench_config<'py>(
         {
             return Err(PyValueError::new_err(format!(
                 "config[\"p_aug\"] = {}: image augmentation (OGBench's pixel tasks) is not done by pgser; use 0 or None",
-                v.repr()?
+                repr(&v)
             )));
         }
         if let Some(v) = get("dataset_class")? {
             let name: String = v.str()?.to_cow()?.into_owned();
-            if name != "GCDataset" {
-                return Err(PyValueError::new_err(format!(
-                    "config[\"dataset_class\"] = {name:?}: pgser draws GCDataset's batches only (not HGCDataset's subgoals)"
-                )));
-            }
+            let class = match name.as_str() {
+                "GCDataset" => "GCDataset",
+                "HGCDataset" => "HGCDataset",
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "config[\"dataset_class\"] = {name:?}: pgser draws GCDataset's and HGCDataset's batches"
+                    )));
+                }
+            };
+            obj.insert("dataset_class".into(), class.into());
         }
     }
-    for &(k, v) in kw {
+    for &(k, v) in &kw.floats {
         if let Some(x) = v {
             obj.insert(k.into(), x.into());
         }
     }
-    for &(k, v) in kw_bools {
+    for &(k, v) in &kw.bools {
         if let Some(x) = v {
             obj.insert(k.into(), x.into());
         }
+    }
+    if let Some(x) = kw.oracle_reps {
+        obj.insert("oracle_reps".into(), x.into());
+    }
+    if let Some(x) = kw.clip_actions {
+        obj.insert("clip_actions".into(), x.into());
     }
     let cfg: OgbenchConfig = serde_json::from_value(values).map_err(|e| PyValueError::new_err(e.to_string()))?;
     cfg.validate().map_err(py_err)?;
     Ok(cfg)
+}
+
+fn repr(v: &Bound<'_, PyAny>) -> String {
+    v.repr().map(|r| r.to_string()).unwrap_or_else(|_| "?".into())
+}
+
+/// The environment an OGBench dataset or environment name names, OGBench's way
+/// (`make_env_and_datasets`), and whether it asks for oracle representations: the dataset type
+/// and the word `oraclerep` dropped (`puzzle-4x5-play-oraclerep-v0` → `puzzle-4x5-v0`, true).
+/// OGBench's dataset types, the word a dataset's name has beside its environment's.
+const DATASET_TYPES: [&str; 5] = ["navigate", "stitch", "explore", "play", "noisy"];
+
+pub(super) fn env_of(name: &str) -> (String, bool) {
+    let words: Vec<&str> = name.split('-').collect();
+    let oracle = words.contains(&"oraclerep");
+    let kept: Vec<&str> = words.iter().copied().filter(|w| *w != "oraclerep").collect();
+    let env = match kept.len() {
+        // NAME-TYPE-vN: the dataset type is the second-to-last word; an environment's name has none.
+        n if n >= 3 && DATASET_TYPES.contains(&kept[n - 2]) => {
+            let mut e = kept[..n - 2].to_vec();
+            e.push(kept[n - 1]);
+            e.join("-")
+        }
+        _ => kept.join("-"),
+    };
+    (env, oracle)
 }
 
 /// The batch size from `config["batch_size"]`, when an agent's config carries one.
@@ -109,6 +177,14 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
     }
 }
 
+/// What the sampler asks its worker for.
+pub(super) enum Request {
+    /// The next batch, of this many rows.
+    Batch(usize),
+    /// Draw the batches from the next on with these settings (the agent's config changed).
+    Config(Box<OgbenchConfig>),
+}
+
 /// The ogbench layout's worker. Batch k of the stream is drawn from its own generator, so the
 /// worker keeps batches k, k+1, … of the default size ready and, asked for another size, drops
 /// them and draws batch k at that size. A request for the default size is answered as soon as
@@ -117,19 +193,22 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
 ///
 /// The bytes depend on the calls alone, never on `prefetch` or timing. A pool's resident data
 /// follow the rows drawn, so batches are drawn ahead only while they take no block in: those
-/// dropped for a request of another size are taken back (`drop_ahead`), and the pool is as if
-/// they had never been drawn. The batch that takes a block in is drawn once its request comes,
-/// at the size asked, its block read and taken from the loader beforehand (`stage`): a short
-/// wait once a block's worth of draws (placing the block, and one draw).
+/// dropped for a request of another size (or for a config change) are taken back
+/// (`drop_ahead`), and the pool is as if they had never been drawn. The batch that takes a block
+/// in is drawn once its request comes, at the size asked, its block read and taken from the
+/// loader beforehand (`stage`): a short wait once a block's worth of draws (placing the block,
+/// and one draw).
 pub(super) fn og_worker(
     mut stream: OgbenchStream,
     (size, prefetch): (usize, usize),
-    req: Receiver<usize>,
+    req: Receiver<Request>,
     out: SyncSender<OgDrawn>,
     pool: Arc<Mutex<Option<PoolStats>>>,
 ) {
     let mut ready: VecDeque<OgDrawn> = VecDeque::new();
     let mut k = 0u64;
+    // A config the stream refused: the answer to the next request.
+    let mut refused: Option<anyhow::Error> = None;
     // Draws the next default-size batch into the queue, unless it is full, ends in an error, or
     // the batch would take a block in: then it readies that block (waiting for the loader while
     // the learner uses up the queue) and the batch waits for its request.
@@ -150,32 +229,52 @@ pub(super) fn og_worker(
         *pool.lock().unwrap() = stream.pool_stats();
         b
     };
+    // Drops the queue, giving its draws back to the pool; a queued failure (a block the pool
+    // could not read) is kept as the answer to the next request: dropping it would lose it.
+    let drop_queue = |stream: &mut OgbenchStream, ready: &mut VecDeque<OgDrawn>| -> Option<OgDrawn> {
+        if let Some(failed) = ready.iter().position(|b| b.is_err()) {
+            return ready.drain(..).nth(failed);
+        }
+        stream.drop_ahead(ready.len() * size);
+        ready.clear();
+        None
+    };
     loop {
-        let n = match req.try_recv() {
-            Ok(n) => n,
+        let r = match req.try_recv() {
+            Ok(r) => r,
             Err(TryRecvError::Disconnected) => return,
             Err(TryRecvError::Empty) => {
-                if top_up(&mut stream, &mut ready, k) {
+                if refused.is_none() && top_up(&mut stream, &mut ready, k) {
                     continue;
                 }
                 // A closed request channel: the sampler was closed or dropped.
-                let Ok(n) = req.recv() else { return };
-                n
+                let Ok(r) = req.recv() else { return };
+                r
             }
         };
-        let b = if n == size {
+        let n = match r {
+            Request::Config(cfg) => {
+                if let Some(failed) = drop_queue(&mut stream, &mut ready) {
+                    ready.push_back(failed);
+                } else if let Err(e) = stream.reconfigure(*cfg) {
+                    refused = Some(e.context("the agent's config changed"));
+                }
+                continue;
+            }
+            Request::Batch(n) => n,
+        };
+        let b = if let Some(e) = refused.take() {
+            Err(e)
+        } else if n == size {
             match ready.pop_front() {
                 Some(b) => b,
                 None => on_request(&mut stream, n, k),
             }
-        } else if let Some(failed) = ready.iter().position(|b| b.is_err()) {
-            // A queued failure (a block the pool could not read) is the answer: dropping it with
-            // the queue would lose the error.
-            ready.drain(..).nth(failed).expect("found")
         } else {
-            stream.drop_ahead(ready.len() * size);
-            ready.clear();
-            on_request(&mut stream, n, k)
+            match drop_queue(&mut stream, &mut ready) {
+                Some(failed) => failed,
+                None => on_request(&mut stream, n, k),
+            }
         };
         k += 1;
         let failed = b.is_err();
@@ -185,27 +284,28 @@ pub(super) fn og_worker(
     }
 }
 
-/// OGBench's batch dict, with its dtypes: float32 vectors and terminals, float64 rewards and
-/// masks (`successes.astype(float)` in its GCDataset), and pgser's int64 provenance columns.
-pub(super) fn og_dict(py: Python<'_>, b: OgbenchBatch) -> PyResult<Bound<'_, PyDict>> {
-    let (n, od, ad) = (b.n, b.obs_dim, b.act_dim);
+/// A batch as the class it follows gives it, with its dtypes: float32 vectors and terminals,
+/// float64 rewards and masks (`successes.astype(float)`), int64 subgoal steps and offsets; and,
+/// with `provenance`, pgser's columns of where each row and goal came from (int64 episodes and
+/// steps, uint8 goal kinds: `GoalKind::code`).
+pub(super) fn og_dict(py: Python<'_>, b: OgbenchBatch, provenance: bool) -> PyResult<Bound<'_, PyDict>> {
+    let n = b.n;
     let d = PyDict::new(py);
-    let matrix = |v: Vec<f32>, dim: usize| v.into_pyarray(py).reshape([n, dim]);
-    let wide = |v: Vec<f32>| v.into_iter().map(f64::from).collect::<Vec<f64>>().into_pyarray(py);
-    d.set_item("observations", matrix(b.observations, od)?)?;
-    d.set_item("next_observations", matrix(b.next_observations, od)?)?;
-    d.set_item("actions", matrix(b.actions, ad)?)?;
-    d.set_item("terminals", b.terminals.into_pyarray(py))?;
-    d.set_item("rewards", wide(b.rewards))?;
-    d.set_item("masks", wide(b.masks))?;
-    d.set_item("value_goals", matrix(b.value_goals, od)?)?;
-    d.set_item("actor_goals", matrix(b.actor_goals, od)?)?;
-    d.set_item("episode", b.episode.into_pyarray(py))?;
-    d.set_item("step", b.step.into_pyarray(py))?;
-    d.set_item("value_goal_episode", b.value_goal_episode.into_pyarray(py))?;
-    d.set_item("value_goal_step", b.value_goal_step.into_pyarray(py))?;
-    d.set_item("actor_goal_episode", b.actor_goal_episode.into_pyarray(py))?;
-    d.set_item("actor_goal_step", b.actor_goal_step.into_pyarray(py))?;
-    d.set_item("scored_row", b.scored_row.into_pyarray(py))?;
+    for key in b.keys {
+        if key.provenance && !provenance {
+            continue;
+        }
+        match key.column {
+            Column::F32 { dim: Some(dim), values } => {
+                d.set_item(key.name, values.into_pyarray(py).reshape([n, dim])?)?
+            }
+            Column::F32 { dim: None, values } => d.set_item(key.name, values.into_pyarray(py))?,
+            Column::F64(v) => d.set_item(key.name, v.into_pyarray(py))?,
+            Column::I64(v) => d.set_item(key.name, v.into_pyarray(py))?,
+            Column::Kind(v) => {
+                d.set_item(key.name, v.iter().map(|k| k.code()).collect::<Vec<u8>>().into_pyarray(py))?
+            }
+        }
+    }
     Ok(d)
 }

@@ -11,14 +11,16 @@
 //! - **β within a budget** (a pool, or a shard window): each block carries its own scored rows and
 //!   their goals' (episode, step) (`pool.rs`, "PGSER within a budget"); the goal's observation is
 //!   usually not resident, so the stored goal is used, which is the observation only when the
-//!   task's goals are its whole observations (PointMaze). Other tasks are refused within a budget.
+//!   task's goals are its whole observations (PointMaze), and the goal itself with `oracle_reps`
+//!   (whose goals are the achieved goals the scored table stores). Other tasks are refused within
+//!   a budget.
 
 use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 
-use super::{At, Goal, GoalKind};
+use super::{At, Goal, GoalKind, OgbenchConfig};
 use crate::nprandom::NpRandom;
 use crate::sampler::RowKey;
 use crate::sampler::pool::{Beta, Layout, Plan, Pool, Position};
@@ -32,8 +34,9 @@ pub(super) trait Swapper: Sync {
     /// A scored row drawn by priority: its transition (resident episode, step), its goal, and
     /// its row in the scored table.
     fn pick(&self, rng: &mut NpRandom) -> (usize, usize, Goal, u64);
-    /// The goal observation of an `At::Scored` goal `pick` returned.
-    fn scored_obs(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32];
+    /// The stored goal of an `At::Scored` goal `pick` returned: the achieved goal it was scored
+    /// with (the observation where goals are whole observations).
+    fn scored_goal(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32];
 }
 
 /// β held whole: priorities over every scored row, and every row's keys.
@@ -50,7 +53,7 @@ impl Swapper for WholeRows {
         let goal = Goal { kind: GoalKind::Swapped, episode: ge as u64, step: gs, at: At::Resident(ge, gs) };
         (k.episode as usize, k.step as usize, goal, r as u64)
     }
-    fn scored_obs(&self, _: &crate::sampler::pool::ScoredDraw) -> &[f32] {
+    fn scored_goal(&self, _: &crate::sampler::pool::ScoredDraw) -> &[f32] {
         unreachable!("rows of β held whole name their goal's place in β")
     }
 }
@@ -62,8 +65,8 @@ impl Swapper for Pool {
         let goal = Goal { kind: GoalKind::Swapped, episode: ge, step: gs, at: At::Scored(d) };
         (d.e, d.step, goal, self.scored_row(&d))
     }
-    fn scored_obs(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32] {
-        self.scored_goal(d)
+    fn scored_goal(&self, d: &crate::sampler::pool::ScoredDraw) -> &[f32] {
+        Pool::scored_goal(self, d)
     }
 }
 
@@ -120,11 +123,11 @@ impl Source {
     pub(super) fn open(
         path: &Path,
         budget: Budget,
-        p_swapgoal: f64,
+        cfg: &OgbenchConfig,
         priority: &PriorityConfig,
         seed: u64,
     ) -> Result<Source> {
-        let at = path.display();
+        let (at, p_swapgoal) = (path.display(), cfg.p_swapgoal);
         let Some(table) = ScoredTable::open_if_scored(path)? else {
             if p_swapgoal > 0.0 {
                 bail!(
@@ -161,8 +164,9 @@ impl Source {
             return whole(table);
         }
         let layout = Layout::open(&source)?.with_scored(table, priority.clone())?.with_goal_sources();
-        // Within a budget the stored goal stands for the observation it was taken from: refused
-        // unless the task's goals are its whole observations (the width now, the values below).
+        // Within a budget the stored goal stands for the goal vector: the achieved goal, which
+        // is what `oracle_reps` reads; for observation goals, refused unless the task's goals are
+        // its whole observations (the width now, the values below).
         let (task, bytes) = (layout.task().clone(), layout.bytes());
         let refuse = || {
             anyhow::anyhow!(
@@ -178,7 +182,9 @@ impl Source {
         };
         let pool = match budget {
             Budget::Unbounded => unreachable!("held whole above"),
-            Budget::ShardWindow(_) | Budget::Bytes { .. } if task.goal_dim != task.obs_dim => return Err(refuse()),
+            Budget::ShardWindow(_) | Budget::Bytes { .. } if !cfg.oracle_reps && task.goal_dim != task.obs_dim => {
+                return Err(refuse());
+            }
             Budget::ShardWindow(rows) => Pool::window(layout, rows, seed, Position::START)?,
             Budget::Bytes { bytes: b, draws_per_row } => match Plan::of(&layout, b)? {
                 Plan::Whole => return whole(layout.into_scored().expect("attached above")),
@@ -187,7 +193,7 @@ impl Source {
                 }
             },
         };
-        if !pool.goals_are_observations() {
+        if !cfg.oracle_reps && !pool.goals_are_observations() {
             return Err(refuse());
         }
         Ok(Source::Pool(Box::new(pool)))

@@ -5,14 +5,74 @@ use super::*;
 use crate::sampler::view::InMemory;
 use crate::trajectory::Episodes;
 
-/// 20 FetchReach episodes (T = 51) whose every observation is the number e·1000 + s.
+/// 20 FetchReach episodes (T = 50) whose every observation is the number e·1000 + s.
 fn coded(n: usize) -> InMemory {
     InMemory(Arc::new(Episodes::coded(0, n, |_, _| 0.0)))
 }
 
-fn batch(cfg: &OgbenchConfig, n: usize, seed: u64) -> (InMemory, OgbenchBatch) {
+/// The flat class's keys, as fields.
+#[derive(Debug)]
+struct Flat {
+    n: usize,
+    obs_dim: usize,
+    act_dim: usize,
+    observations: Vec<f32>,
+    next_observations: Vec<f32>,
+    actions: Vec<f32>,
+    terminals: Vec<f32>,
+    rewards: Vec<f64>,
+    masks: Vec<f64>,
+    value_goals: Vec<f32>,
+    actor_goals: Vec<f32>,
+    episode: Vec<i64>,
+    step: Vec<i64>,
+    value_goal_episode: Vec<i64>,
+    value_goal_step: Vec<i64>,
+    actor_goal_episode: Vec<i64>,
+    actor_goal_step: Vec<i64>,
+    value_goal_kind: Vec<GoalKind>,
+    actor_goal_kind: Vec<GoalKind>,
+}
+
+fn flat(b: &OgbenchBatch) -> Flat {
+    let f = |k: &str| b.f32(k).unwrap_or_else(|| panic!("no {k}")).0.to_vec();
+    let i = |k: &str| b.i64(k).unwrap_or_else(|| panic!("no {k}")).to_vec();
+    let kinds = |k: &str| b.kinds(k).unwrap_or_else(|| panic!("no {k}")).to_vec();
+    Flat {
+        n: b.n,
+        obs_dim: b.f32("observations").unwrap().1,
+        act_dim: b.f32("actions").unwrap().1,
+        observations: f("observations"),
+        next_observations: f("next_observations"),
+        actions: f("actions"),
+        terminals: f("terminals"),
+        rewards: b.f64("rewards").unwrap().to_vec(),
+        masks: b.f64("masks").unwrap().to_vec(),
+        value_goals: f("value_goals"),
+        actor_goals: f("actor_goals"),
+        episode: i("episode"),
+        step: i("step"),
+        value_goal_episode: i("value_goal_episode"),
+        value_goal_step: i("value_goal_step"),
+        actor_goal_episode: i("actor_goal_episode"),
+        actor_goal_step: i("actor_goal_step"),
+        value_goal_kind: kinds("value_goal_kind"),
+        actor_goal_kind: kinds("actor_goal_kind"),
+    }
+}
+
+pub(super) fn drawn(v: &InMemory, cfg: &OgbenchConfig, n: usize, seed: u64) -> OgbenchBatch {
+    let ctx = Ctx { view: v, swap: None, cfg };
+    let mut rng = NpRandom::spawned(seed, &[STREAM_OGBENCH, 0]);
+    match cfg.dataset_class {
+        DatasetClass::GCDataset => draw(&ctx, &mut rng, n),
+        DatasetClass::HGCDataset => hierarchical::draw(&ctx, &mut rng, n),
+    }
+}
+
+fn batch(cfg: &OgbenchConfig, n: usize, seed: u64) -> (InMemory, Flat) {
     let v = coded(20);
-    let b = draw(&v, None, cfg, &mut NpRandom::spawned(seed, &[STREAM_OGBENCH, 0]), n);
+    let b = flat(&drawn(&v, cfg, n, seed));
     (v, b)
 }
 
@@ -22,7 +82,7 @@ fn code(x: f32) -> (i64, i64) {
     (c / 1000, c % 1000)
 }
 
-fn sigma_bound(count: usize, n: usize, p: f64) {
+pub(super) fn sigma_bound(count: usize, n: usize, p: f64) {
     let sd = (n as f64 * p * (1.0 - p)).sqrt();
     assert!((count as f64 - n as f64 * p).abs() <= 4.0 * sd + 1e-9, "{count} of {n} where p = {p}");
 }
@@ -100,7 +160,7 @@ fn goal_kinds_come_in_their_fractions() {
 }
 
 /// Trajectory goals stay in the row's episode at steps min(s + 1, L)..=L.
-fn trajectory_rows(b: &OgbenchBatch, t: usize) -> Vec<(usize, usize)> {
+fn trajectory_rows(b: &Flat, t: usize) -> Vec<(usize, usize)> {
     let last = t - 2;
     let mut rows = Vec::new();
     for i in 0..b.n {
@@ -152,7 +212,7 @@ fn offsets_chi_square(rows: &[(usize, usize)], discount: f64, last: usize) -> (f
 
 #[test]
 fn geometric_trajectory_goals_follow_the_truncated_geometric() {
-    // discount 0.9: offsets of mean 10, well inside T = 51 episodes, and the clip still hit.
+    // discount 0.9: offsets of mean 10, well inside T = 50 episodes, and the clip still hit.
     let cfg = OgbenchConfig {
         discount: 0.9,
         value_p_curgoal: 0.0,
