@@ -21,6 +21,9 @@ pub enum GoalMetric {
     /// when every object is within the threshold of its own: the distance is the largest of the
     /// objects' Euclidean distances (OGBench's cube tasks).
     EachObject,
+    /// The largest of the values' absolute differences: reached when every value is within the
+    /// threshold of its own (OGBench's puzzles: each button's state, 0 or 1, within 0.5).
+    EachValue,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -141,6 +144,7 @@ impl Task {
                         .sqrt()
                 })
                 .fold(0.0, f64::max),
+            GoalMetric::EachValue => ag.iter().zip(g).map(|(&a, &b)| (a.into() - b.into()).abs()).fold(0.0, f64::max),
         }
     }
 
@@ -156,7 +160,7 @@ impl Task {
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
         let d = self.distance(ag, g);
         match self.metric {
-            GoalMetric::Euclidean | GoalMetric::EachObject => {
+            GoalMetric::Euclidean | GoalMetric::EachObject | GoalMetric::EachValue => {
                 if d > self.threshold {
                     -1.0
                 } else {
@@ -220,6 +224,17 @@ mod tests {
         assert_eq!(t.reward(&[0.3, 0.0, 0.0, 0.0, 0.3, 0.0], &g), 0.0);
         assert_eq!(t.reward(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.5], &g), -1.0);
         assert!(t.success(&[0.1, 0.1, 0.1, 0.0, 0.0, 0.0], &g));
+    }
+
+    #[test]
+    fn each_value_must_be_within_the_threshold() {
+        let t = Task { metric: GoalMetric::EachValue, ..Task::custom("puzzle-3x3-v0", 1001, 51, 9, 5, 0.5) };
+        let g = [1.0, 0.0, 1.0];
+        assert_eq!(t.distance(&[1.0, 0.0, 1.0], &g), 0.0);
+        assert!(t.success(&[1.0, 0.0, 1.0], &g) && t.reward(&[1.0, 0.0, 1.0], &g) == 0.0);
+        // One button off: distance 1, however many are right.
+        assert_eq!(t.distance(&[1.0, 1.0, 1.0], &g), 1.0);
+        assert!(!t.success(&[1.0, 1.0, 1.0], &g) && t.reward(&[1.0, 1.0, 1.0], &g) == -1.0);
     }
 
     #[test]

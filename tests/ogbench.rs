@@ -472,11 +472,13 @@ fn cube_goals_are_the_cubes_positions() {
         let (ours, theirs) = (out.join(format!("{name}.npz")), src.clone());
         py_ok("check_ogbench.py", &["same", &name, theirs.to_str().unwrap(), ours.to_str().unwrap()]);
     }
-    // A scene whose goals are not positions, and observations that are no cube scene's.
+    // A puzzle without its button states, and observations that are no cube scene's.
     let bad = dir.path().join("puzzle-3x3-play-v0.npz");
     std::fs::copy(fixture("cube/cube-single-play-v0.npz"), &bad).unwrap();
     let o = etl().arg("convert").arg(&bad).arg("-o").arg(dir.path().join("p.parquet")).output().unwrap();
-    assert!(!o.status.success() && text(&o.stderr).contains("not positions"), "{}", text(&o.stderr));
+    let said = text(&o.stderr);
+    assert!(!o.status.success() && said.contains("puzzle-3x3-v0's goal is its button_states"), "{said}");
+    assert!(!dir.path().join("p.parquet").exists());
     let o = etl()
         .arg("convert")
         .arg(fixture("cube/cube-single-play-v0.npz"))
@@ -485,6 +487,55 @@ fn cube_goals_are_the_cubes_positions() {
         .output()
         .unwrap();
     assert!(!o.status.success() && text(&o.stderr).contains("a scene of 2 cubes has 37"), "{}", text(&o.stderr));
+}
+
+/// A puzzle dataset (tests/fixtures/ogbench/puzzle, from ogbench's own puzzle-3x3 scene by
+/// tests/py/make_ogbench_random_fixtures.py): the goal is the buttons' states, the file's int64
+/// `button_states` as floats, exactly OGBench's oracle representation (`oracle_reps`, kept in the
+/// fixture, and `add_oracle_reps`), reached when every button is in its target state; the file
+/// comes back whole; and a file whose goal cannot be read is refused, leaving nothing.
+#[test]
+fn puzzle_goals_are_the_button_states() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = fixture("puzzle/puzzle-3x3-play-v0.npz");
+    let table = dir.path().join("p.parquet");
+    let notes = convert_ok(&src, &table, &[]);
+    assert!(notes.contains("goal = button_states[0:9]") && notes.contains("for every value"), "{notes}");
+    let footer = pgser::table::read_footer(&table).unwrap();
+    assert_eq!(
+        (footer["task"].as_str(), footer["goal_dim"].as_u64(), footer["goal_metric"].as_str()),
+        (Some("puzzle-3x3-v0"), Some(9), Some("each_value"))
+    );
+    assert_eq!(footer["success_threshold"].as_f64(), Some(0.5));
+    let reps: Vec<f32> = pgser::ogbench::npz::with_member(&src, "oracle_reps", |r, _| {
+        let mut b = Vec::new();
+        r.read_to_end(&mut b)?;
+        Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
+    })
+    .unwrap();
+    let (t, _) = read_table(&table);
+    use arrow_array::cast::AsArray;
+    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
+    let got = ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec();
+    assert_eq!(got, reps, "the goal is not OGBench's oracle representation");
+    assert!(got.iter().any(|&x| x == 1.0) && got.iter().any(|&x| x == 0.0));
+    let (back, _) = through_a_table(&src, dir.path(), "puzzle");
+    same_file(&src, &back);
+
+    // The regular layout (load_dataset's) has no button states for each episode's last state,
+    // and a goal cannot be dropped.
+    let fails = |input: &Path, extra: &[&str], want: &str| {
+        let out = dir.path().join("bad.parquet");
+        let o = etl().arg("convert").arg(input).args(extra).arg("-o").arg(&out).output().unwrap();
+        let said = text(&o.stderr);
+        assert!(!o.status.success() && said.contains(want), "{said}");
+        assert!(!out.exists());
+    };
+    fails(&src, &["--drop", "button_states"], "--drop button_states: puzzle-3x3-v0's goal is its button_states");
+    let regular = dir.path().join("regular").join("puzzle-3x3-play-v0.npz");
+    std::fs::create_dir_all(regular.parent().unwrap()).unwrap();
+    py_ok("check_ogbench.py", &["regular", src.to_str().unwrap(), regular.to_str().unwrap()]);
+    fails(&regular, &[], "the regular layout (load_dataset's) holds for transitions only");
 }
 
 /// `pgser-train eval` of several checkpoints: one JSON line each, naming it, with OGBench's five

@@ -11,11 +11,18 @@
 //!   cube is within 0.04 m of its target (`_compute_successes`), i.e. 0.4 in the observation's
 //!   scaled units: [`GoalMetric::EachObject`].
 //!
+//! - Puzzle (puzzle-3x3 … puzzle-4x6): the goal is the buttons' states, the file's
+//!   `button_states` member (OGBench's oracle representation of a puzzle, `add_oracle_reps`), as
+//!   floats; it is reached when every button is in its target state (`_compute_successes`): 0/1
+//!   values within 0.5 of their targets, [`GoalMetric::EachValue`]. It is not part of the
+//!   observation, so the goal map names the member ([`GoalMap::member`]).
+//!
 //! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
 //! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
 //! `convert --full-goal` makes the whole observation the goal instead ([`GoalMap::full`]), with
 //! the user's threshold.
-//! Puzzle and scene goals (button states, drawers) are not positions and are not mapped.
+//! Scene goals (a cube, buttons, a drawer and a window, each within its own tolerance) are not
+//! mapped yet.
 
 use std::ops::Range;
 
@@ -29,10 +36,13 @@ const CUBE_VALUES: usize = 9;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct GoalMap {
-    /// The observation's goal values, in order.
+    /// The observation's goal values, in order; with `member`, that member's row.
     pub ranges: Vec<Range<usize>>,
     pub threshold: f64,
     pub metric: GoalMetric,
+    /// The file's member the goal is, where it is not part of the observation (a puzzle's
+    /// `button_states`); None: the goal is observation values.
+    pub member: Option<String>,
 }
 
 impl GoalMap {
@@ -42,7 +52,15 @@ impl GoalMap {
         // One range: the goal is the whole observation (a Vec of ranges, not a range of values).
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..obs_dim];
-        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean }
+        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean, member: None }
+    }
+
+    /// A member's whole row of `width` values as the goal (a puzzle's `button_states`).
+    pub fn member(key: &str, width: usize, threshold: f64, metric: GoalMetric) -> GoalMap {
+        // One range: the member's whole row.
+        #[allow(clippy::single_range_in_vec_init)]
+        let ranges = vec![0..width];
+        GoalMap { ranges, threshold, metric, member: Some(key.to_string()) }
     }
 
     pub fn goal_dim(&self) -> usize {
@@ -50,7 +68,7 @@ impl GoalMap {
     }
 
     /// φ of observation rows of `size`-byte values (one row of `obs_dim` values each): the goal
-    /// rows, appended to `out`.
+    /// rows, appended to `out` (not for a member's goal: [`member_rows`]).
     pub fn map_bytes(&self, rows: &[u8], obs_dim: usize, size: usize, out: &mut Vec<u8>) {
         for row in rows.chunks_exact(obs_dim * size) {
             for r in &self.ranges {
@@ -66,7 +84,13 @@ impl GoalMap {
 }
 
 /// The families pgser maps, for error messages.
-pub const FAMILIES: [&str; 4] = ["pointmaze", "antmaze", "humanoidmaze", "cube"];
+pub const FAMILIES: [&str; 5] = ["pointmaze", "antmaze", "humanoidmaze", "cube", "puzzle"];
+
+/// The member an environment's goal is, where it is not observation values, with its success
+/// test: a puzzle's `button_states`, every button within 0.5 of its target state (0 or 1).
+pub fn member_goal(env: &str) -> Option<(&'static str, f64, GoalMetric)> {
+    (env.split('-').next() == Some("puzzle")).then_some(("button_states", 0.5, GoalMetric::EachValue))
+}
 
 /// The goal map of an OGBench environment (`antmaze-large-v0`, `cube-double-v0`) whose
 /// observations have `obs_dim` values.
@@ -78,7 +102,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
         }
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..2];
-        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean })
+        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean, member: None })
     };
     match family {
         "pointmaze" => maze(1.0),
@@ -107,19 +131,72 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
             }
             let ranges =
                 (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
-            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject })
+            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: None })
+        }
+        "puzzle" => {
+            bail!("{env}: a puzzle's goal is its button states (the dataset's button_states), not observation values")
         }
         _ => bail!(
-            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual, puzzle and scene goals are not \
-             positions)",
+            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual observations are images; scene \
+             goals, each object within its own tolerance, are not mapped yet)",
             FAMILIES.join(", ")
         ),
+    }
+}
+
+/// A member's rows of values of `dtype` (as the file stores them) as goal rows of `size`-byte
+/// little-endian floats, appended to `out`: a puzzle's int64 button states as float32 or float64,
+/// exactly (0 and 1, as `astype(np.float32)` gives them).
+pub fn member_rows(bytes: &[u8], dtype: crate::dtype::Dtype, size: usize, out: &mut Vec<u8>) {
+    use crate::dtype::Kind;
+    for v in bytes.chunks_exact(dtype.size) {
+        let mut le = [0u8; 8];
+        le[..dtype.size].copy_from_slice(v);
+        if dtype.big_endian {
+            le[..dtype.size].reverse();
+        }
+        let x = match (dtype.kind, dtype.size) {
+            (Kind::Bool, _) => f64::from(le[0] != 0),
+            (Kind::Int, n) => {
+                // Sign-extend the n-byte value.
+                let shift = 64 - 8 * n as u32;
+                ((i64::from_le_bytes(le) << shift) >> shift) as f64
+            }
+            (Kind::UInt, _) => u64::from_le_bytes(le) as f64,
+            (Kind::Float, 4) => f64::from(f32::from_le_bytes(le[..4].try_into().expect("4 bytes"))),
+            (Kind::Float, 8) => f64::from_le_bytes(le),
+            // Half floats are refused where a goal member is chosen.
+            (Kind::Float, _) => f64::NAN,
+        };
+        if size == 4 {
+            out.extend_from_slice(&(x as f32).to_le_bytes());
+        } else {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn member_rows_are_the_values_as_floats() {
+        use crate::dtype::Dtype;
+        let ints: Vec<u8> = [0i64, 1, -3].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut out = Vec::new();
+        member_rows(&ints, Dtype::I64, 4, &mut out);
+        let back: Vec<f32> = out.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        assert_eq!(back, [0.0, 1.0, -3.0]);
+        let big: Vec<u8> = [-2i16, 7].iter().flat_map(|v| v.to_be_bytes()).collect();
+        out.clear();
+        member_rows(&big, Dtype::I16.with_big_endian(true), 8, &mut out);
+        let back: Vec<f64> = out.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect();
+        assert_eq!(back, [-2.0, 7.0]);
+        out.clear();
+        member_rows(&[1, 0], Dtype::BOOL, 4, &mut out);
+        assert_eq!(out, [1.0f32.to_le_bytes(), 0.0f32.to_le_bytes()].concat());
+    }
 
     #[test]
     fn maps_of_the_families() {
@@ -131,7 +208,10 @@ mod tests {
         assert_eq!(c.map(&obs), [19.0, 20.0, 21.0, 28.0, 29.0, 30.0]);
         assert!(goal_map("cube-double-v0", 36).unwrap_err().to_string().contains("19 + 9 per cube"));
         assert!(goal_map("cube-double-v0", 28).unwrap_err().to_string().contains("a scene of 2 cubes has 37"));
-        assert!(goal_map("puzzle-3x3-v0", 10).unwrap_err().to_string().contains("not positions"));
+        assert!(goal_map("puzzle-3x3-v0", 10).unwrap_err().to_string().contains("its button states"));
+        assert!(goal_map("scene-v0", 40).unwrap_err().to_string().contains("not mapped yet"));
+        assert_eq!(member_goal("puzzle-4x5-v0"), Some(("button_states", 0.5, GoalMetric::EachValue)));
+        assert_eq!(member_goal("cube-double-v0"), None);
         assert!(goal_map("visual-cube-single-v0", 28).is_err());
     }
 }

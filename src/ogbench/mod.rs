@@ -152,15 +152,38 @@ impl Dataset {
                 );
             }
         }
-        let goal = if full_goal {
-            GoalMap::full(observations.row_len())
-        } else {
-            goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?
-        };
         let layout = match (get("next_observations"), get("valids")) {
             (Some(_), _) => Layout::Regular,
             (None, Some(_)) => Layout::Compact,
             (None, None) => Layout::Dataset,
+        };
+        let goal = match goal::member_goal(&env) {
+            _ if full_goal => GoalMap::full(observations.row_len()),
+            Some((key, threshold, metric)) => {
+                let m = get(key).with_context(|| {
+                    format!("{at}: {env}'s goal is its {key} (OGBench's oracle representation), and the file has none")
+                })?;
+                if layout == Layout::Regular {
+                    bail!(
+                        "{at}: {env}'s goal is its {key}, which the regular layout (load_dataset's) holds for \
+                         transitions only, not for each episode's last state: convert the dataset file itself"
+                    );
+                }
+                if drop.iter().any(|k| k == key) {
+                    bail!("--drop {key}: {env}'s goal is its {key}; it cannot be left out");
+                }
+                if m.shape.len() != 2 || m.rows() != observations.rows() || m.dtype == Dtype::F16 {
+                    bail!(
+                        "{at}: {key}: {} values of shape {:?}; {env}'s goal is one row of integers, bools or floats per \
+                         row of observations ({})",
+                        m.dtype.name(),
+                        m.shape,
+                        observations.rows()
+                    );
+                }
+                GoalMap::member(key, m.row_len(), threshold, metric)
+            }
+            None => goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?,
         };
         let n = observations.rows();
         for m in members.iter().filter(|m| m.key != "observations") {
@@ -468,14 +491,19 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         },
     }];
     let bytes = writer.finish(&footer)?;
+    let ranges = d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + ");
     let mut notes = vec![format!(
-        "{at}: OGBench's {} (environment {}): goal = observations{}, success within {}{}; each transition's desired \
+        "{at}: OGBench's {} (environment {}): goal = {}{ranges}, success within {}{}; each transition's desired \
          goal is its episode's last (the data have no goals)",
         d.name,
         d.env,
-        d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + "),
+        d.goal.member.as_deref().unwrap_or("observations"),
         task.threshold,
-        if d.goal.metric == crate::task::GoalMetric::EachObject { " for every cube" } else { "" }
+        match d.goal.metric {
+            crate::task::GoalMetric::EachObject => " for every cube",
+            crate::task::GoalMetric::EachValue => " for every value",
+            _ => "",
+        }
     )];
     if let Some(why) = next_kept {
         notes.push(format!(

@@ -24,6 +24,8 @@ pub(super) struct Window {
     raw_next: Vec<u8>,
     /// Each passthrough member's spec and bytes per file row, and the window's rows of it.
     extras: Vec<(Passthrough, usize, Vec<u8>)>,
+    /// The passthrough member that is the goal (a puzzle's `button_states`), by its index.
+    goal_member: Option<usize>,
 }
 
 impl Window {
@@ -39,6 +41,7 @@ impl Window {
             raw_act: Vec::new(),
             raw_next: Vec::new(),
             extras: d.extras.iter().map(|(m, p)| (p.clone(), m.row_len() * m.dtype.size, Vec::new())).collect(),
+            goal_member: d.goal.member.as_ref().and_then(|k| d.extras.iter().position(|(m, _)| &m.key == k)),
         }
     }
 
@@ -78,7 +81,15 @@ impl Window {
                 self.arrays[0].extend_from_slice(&n[(file_rows - 1) * orow..]);
             }
             let mut ag = Vec::with_capacity(t * grow);
-            self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag);
+            match self.goal_member {
+                // A member's rows (one per observation: the regular layout is refused for it).
+                Some(i) => {
+                    let (p, row_bytes, buf) = &self.extras[i];
+                    let rows = &buf[e * file_rows * row_bytes..(e + 1) * file_rows * row_bytes];
+                    super::goal::member_rows(rows, p.dtype, os, &mut ag);
+                }
+                None => self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag),
+            }
             let last = ag[(t - 1) * grow..].to_vec();
             self.arrays[1].extend_from_slice(&ag);
             // Every row's action: T of them where rows are observations (the last one kept on the

@@ -477,16 +477,16 @@ fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
 /// The families whose table goals are OGBench's oracle representations (`add_oracle_reps`):
 /// a maze's x, y (`qpos[:2]`, which its observations start with), and each cube's position
 /// centred on (0.425, 0, 0) and scaled by 10 (the goal map's cube values, OGBench's
-/// `compute_oracle_observation`, which tests/ogbench.rs checks row for row). Puzzle and scene
-/// tables are not converted yet, and a table converted with `--full-goal` has whole
-/// observations as goals.
+/// `compute_oracle_observation`, which tests/ogbench.rs checks row for row), and a puzzle's
+/// button states (its `button_states`, as floats). Scene tables are not converted yet, and a
+/// table converted with `--full-goal` has whole observations as goals.
 fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
     let family = task.name.split('-').next().unwrap_or_default();
     let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
-    if !["pointmaze", "antmaze", "humanoidmaze", "cube"].contains(&family) || full {
+    if !["pointmaze", "antmaze", "humanoidmaze", "cube", "puzzle"].contains(&family) || full {
         bail!(
             "oracle_reps = True: {}'s table goals are not OGBench's oracle representations ({}); pgser has them for \
-             tables of pointmaze, antmaze, humanoidmaze and cube datasets converted without --full-goal",
+             tables of pointmaze, antmaze, humanoidmaze, cube and puzzle datasets converted without --full-goal",
             task.name,
             if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" }
         );

@@ -24,6 +24,10 @@
         (`actions=float64`) or row ROW of KEY shifted by DELTA (`next_observations[5]+=0.25`):
         the files of the tests that what a user's file holds comes back whole.
 
+    check_ogbench.py regular SRC.npz OUT.npz
+        Writes what `ogbench.load_dataset(SRC, add_info=True)` returns (its regular layout, with
+        qpos, qvel and button_states per transition) to OUT.
+
 Prints one JSON line of what was compared; exits non-zero with the first difference.
 """
 
@@ -115,8 +119,16 @@ def edit(src, out, changes):
     print(json.dumps({k: [v.dtype.str, list(v.shape)] for k, v in arrays.items()}))
 
 
+def regular(src, out):
+    d = ogbench.load_dataset(src, add_info=True)
+    np.savez_compressed(out, **d)
+    print(json.dumps({k: [v.dtype.str, list(v.shape)] for k, v in d.items()}))
+
+
 def main():
     mode = sys.argv[1]
+    if mode == "regular":
+        return regular(*sys.argv[2:4])
     if mode == "collected":
         return collected(*sys.argv[2:4])
     if mode == "whole":

@@ -2,7 +2,7 @@
 """Small OGBench dataset files of the environments pgser does not simulate, in OGBench's on-disk
 format, from ogbench's own environments with uniform random actions.
 
-    /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench
+    /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench [FOLDER ...]
 
 Writes, each with its -val.npz (1 episode):
 - cube/cube-single-play-v0.npz, cube/cube-double-play-v0.npz: 2 episodes of 21 rows, in
@@ -14,6 +14,9 @@ Writes, each with its -val.npz (1 episode):
   oraclerep datasets hold): tests/ogbench.rs checks pgser's goal against it;
 - antmaze/antmaze-medium-navigate-v0.npz: 4 episodes of 51 rows in antmaze-medium-v0, the keys of
   `generate_locomaze.py` plus `oracle_reps` (the ant's x, y);
+- puzzle/puzzle-3x3-play-v0.npz: 2 episodes of 21 rows in puzzle-3x3-v0, with `button_states`
+  (int64, as `generate_manipspace.py` stores them) and `oracle_reps`, its
+  `compute_oracle_observation()` (the buttons' states);
 for examples/ogbench_eval.py's test in OGBench's own environments (tests/python/test_ogbench.py).
 Seeded (numpy seed 0, env seed 0): a second run writes the same arrays.
 """
@@ -32,7 +35,9 @@ warnings.filterwarnings("ignore")
 
 def rollout(env, episodes, rows):
     u = env.unwrapped
-    data = {k: [] for k in ["observations", "actions", "terminals", "qpos", "qvel", "oracle_reps"]}
+    buttons = hasattr(u, "_cur_button_states")
+    keys = ["observations", "actions", "terminals", "qpos", "qvel", "oracle_reps"] + (["button_states"] if buttons else [])
+    data = {k: [] for k in keys}
     for ep in range(episodes):
         ob, _ = env.reset()
         for t in range(rows):
@@ -46,16 +51,23 @@ def rollout(env, episodes, rows):
             data["qpos"].append(info["prev_qpos"])
             data["qvel"].append(info["prev_qvel"])
             data["oracle_reps"].append(rep)
+            if buttons:
+                data["button_states"].append(info["prev_button_states"])
             ob = next_ob
-    return {k: np.array(v, dtype=bool if k == "terminals" else np.float32) for k, v in data.items()}
+    dtypes = {"terminals": bool, "button_states": np.int64}
+    return {k: np.array(v, dtype=dtypes.get(k, np.float32)) for k, v in data.items()}
 
 
 def main():
     out = sys.argv[1]
     sets = [("cube", "cube-single-v0", "cube-single-play-v0", 2, 21),
             ("cube", "cube-double-v0", "cube-double-play-v0", 2, 21),
-            ("antmaze", "antmaze-medium-v0", "antmaze-medium-navigate-v0", 4, 51)]
+            ("antmaze", "antmaze-medium-v0", "antmaze-medium-navigate-v0", 4, 51),
+            ("puzzle", "puzzle-3x3-v0", "puzzle-3x3-play-v0", 2, 21)]
+    only = sys.argv[2:]
     for folder, env_id, name, episodes, rows in sets:
+        if only and folder not in only:
+            continue
         os.makedirs(os.path.join(out, folder), exist_ok=True)
         np.random.seed(0)
         env = gymnasium.make(env_id, terminate_at_goal=False, max_episode_steps=rows)
