@@ -80,20 +80,25 @@ class GCDataset:
     def observations(self, idxs):
         return self.d["observations"][idxs]
 
+    def traj_goals(self, idxs, final_state_idxs, geom_sample, discount):
+        """A later state of each row's trajectory, as both classes draw one (their code writes it
+        out in `sample_goals` and again in OGBench's `HGCDataset.sample`)."""
+        n = len(idxs)
+        if geom_sample:
+            offsets = self.rng.geometric(p=1 - discount, size=n)
+            return np.minimum(idxs + offsets, final_state_idxs)
+        distances = self.rng.random(n)
+        return np.round(
+            np.minimum(idxs + 1, final_state_idxs) * distances + final_state_idxs * (1 - distances)
+        ).astype(int)
+
     def sample_goals(self, idxs, p_curgoal, p_trajgoal, geom_sample, discount=None):
         n = len(idxs)
         if discount is None:
             discount = self.config["discount"]
         random_goal_idxs = self.random_idxs(n)
         final_state_idxs = self.terminal_locs[np.searchsorted(self.terminal_locs, idxs)]
-        if geom_sample:
-            offsets = self.rng.geometric(p=1 - discount, size=n)
-            traj_goal_idxs = np.minimum(idxs + offsets, final_state_idxs)
-        else:
-            distances = self.rng.random(n)
-            traj_goal_idxs = np.round(
-                np.minimum(idxs + 1, final_state_idxs) * distances + final_state_idxs * (1 - distances)
-            ).astype(int)
+        traj_goal_idxs = self.traj_goals(idxs, final_state_idxs, geom_sample, discount)
         if p_curgoal == 1.0:
             return idxs
         goal_idxs = np.where(self.rng.random(n) < p_trajgoal / (1.0 - p_curgoal), traj_goal_idxs, random_goal_idxs)
@@ -121,14 +126,7 @@ class OgbenchHGCDataset(GCDataset):
         final_state_idxs = self.terminal_locs[np.searchsorted(self.terminal_locs, idxs)]
         low_goal_idxs = np.minimum(idxs + c["subgoal_steps"], final_state_idxs)
         batch["low_actor_goals"] = self.observations(low_goal_idxs)
-        if c["actor_geom_sample"]:
-            offsets = self.rng.geometric(p=1 - c["discount"], size=n)
-            high_traj_goal_idxs = np.minimum(idxs + offsets, final_state_idxs)
-        else:
-            distances = self.rng.random(n)
-            high_traj_goal_idxs = np.round(
-                np.minimum(idxs + 1, final_state_idxs) * distances + final_state_idxs * (1 - distances)
-            ).astype(int)
+        high_traj_goal_idxs = self.traj_goals(idxs, final_state_idxs, c["actor_geom_sample"], c["discount"])
         high_traj_target_idxs = np.minimum(idxs + c["subgoal_steps"], high_traj_goal_idxs)
         high_random_goal_idxs = self.random_idxs(n)
         high_random_target_idxs = np.minimum(idxs + c["subgoal_steps"], final_state_idxs)

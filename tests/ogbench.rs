@@ -427,6 +427,24 @@ fn oracle_table_is_the_converted_npz() {
     fails("pointmaze-medium-stitch-v0", &out, &["--seed", "4294967295"], "below 2^32");
 }
 
+/// A fixture's `oracle_reps` member (float32, what ogbench's own environment computed).
+fn oracle_reps(src: &Path) -> Vec<f32> {
+    pgser::ogbench::npz::with_member(src, "oracle_reps", |r, _| {
+        let mut b = Vec::new();
+        r.read_to_end(&mut b)?;
+        Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
+    })
+    .unwrap()
+}
+
+/// A float32 table's achieved goals, every row's in order.
+fn achieved_goals(table: &Path) -> Vec<f32> {
+    use arrow_array::cast::AsArray;
+    let (t, _) = read_table(table);
+    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
+    ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec()
+}
+
 /// Cube datasets (tests/fixtures/ogbench/cube, from ogbench's own cube scenes by
 /// tests/py/make_ogbench_random_fixtures.py): the goal is each cube's position, exactly what
 /// OGBench's oracle representation holds row for row (`oracle_reps`, kept in the fixture), reached
@@ -447,17 +465,11 @@ fn cube_goals_are_the_cubes_positions() {
             (Some(format!("cube-{scene}-v0").as_str()), Some(3 * cubes as u64), Some("each_object"))
         );
         assert_eq!((footer["success_threshold"].as_f64(), footer["T"].as_u64()), (Some(0.4), Some(21)));
-        let reps: Vec<f32> = pgser::ogbench::npz::with_member(&src, "oracle_reps", |r, _| {
-            let mut b = Vec::new();
-            r.read_to_end(&mut b)?;
-            Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
-        })
-        .unwrap();
-        let (t, _) = read_table(&table);
-        use arrow_array::cast::AsArray;
-        let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
-        let got = ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec();
-        assert_eq!(got, reps, "{name}: the goal is not OGBench's oracle representation");
+        assert_eq!(
+            achieved_goals(&table),
+            oracle_reps(&src),
+            "{name}: the goal is not OGBench's oracle representation"
+        );
 
         let out = dir.path().join(format!("ours-{scene}"));
         std::fs::create_dir(&out).unwrap();
@@ -507,17 +519,8 @@ fn puzzle_goals_are_the_button_states() {
         (Some("puzzle-3x3-v0"), Some(9), Some("each_value"))
     );
     assert_eq!(footer["success_threshold"].as_f64(), Some(0.5));
-    let reps: Vec<f32> = pgser::ogbench::npz::with_member(&src, "oracle_reps", |r, _| {
-        let mut b = Vec::new();
-        r.read_to_end(&mut b)?;
-        Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
-    })
-    .unwrap();
-    let (t, _) = read_table(&table);
-    use arrow_array::cast::AsArray;
-    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
-    let got = ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec();
-    assert_eq!(got, reps, "the goal is not OGBench's oracle representation");
+    let got = achieved_goals(&table);
+    assert_eq!(got, oracle_reps(&src), "the goal is not OGBench's oracle representation");
     assert!(got.iter().any(|&x| x == 1.0) && got.iter().any(|&x| x == 0.0));
     let (back, _) = through_a_table(&src, dir.path(), "puzzle");
     same_file(&src, &back);

@@ -26,6 +26,34 @@ REPO = Path(__file__).resolve().parents[2]
 BIN = Path(os.environ["PGSER_BIN"]) if os.environ.get("PGSER_BIN") else REPO / "target" / "release"
 
 
+def bench_module(name):
+    """A script of bench/ as a module (the peers the samplers are tested against)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO / "bench" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="session")
+def ogbench_folder(tmp_path_factory):
+    """(table folder, shard folder, the fixture's arrays): the committed PointMaze file OGBench's
+    generator wrote, 4 episodes of T = 101, cut into one shard per episode and converted."""
+    import sys
+
+    import numpy as np
+
+    fixture = REPO / "tests/fixtures/ogbench/pointmaze-medium-navigate-v0.npz"
+    d = tmp_path_factory.mktemp("ogbench_folder")
+    src, table = d / "src", d / "table"
+    run(sys.executable, REPO / "tests/py/make_ogbench_shards.py", fixture, src, 1)
+    run(BIN / "pgser-etl", "convert", src, "-o", table)
+    with np.load(fixture) as f:
+        arrays = {k: f[k] for k in f.files}
+    return table, src, arrays
+
+
 def run(*args):
     """Run a pgser binary; fail the test with its stderr when it fails."""
     p = subprocess.run([str(a) for a in args], capture_output=True, text=True)

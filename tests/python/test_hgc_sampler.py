@@ -7,7 +7,6 @@ agree in keys and dtypes, every row's keys are the table's vectors at the steps 
 columns name (exact, given the draws), and the distributions of subgoal steps, targets and
 successes agree within statistical bounds."""
 
-import importlib.util
 import math
 import sys
 
@@ -15,10 +14,9 @@ import numpy as np
 import pytest
 
 import pgser
-from conftest import BIN, REPO, run
+from conftest import BIN, REPO, bench_module, run
 
 NAME = "pointmaze-medium-navigate-v0"
-FIXTURE = REPO / "tests/fixtures/ogbench" / f"{NAME}.npz"
 T = 101
 # OGBench's HIQL sampling settings (impls/agents/hiql.py), and Horizon Reduction's SHARSA's
 # (agents/sharsa.py) with double SHARSA's low_discount placeholder: the key, at None.
@@ -33,22 +31,12 @@ SHARSA = dict(agent_name="dsharsa", lr=3e-4, batch_size=1024, discount=0.999, lo
 
 
 def load_peer():
-    spec = importlib.util.spec_from_file_location("hgc_peer", REPO / "bench/hgc_peer.py")
-    peer = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(peer)
-    return peer
+    return bench_module("hgc_peer")
 
 
 @pytest.fixture(scope="module")
-def folder(tmp_path_factory):
-    """(table folder, shard folder, the fixture's arrays): 4 episodes of T = 101, one per shard."""
-    d = tmp_path_factory.mktemp("hgc_sampler")
-    src, table = d / "src", d / "table"
-    run(sys.executable, REPO / "tests/py/make_ogbench_shards.py", FIXTURE, src, 1)
-    run(BIN / "pgser-etl", "convert", src, "-o", table)
-    with np.load(FIXTURE) as f:
-        arrays = {k: f[k] for k in f.files}
-    return table, src, arrays
+def folder(ogbench_folder):
+    return ogbench_folder
 
 
 def many(sampler, batches, n=1024):

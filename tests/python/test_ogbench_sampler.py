@@ -8,14 +8,12 @@ transition and its goals the table's observations), and in distribution: success
 trajectory-goal offsets, the spread of transitions and random goals over episodes and steps."""
 
 import argparse
-import importlib.util
-import sys
 
 import numpy as np
 import pytest
 
 import pgser
-from conftest import BIN, REPO, run
+from conftest import BIN, REPO, bench_module, run
 
 NAME = "pointmaze-medium-navigate-v0"
 FIXTURE = REPO / "tests/fixtures/ogbench" / f"{NAME}.npz"
@@ -39,22 +37,12 @@ DEFAULTS = dict(discount=0.99, value_p_curgoal=0.2, value_p_trajgoal=0.5, actor_
 
 
 def load_peer():
-    spec = importlib.util.spec_from_file_location("ogbench_peer", REPO / "bench/ogbench_peer.py")
-    peer = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(peer)
-    return peer
+    return bench_module("ogbench_peer")
 
 
 @pytest.fixture(scope="module")
-def folder(tmp_path_factory):
-    """(table folder, shard folder, the fixture's arrays): 4 episodes of T = 101, one per shard."""
-    d = tmp_path_factory.mktemp("ogbench_sampler")
-    src, table = d / "src", d / "table"
-    run(sys.executable, REPO / "tests/py/make_ogbench_shards.py", FIXTURE, src, 1)
-    run(BIN / "pgser-etl", "convert", src, "-o", table)
-    with np.load(FIXTURE) as f:
-        arrays = {k: f[k] for k in f.files}
-    return table, src, arrays
+def folder(ogbench_folder):
+    return ogbench_folder
 
 
 @pytest.fixture(scope="module")
