@@ -156,7 +156,10 @@ impl Sampler {
     /// Both: `batch_size` (default `config["batch_size"]`, else 512), `memory_budget` (None: the
     /// whole table in memory; bytes, or a size such as "2GB": an out-of-core pool when the table
     /// is larger), `draws_per_row` (with a budget: draws per transition a streamed row group
-    /// stays for; 1, or 2 to read half as much), `num_batches` (how many batches iteration yields; None: endless), `prefetch`.
+    /// stays for; 1, or 2 to read half as much), `shard_window` (instead of a budget: one shard
+    /// of a folder held at a time, the next every N batches of `batch_size`, every goal from the
+    /// held shard: Horizon Reduction's loading, to compare with), `num_batches` (how many
+    /// batches iteration yields; None: endless), `prefetch`.
     #[new]
     #[pyo3(signature = (path, *, layout="pgser", batch_size=None, her=None, swap=None, swap_ratio=None,
         aug_ratio=None, priority=None, alpha=None, eps=None, is_beta=None, seed=0, in_memory=false,
@@ -164,7 +167,7 @@ impl Sampler {
         value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
         actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None,
         p_swapgoal=None, swap_actor_goals=None, draws_per_row=None, oracle_reps=None, clip_actions=None,
-        env_name=None, provenance=true))]
+        env_name=None, provenance=true, shard_window=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -202,9 +205,10 @@ impl Sampler {
         clip_actions: Option<f64>,
         env_name: Option<&str>,
         provenance: bool,
+        shard_window: Option<u64>,
     ) -> PyResult<Sampler> {
         existing(&path)?;
-        let budget = parse_budget(memory_budget, draws_per_row)?;
+        let mut budget = parse_budget(memory_budget, draws_per_row)?;
         let kw = [
             ("discount", discount),
             ("value_p_curgoal", value_p_curgoal),
@@ -247,6 +251,19 @@ impl Sampler {
             Some(b) => b,
             None => config_batch_size(config)?.unwrap_or(512),
         };
+        // `shard_window=N`: Horizon Reduction's loading, one shard held and the next taken every
+        // N batches of `batch_size` (their `dataset_replace_interval`), every goal from it.
+        if let Some(n) = shard_window {
+            if budget != Budget::Unbounded {
+                return Err(PyValueError::new_err(
+                    "shard_window= and memory_budget= (or draws_per_row=) are two ways of holding a folder; give one",
+                ));
+            }
+            if n == 0 {
+                return Err(PyValueError::new_err("shard_window=0: at least one batch a shard"));
+            }
+            budget = Budget::ShardWindow(n.saturating_mul(batch_size as u64));
+        }
         match layout {
             "pgser" => {
                 let og = kw.iter().filter(|k| k.1.is_some()).map(|k| k.0);

@@ -379,3 +379,25 @@ def test_read_table_takes_a_folder_as_one_table(folder, tmp_path):
     assert footer["episodes"] == pgser.read_footer(single)["episodes"] == 4
     obs = pgser.read_table(table, columns=["episode", "obs"])
     assert obs.column_names == ["episode", "obs"]
+
+
+@pytest.mark.parametrize("layout,config", [("ogbench", None),
+                                           ("horizon_reduction", dict(dataset_class="HGCDataset", subgoal_steps=10))])
+def test_a_shard_window_holds_one_shard_at_a_time_and_every_goal_from_it(folder, layout, config):
+    """Horizon Reduction's loading, to compare with: `shard_window=2` holds one shard at a time,
+    the next in folder order every two batches of `batch_size` (the first shard one batch fewer,
+    as pgser-train's --shard-window), and draws every goal, random ones too, from the held shard
+    (one episode a shard here)."""
+    table, _, _ = folder
+    with pgser.Sampler(table, layout=layout, config=config, batch_size=64, shard_window=2, seed=3,
+                       value_p_curgoal=0.0, value_p_trajgoal=0.0, value_p_randomgoal=1.0) as s:
+        batches = [s.sample() for _ in range(10)]
+    goal = "value_goal" if layout == "ogbench" else "high_value_goal"
+    for k, b in enumerate(batches):
+        held = ((k + 1) // 2) % 4
+        assert set(np.unique(b["episode"])) == {held}, k
+        assert set(np.unique(b[f"{goal}_episode"])) == {held}, k
+    with pytest.raises(ValueError, match="two ways of holding a folder"):
+        pgser.Sampler(table, layout=layout, shard_window=2, memory_budget="1GB")
+    with pytest.raises(ValueError, match="shard_window=0"):
+        pgser.Sampler(table, layout=layout, shard_window=0)
