@@ -108,7 +108,7 @@ def main() -> None:
                                      seconds=time.perf_counter() - t0,
                                      losses={k: float(v) for k, v in update_info.items() if np.ndim(v) == 0}))
             save_agent(agent, a.out, i)
-            log.update(arm=a.arm, goals=a.goals, seed=a.seed, env_name=a.env_name, steps=a.steps,
+            log.update(arm=a.arm, goals=a.goals, seed=a.seed, env_name=a.env_name, steps=a.steps, eval_episodes=a.eval_episodes,
                        batch_size=a.batch_size, hidden=[a.hidden, a.hidden], subgoal_steps=a.subgoal_steps,
                        memory_budget=a.memory_budget if a.arm == "whole" else None,
                        window=a.window if a.arm == "window" else None,
