@@ -171,7 +171,6 @@ pub(crate) fn run_units(
     threads: usize,
     hashes: Hashes,
 ) -> Result<HashMap<usize, Outcome>> {
-    crate::train::stop::install()?;
     let mut outcomes = HashMap::new();
     if jobs <= 1 {
         let mut hashes = hashes;

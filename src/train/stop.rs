@@ -1,7 +1,8 @@
 //! SIGTERM during training: save, then stop. Slurm ends a job at its time limit or on preemption
 //! with SIGTERM, then SIGKILL after a grace period (`KillWait`, 30 s by default); a training step
 //! killed outright loses every update since its last scheduled checkpoint, which may be hours.
-//! With the handler installed (`install`, by `pgser-etl pipeline`), SIGTERM only sets a flag;
+//! With the handler installed (`install`: a process-wide handler, so only the binaries call it, in
+//! their `main` for the commands that train), SIGTERM only sets a flag;
 //! the training loop checks it once per update — one relaxed atomic load, nothing when no signal
 //! comes — and at the next update boundary saves every cell's checkpoint, resume state and
 //! metrics exactly as a scheduled save would, then fails with [`Interrupted`]. The requeued or

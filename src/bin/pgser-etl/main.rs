@@ -26,7 +26,21 @@ fn print_report(r: &pipeline::RunReport, json: bool) -> anyhow::Result<()> {
 
 pub(crate) fn main() -> ExitCode {
     let args = Args::parse();
-    cli::main_with("pgser-etl", || match args.command {
+    cli::main_with("pgser-etl", || {
+        // The commands that train: SIGTERM saves at the next update boundary and stops
+        // (`pgser::train::stop`). A process-wide handler is the binary's choice, not the library's.
+        if matches!(
+            args.command,
+            Command::Pipeline(PipelineCommand::Run { .. } | PipelineCommand::Step { .. }) | Command::Demo { .. }
+        ) {
+            pgser::train::stop::install()?;
+        }
+        run(args.command)
+    })
+}
+
+fn run(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Convert(mut opts) => {
             opts.command = cli::command_line();
             let bar = progress::bar("convert", "rows");
@@ -334,7 +348,7 @@ pub(crate) fn main() -> ExitCode {
             }
             Ok(())
         }
-    })
+    }
 }
 
 /// Prints a table the command wrote (its markdown) to stdout.
