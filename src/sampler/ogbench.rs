@@ -2,9 +2,9 @@
 //! Reduction's JAX agents train on, drawn by the rules of their dataset classes, so that such an
 //! agent switches to pgser by replacing its dataset object with `pgser.Sampler(path,
 //! layout=..., config=config)`. Whose classes a stream follows is the user's choice ([`Code`]):
-//! OGBench's (`impls/utils/datasets.py`: GCIQL, GCIVL, CRL, QRL, GCBC, HIQL) or Horizon
-//! Reduction's (`utils/datasets.py`: its flow BC, IQL, CRL, SAC+BC, FQL, and the hierarchical
-//! SHARSA, double SHARSA, n-step SAC+BC, hierarchical flow BC, HIQL); `dataset_class` picks
+//! OGBench's (`impls/utils/datasets.py`, which its GCIQL, CRL and HIQL were run on, by
+//! `bench/peer_agents.py`) or Horizon Reduction's (`utils/datasets.py`: its SHARSA, double SHARSA,
+//! n-step SAC+BC, hierarchical flow BC, HIQL, CRL and SAC+BC were run); `dataset_class` picks
 //! `GCDataset` (this file) or `HGCDataset` (`hierarchical.rs`) within it.
 //!
 //! The two codes' `GCDataset`s draw alike; Horizon Reduction's takes goals from `oracle_reps`
