@@ -24,6 +24,32 @@ pub enum GoalMetric {
     /// The largest of the values' absolute differences: reached when every value is within the
     /// threshold of its own (OGBench's puzzles: each button's state, 0 or 1, within 0.5).
     EachValue,
+    /// OGBench's scene: the goal is each cube's position (x, y, z, in the observation's ×10
+    /// units), then the buttons' states (0 or 1), then the drawer's and the window's positions
+    /// (×18 and ×15), each part reached within its own tolerance ([`SCENE_TOLERANCES`]: 0.04 m
+    /// for a cube, the drawer and the window, a button its state). The distance is the largest
+    /// part's distance divided by its tolerance, so the threshold is 1 and a user's `--threshold`
+    /// scales every tolerance at once. At a threshold of 1, `d / tol ≤ 1` is `d ≤ tol` exactly:
+    /// for a positive tolerance that is no power of two, the next double above it divided by it
+    /// is above 1 + 2⁻⁵³ and rounds above 1, and rounding keeps `d ≤ tol ⇒ d / tol ≤ 1`.
+    Scene,
+}
+
+/// The tolerances of a [`GoalMetric::Scene`] goal's parts, in the units OGBench's scene
+/// observation gives them: a cube within 0.04 m (0.4 at ×10), a button within 0.5 of its 0/1
+/// target (its state), the drawer and the window within 0.04 m (0.72 at ×18, 0.6 at ×15), as
+/// OGBench's `SceneEnv._compute_successes`.
+pub const SCENE_TOLERANCES: SceneTolerances = SceneTolerances { cube: 0.4, button: 0.5, drawer: 0.72, window: 0.6 };
+
+/// The scene's buttons: OGBench's `SceneEnv._num_buttons`.
+pub const SCENE_BUTTONS: usize = 2;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneTolerances {
+    pub cube: f64,
+    pub button: f64,
+    pub drawer: f64,
+    pub window: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -145,6 +171,7 @@ impl Task {
                 })
                 .fold(0.0, f64::max),
             GoalMetric::EachValue => ag.iter().zip(g).map(|(&a, &b)| (a.into() - b.into()).abs()).fold(0.0, f64::max),
+            GoalMetric::Scene => scene_distance(ag, g),
         }
     }
 
@@ -160,12 +187,8 @@ impl Task {
     pub fn reward<F: Copy + Into<f64>>(&self, ag: &[F], g: &[F]) -> f32 {
         let d = self.distance(ag, g);
         match self.metric {
-            GoalMetric::Euclidean | GoalMetric::EachObject | GoalMetric::EachValue => {
-                if d > self.threshold {
-                    -1.0
-                } else {
-                    0.0
-                }
+            GoalMetric::Euclidean | GoalMetric::EachObject | GoalMetric::EachValue | GoalMetric::Scene => {
+                if d > self.threshold { -1.0 } else { 0.0 }
             }
             GoalMetric::QuatAngle => {
                 if d < self.threshold {
@@ -197,6 +220,30 @@ impl Task {
             *r = self.reward(ag, g);
         }
     }
+}
+
+/// [`GoalMetric::Scene`]'s distance: the goal is `3·cubes` cube values, [`SCENE_BUTTONS`]
+/// button states, the drawer's and the window's positions, so its width gives the cubes.
+fn scene_distance<F: Copy + Into<f64>>(ag: &[F], g: &[F]) -> f64 {
+    let tol = SCENE_TOLERANCES;
+    let cubes = (ag.len().min(g.len())).saturating_sub(SCENE_BUTTONS + 2) / 3;
+    let abs = |i: usize| (ag[i].into() - g[i].into()).abs();
+    let mut d = 0.0f64;
+    for c in 0..cubes {
+        let sq: f64 = (3 * c..3 * c + 3)
+            .map(|i| {
+                let x = ag[i].into() - g[i].into();
+                x * x
+            })
+            .sum();
+        d = d.max(sq.sqrt() / tol.cube);
+    }
+    let buttons = 3 * cubes;
+    for i in buttons..buttons + SCENE_BUTTONS {
+        d = d.max(abs(i) / tol.button);
+    }
+    let drawer = buttons + SCENE_BUTTONS;
+    d.max(abs(drawer) / tol.drawer).max(abs(drawer + 1) / tol.window)
 }
 
 #[cfg(test)]
@@ -235,6 +282,44 @@ mod tests {
         // One button off: distance 1, however many are right.
         assert_eq!(t.distance(&[1.0, 1.0, 1.0], &g), 1.0);
         assert!(!t.success(&[1.0, 1.0, 1.0], &g) && t.reward(&[1.0, 1.0, 1.0], &g) == -1.0);
+    }
+
+    /// Each part of a scene goal within its own tolerance, on the boundary to the bit: a part
+    /// exactly at its tolerance is reached, one ulp beyond is not, and one part off is enough.
+    #[test]
+    fn scene_parts_each_within_their_tolerance() {
+        let t = Task { metric: GoalMetric::Scene, ..Task::custom("scene-v0", 751, 40, 7, 5, 1.0) };
+        let g = [0.0f64; 7];
+        let up = |x: f64| f64::from_bits(x.to_bits() + 1);
+        let tol = SCENE_TOLERANCES;
+        // (index, tolerance): the cube along x, a button, the drawer, the window.
+        for (i, at) in [(0, tol.cube), (4, tol.button), (5, tol.drawer), (6, tol.window)] {
+            let mut a = g;
+            a[i] = at;
+            assert_eq!(t.reward(&a, &g), 0.0, "part {i} at its tolerance {at}");
+            a[i] = up(at);
+            assert_eq!(t.reward(&a, &g), -1.0, "part {i} one ulp beyond {at}");
+            a[i] = -at;
+            assert_eq!(t.reward(&a, &g), 0.0, "part {i} at minus its tolerance");
+        }
+        // The cube is measured in 3-D: 0.3 along two axes is 0.42, beyond 0.4; the drawer's 0.7
+        // is within its 0.72 though beyond the cube's 0.4.
+        assert_eq!(t.reward(&[0.3, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0], &g), -1.0);
+        assert_eq!(t.reward(&[0.3, 0.0, 0.0, 0.0, 0.0, 0.7, 0.5], &g), 0.0);
+        // A button in the other state is never reached, whatever else is.
+        assert_eq!(t.reward(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], &g), -1.0);
+        assert!((t.distance(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.36, 0.0], &g) - 0.5).abs() < 1e-15);
+        // Two cubes: the second cube's values come before the buttons.
+        let t2 = Task { goal_dim: 10, ..t.clone() };
+        let mut a = [0.0f64; 10];
+        a[5] = 0.41;
+        assert_eq!(t2.reward(&a, &[0.0; 10]), -1.0);
+        a[5] = 0.0;
+        a[6] = 1.0;
+        assert_eq!(t2.reward(&a, &[0.0; 10]), -1.0);
+        a[6] = 0.0;
+        a[8] = 0.7;
+        assert_eq!(t2.reward(&a, &[0.0; 10]), 0.0);
     }
 
     #[test]

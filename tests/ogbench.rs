@@ -541,6 +541,54 @@ fn puzzle_goals_are_the_button_states() {
     fails(&regular, &[], "the regular layout (load_dataset's) holds for transitions only");
 }
 
+/// A scene dataset (tests/fixtures/ogbench/scene, from ogbench's own scene by
+/// tests/py/make_ogbench_random_fixtures.py): the goal is OGBench's oracle representation row for
+/// row (the cube's position, both buttons' states, the drawer's and the window's positions; the
+/// fixture's `oracle_reps`, what `compute_oracle_observation` gave), read from the observation, so
+/// the regular layout (no button states for an episode's last state) gives the same goals; each
+/// part within its own tolerance; the file comes back whole.
+#[test]
+fn scene_goals_are_the_oracle_representation() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = fixture("scene/scene-play-v0.npz");
+    let table = dir.path().join("s.parquet");
+    let notes = convert_ok(&src, &table, &[]);
+    assert!(notes.contains("goal = observations[19:22] + [29:30] + [33:34] + [36:37] + [38:39]"), "{notes}");
+    assert!(notes.contains("for every part"), "{notes}");
+    let footer = pgser::table::read_footer(&table).unwrap();
+    assert_eq!(
+        (footer["task"].as_str(), footer["goal_dim"].as_u64(), footer["goal_metric"].as_str()),
+        (Some("scene-v0"), Some(7), Some("scene"))
+    );
+    assert_eq!(footer["success_threshold"].as_f64(), Some(1.0));
+    let got = achieved_goals(&table);
+    assert_eq!(got, oracle_reps(&src), "the goal is not OGBench's oracle representation");
+    // Both button states occur in the fixture, so the buttons' values are the states, not zeros.
+    assert!(got.chunks(7).any(|g| g[3] == 1.0) && got.chunks(7).any(|g| g[3] == 0.0));
+    let (back, _) = through_a_table(&src, dir.path(), "scene");
+    same_file(&src, &back);
+
+    let regular = dir.path().join("regular").join("scene-play-v0.npz");
+    std::fs::create_dir_all(regular.parent().unwrap()).unwrap();
+    py_ok("check_ogbench.py", &["regular", src.to_str().unwrap(), regular.to_str().unwrap()]);
+    let from_regular = dir.path().join("r.parquet");
+    convert_ok(&regular, &from_regular, &[]);
+    assert_eq!(achieved_goals(&from_regular), got, "the regular layout's goals differ");
+
+    // Observations of no scene's width are refused, naming the widths, and leave nothing.
+    let out = dir.path().join("bad.parquet");
+    let o = etl()
+        .arg("convert")
+        .arg(fixture("cube/cube-single-play-v0.npz"))
+        .args(["--task", "scene-v0", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let said = text(&o.stderr);
+    assert!(!o.status.success() && said.contains("(40 with one cube)"), "{said}");
+    assert!(!out.exists());
+}
+
 /// `pgser-train eval` of several checkpoints: one JSON line each, naming it, with OGBench's five
 /// tasks' success rates; each line what that checkpoint's evaluation alone gives.
 #[test]

@@ -72,12 +72,7 @@ fn task_of(task: Option<&str>, shard: &Path) -> Option<String> {
     if let Some(t) = task {
         return Some(t.to_string());
     }
-    let s = stem(shard);
-    let name = s.strip_suffix("-val").map(str::to_string).unwrap_or_else(|| match shard_index(&s) {
-        Some((name, _)) => name.to_string(),
-        None => s.clone(),
-    });
-    ogbench::env_name(&name)
+    ogbench::env_name(ogbench::dataset_of_stem(&stem(shard)))
 }
 
 /// `opts` for one shard into `out`.

@@ -17,12 +17,18 @@
 //!   values within 0.5 of their targets, [`GoalMetric::EachValue`]. It is not part of the
 //!   observation, so the goal map names the member ([`GoalMap::member`]).
 //!
+//! - Scene (scene-play …): 19 arm and gripper values, 9 per cube as in the cube scenes, then 4
+//!   per button (its state one-hot, its position, its velocity), then the drawer's position ×18
+//!   and velocity, the window's position ×15 and velocity (`SceneEnv.compute_observation`). The
+//!   goal is OGBench's oracle representation (`compute_oracle_observation`): the cubes'
+//!   positions, each button's state (the one-hot's second value: 1 when the state is 1), the
+//!   drawer's and the window's positions, read from the observation, so the regular layout keeps
+//!   its goals too; each part is reached within its own tolerance ([`GoalMetric::Scene`]).
+//!
 //! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
 //! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
 //! `convert --full-goal` makes the whole observation the goal instead ([`GoalMap::full`]), with
 //! the user's threshold.
-//! Scene goals (a cube, buttons, a drawer and a window, each within its own tolerance) are not
-//! mapped yet.
 
 use std::ops::Range;
 
@@ -33,6 +39,10 @@ use crate::task::GoalMetric;
 /// Values of the arm and gripper before the cubes in a cube observation, and values per cube.
 const CUBE_PROPRIO: usize = 19;
 const CUBE_VALUES: usize = 9;
+/// A scene observation's values per button (its state one-hot over 2 states, position,
+/// velocity) and after the buttons (drawer position and velocity, window position and velocity).
+const BUTTON_VALUES: usize = 4;
+const SCENE_TAIL: usize = 4;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct GoalMap {
@@ -84,7 +94,7 @@ impl GoalMap {
 }
 
 /// The families pgser maps, for error messages.
-pub const FAMILIES: [&str; 5] = ["pointmaze", "antmaze", "humanoidmaze", "cube", "puzzle"];
+pub const FAMILIES: [&str; 6] = ["pointmaze", "antmaze", "humanoidmaze", "cube", "scene", "puzzle"];
 
 /// The member an environment's goal is, where it is not observation values, with its success
 /// test: a puzzle's `button_states`, every button within 0.5 of its target state (0 or 1).
@@ -133,12 +143,33 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
                 (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
             Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: None })
         }
+        "scene" => {
+            use crate::task::SCENE_BUTTONS;
+            let fixed = CUBE_PROPRIO + SCENE_BUTTONS * BUTTON_VALUES + SCENE_TAIL;
+            let cubes = obs_dim.saturating_sub(fixed) / CUBE_VALUES;
+            if cubes == 0 || fixed + cubes * CUBE_VALUES != obs_dim {
+                bail!(
+                    "{env}: observations have {obs_dim} values; a scene's have {CUBE_PROPRIO} + {CUBE_VALUES} per cube + \
+                     {} for its {SCENE_BUTTONS} buttons + {SCENE_TAIL} for the drawer and the window ({} with one cube)",
+                    SCENE_BUTTONS * BUTTON_VALUES,
+                    fixed + CUBE_VALUES
+                );
+            }
+            let buttons = CUBE_PROPRIO + cubes * CUBE_VALUES;
+            let drawer = buttons + SCENE_BUTTONS * BUTTON_VALUES;
+            let mut ranges: Vec<Range<usize>> =
+                (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
+            // The state one-hot's second value is the state (np.eye(2)[state]).
+            ranges.extend((0..SCENE_BUTTONS).map(|b| buttons + BUTTON_VALUES * b + 1..buttons + BUTTON_VALUES * b + 2));
+            ranges.extend([drawer..drawer + 1, drawer + 2..drawer + 3]);
+            Ok(GoalMap { ranges, threshold: 1.0, metric: GoalMetric::Scene, member: None })
+        }
         "puzzle" => {
             bail!("{env}: a puzzle's goal is its button states (the dataset's button_states), not observation values")
         }
         _ => bail!(
-            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual observations are images; scene \
-             goals, each object within its own tolerance, are not mapped yet)",
+            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual observations are images, not \
+             mapped yet)",
             FAMILIES.join(", ")
         ),
     }
@@ -209,7 +240,11 @@ mod tests {
         assert!(goal_map("cube-double-v0", 36).unwrap_err().to_string().contains("19 + 9 per cube"));
         assert!(goal_map("cube-double-v0", 28).unwrap_err().to_string().contains("a scene of 2 cubes has 37"));
         assert!(goal_map("puzzle-3x3-v0", 10).unwrap_err().to_string().contains("its button states"));
-        assert!(goal_map("scene-v0", 40).unwrap_err().to_string().contains("not mapped yet"));
+        let s = goal_map("scene-v0", 40).unwrap();
+        assert_eq!(s.ranges, vec![19..22, 29..30, 33..34, 36..37, 38..39]);
+        assert_eq!((s.goal_dim(), s.threshold, s.metric), (7, 1.0, GoalMetric::Scene));
+        assert!(goal_map("scene-v0", 41).unwrap_err().to_string().contains("(40 with one cube)"));
+        assert!(goal_map("visual-scene-v0", 40).unwrap_err().to_string().contains("not mapped yet"));
         assert_eq!(member_goal("puzzle-4x5-v0"), Some(("button_states", 0.5, GoalMetric::EachValue)));
         assert_eq!(member_goal("cube-double-v0"), None);
         assert!(goal_map("visual-cube-single-v0", 28).is_err());

@@ -101,16 +101,33 @@ pub struct Dataset {
     pub goal: GoalMap,
 }
 
-/// `pointmaze-medium-navigate-v0` → `pointmaze-medium-v0`: OGBench drops the dataset type (the
-/// second-to-last word) to name the environment.
+/// OGBench's dataset types: the word a dataset's name has beside its environment's
+/// (`cube-double-play-v0` is a `play` dataset of `cube-double-v0`).
+pub const DATASET_TYPES: [&str; 5] = ["navigate", "stitch", "explore", "play", "noisy"];
+
+/// `pointmaze-medium-navigate-v0` → `pointmaze-medium-v0`, `scene-play-v0` → `scene-v0`: OGBench
+/// names a dataset NAME-TYPE-vN and drops the type (the second-to-last word, one of
+/// [`DATASET_TYPES`]) to name its environment. None for a name of no dataset type (an
+/// environment's own name, `visual-cube-single-v0`, or a user's file).
 pub fn env_name(dataset: &str) -> Option<String> {
     let words: Vec<&str> = dataset.split('-').collect();
-    if words.len() < 4 || !words.last()?.starts_with('v') {
+    let n = words.len();
+    if n < 3 || !words[n - 1].starts_with('v') || !DATASET_TYPES.contains(&words[n - 2]) {
         return None;
     }
-    let mut env = words[..words.len() - 2].to_vec();
-    env.push(words[words.len() - 1]);
+    let mut env = words[..n - 2].to_vec();
+    env.push(words[n - 1]);
     Some(env.join("-"))
+}
+
+/// The dataset a file's stem names: a validation file and a shard of a dataset in Horizon
+/// Reduction's layout (`NAME-val`, `NAME-17`) name their dataset without their suffix.
+pub fn dataset_of_stem(stem: &str) -> &str {
+    match stem.rsplit_once('-') {
+        Some((name, "val")) => name,
+        Some((name, i)) if !i.is_empty() && i.bytes().all(|b| b.is_ascii_digit()) => name,
+        _ => stem,
+    }
 }
 
 impl Dataset {
@@ -120,14 +137,7 @@ impl Dataset {
     pub fn open(path: &Path, task: Option<&str>, full_goal: bool, drop: &[String]) -> Result<Dataset> {
         let at = path.display();
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-        // A validation file and a shard of a dataset in Horizon Reduction's layout (`NAME-val`,
-        // `NAME-17`) name their dataset without their suffix.
-        let name = match stem.rsplit_once('-') {
-            Some((name, "val")) => name,
-            Some((name, i)) if !i.is_empty() && i.bytes().all(|b| b.is_ascii_digit()) => name,
-            _ => stem,
-        }
-        .to_string();
+        let name = dataset_of_stem(stem).to_string();
         let env = match (task, env_name(&name)) {
             (Some(t), _) => t.to_string(),
             (None, Some(env)) => env,
@@ -502,6 +512,9 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         match d.goal.metric {
             crate::task::GoalMetric::EachObject => " for every cube",
             crate::task::GoalMetric::EachValue => " for every value",
+            crate::task::GoalMetric::Scene => {
+                " for every part, each over its own tolerance (cubes 0.4, buttons 0.5, drawer 0.72, window 0.6)"
+            }
             _ => "",
         }
     )];
@@ -540,5 +553,12 @@ mod tests {
         assert_eq!(env_name("humanoidmaze-large-navigate-v0").as_deref(), Some("humanoidmaze-large-v0"));
         assert_eq!(env_name("traj"), None);
         assert_eq!(env_name("a-b-c"), None);
+        assert_eq!(env_name("scene-play-v0").as_deref(), Some("scene-v0"));
+        assert_eq!(env_name("visual-cube-single-play-v0").as_deref(), Some("visual-cube-single-v0"));
+        // An environment's own name has no dataset type to drop.
+        assert_eq!(env_name("visual-cube-single-v0"), None);
+        assert_eq!(dataset_of_stem("humanoidmaze-giant-navigate-v0-17"), "humanoidmaze-giant-navigate-v0");
+        assert_eq!(dataset_of_stem("scene-play-v0-val"), "scene-play-v0");
+        assert_eq!(dataset_of_stem("scene-play-v0"), "scene-play-v0");
     }
 }

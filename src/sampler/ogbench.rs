@@ -287,8 +287,9 @@ fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
 /// a maze's x, y (`qpos[:2]`, which its observations start with), and each cube's position
 /// centred on (0.425, 0, 0) and scaled by 10 (the goal map's cube values, OGBench's
 /// `compute_oracle_observation`, which tests/ogbench.rs checks row for row), and a puzzle's
-/// button states (its `button_states`, as floats). Scene tables are not converted yet, and a
-/// table converted with `--full-goal` has whole observations as goals.
+/// button states (its `button_states`, as floats), and a scene's cube, buttons, drawer and window
+/// (`compute_oracle_observation`'s values, from the observation). A table converted with
+/// `--full-goal` has whole observations as goals.
 fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
     let family = task.name.split('-').next().unwrap_or_default();
     let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
@@ -296,9 +297,10 @@ fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
     if !crate::ogbench::goal::FAMILIES.contains(&family) || full {
         bail!(
             "oracle_reps = True: {}'s table goals are not OGBench's oracle representations ({}); pgser has them for \
-             tables of pointmaze, antmaze, humanoidmaze, cube and puzzle datasets converted without --full-goal",
+             tables of {} datasets converted without --full-goal",
             task.name,
-            if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" }
+            if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" },
+            crate::ogbench::goal::FAMILIES.join(", ")
         );
     }
     Ok(())

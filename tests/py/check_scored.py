@@ -34,7 +34,17 @@ def distance(metric, a, b):
     if metric == "each_object":
         d = (a.astype(np.float64) - b.astype(np.float64)).reshape(len(a), -1, 3)
         return np.sqrt((d * d).sum(axis=2)).max(axis=1)
-    # quat_angle: gymnasium-robotics' rotation distance on components 3..7.
+    if metric == "each_value":
+        return np.abs(a.astype(np.float64) - b.astype(np.float64)).max(axis=1)
+    if metric == "scene":
+        # cubes' (x, y, z), 2 buttons, drawer, window; each part over its own tolerance.
+        d = a.astype(np.float64) - b.astype(np.float64)
+        cubes = (d.shape[1] - 4) // 3
+        c = np.sqrt((d[:, : 3 * cubes].reshape(len(d), cubes, 3) ** 2).sum(axis=2)) / 0.4
+        rest = np.abs(d[:, 3 * cubes :]) / np.array([0.5, 0.5, 0.72, 0.6])
+        return np.concatenate([c, rest], axis=1).max(axis=1)
+    assert metric == "quat_angle", metric
+    # gymnasium-robotics' rotation distance on components 3..7.
     dot = (a[:, 3:7].astype(np.float64) * b[:, 3:7].astype(np.float64)).sum(axis=1)
     return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
 

@@ -17,6 +17,9 @@ Writes, each with its -val.npz (1 episode):
 - puzzle/puzzle-3x3-play-v0.npz: 2 episodes of 21 rows in puzzle-3x3-v0, with `button_states`
   (int64, as `generate_manipspace.py` stores them) and `oracle_reps`, its
   `compute_oracle_observation()` (the buttons' states);
+- scene/scene-play-v0.npz: 2 episodes of 21 rows in scene-v0 (a cube, two buttons, a drawer and
+  a window), with `button_states` and `oracle_reps`, its `compute_oracle_observation()` (the
+  cube's position, the buttons' states, the drawer's and the window's positions);
 for examples/ogbench_eval.py's test in OGBench's own environments (tests/python/test_ogbench.py).
 Seeded (numpy seed 0, env seed 0): a second run writes the same arrays.
 """
@@ -63,7 +66,8 @@ def main():
     sets = [("cube", "cube-single-v0", "cube-single-play-v0", 2, 21),
             ("cube", "cube-double-v0", "cube-double-play-v0", 2, 21),
             ("antmaze", "antmaze-medium-v0", "antmaze-medium-navigate-v0", 4, 51),
-            ("puzzle", "puzzle-3x3-v0", "puzzle-3x3-play-v0", 2, 21)]
+            ("puzzle", "puzzle-3x3-v0", "puzzle-3x3-play-v0", 2, 21),
+            ("scene", "scene-v0", "scene-play-v0", 2, 21)]
     only = sys.argv[2:]
     for folder, env_id, name, episodes, rows in sets:
         if only and folder not in only:

@@ -276,22 +276,24 @@ def test_pgsers_swapped_goals_are_the_high_level_goals(folder, tmp_path):
             assert np.all(b["low_value_goal_kind"] != 3) and np.all(b["low_actor_goal_kind"] != 3)
 
 
-def test_a_puzzles_oracle_reps_are_its_button_states(tmp_path):
-    """A puzzle table (ogbench's own puzzle-3x3 scene, tests/fixtures/ogbench/puzzle): its goals
-    are the button states, OGBench's oracle representation, and Horizon Reduction's batches take
-    them as goals and high-level actions."""
-    src = REPO / "tests/fixtures/ogbench/puzzle/puzzle-3x3-play-v0.npz"
+@pytest.mark.parametrize("name,width", [("puzzle-3x3-play-v0", 9), ("scene-play-v0", 7)])
+def test_oracle_reps_of_puzzles_and_scenes(name, width, tmp_path):
+    """A puzzle's and a scene's table (ogbench's own puzzle-3x3 and scene environments,
+    tests/fixtures/ogbench): its goals are OGBench's oracle representation (a puzzle's button
+    states; a scene's cube, buttons, drawer and window), and Horizon Reduction's batches take them
+    as goals and high-level actions."""
+    src = REPO / f"tests/fixtures/ogbench/{name.split('-')[0]}/{name}.npz"
     table = tmp_path / "p.parquet"
     run(BIN / "pgser-etl", "convert", src, "-o", table)
     with np.load(src) as f:
         reps, obs = f["oracle_reps"], f["observations"]
     t = 21
     cfg = dict(SHARSA, subgoal_steps=5, low_discount=0.9)
-    with pgser.Sampler(table, layout="horizon_reduction", config=cfg, env_name="puzzle-3x3-play-oraclerep-v0",
-                       seed=3) as s:
+    with pgser.Sampler(table, layout="horizon_reduction", config=cfg,
+                       env_name=name.replace("-v0", "-oraclerep-v0"), seed=3) as s:
         b = s.sample(512)
     row = b["episode"] * t + b["step"]
     assert np.array_equal(b["oracle_reps"], reps[row]) and np.array_equal(b["observations"], obs[row])
     for stem in ("high_value_goal", "high_actor_goal", "low_value_goal", "high_value_action", "low_actor_goal"):
         assert np.array_equal(b[f"{stem}s"], reps[b[f"{stem}_episode"] * t + b[f"{stem}_step"]]), stem
-    assert b["high_value_goals"].shape == (512, 9)
+    assert b["high_value_goals"].shape == (512, width)

@@ -67,6 +67,8 @@ def test_ogbench_goal_is_the_goal_map_of_the_tables():
     cube = np.load(REPO / "tests/fixtures/ogbench/cube/cube-double-play-v0.npz")
     np.testing.assert_array_equal(pgser.ogbench_goal("cube-double-v0", cube["observations"]), cube["oracle_reps"])
     assert pgser.ogbench_goal("cube-double-v0", cube["observations"][0]).shape == (6,)
+    scene = np.load(REPO / "tests/fixtures/ogbench/scene/scene-play-v0.npz")
+    np.testing.assert_array_equal(pgser.ogbench_goal("scene-v0", scene["observations"]), scene["oracle_reps"])
     np.testing.assert_array_equal(pgser.ogbench_goal("antmaze-large-v0", np.arange(29.0)), [0.0, 1.0])
     # A puzzle's goal is its button states, not observation values: no map from observations.
     with pytest.raises(ValueError, match="its button states"):
@@ -75,7 +77,8 @@ def test_ogbench_goal_is_the_goal_map_of_the_tables():
 
 @pytest.mark.parametrize("dataset,extra", [("antmaze/antmaze-medium-navigate-v0.npz", []),
                                            ("antmaze/antmaze-medium-navigate-v0.npz", ["--full-goal", "0.5"]),
-                                           ("cube/cube-single-play-v0.npz", [])])
+                                           ("cube/cube-single-play-v0.npz", []),
+                                           ("scene/scene-play-v0.npz", [])])
 def test_example_evaluates_where_pgser_does_not_simulate(dataset, extra, tmp_path):
     """The example on environments only OGBench simulates: an ant in its maze and the cube arm
     (tiny random-action datasets from ogbench's own environments), its goal map applied to
@@ -90,4 +93,4 @@ def test_example_evaluates_where_pgser_does_not_simulate(dataset, extra, tmp_pat
     r = json.loads(p.stdout.strip().splitlines()[-1])
     assert len(r["task_success"]) == 5 and 0.0 <= r["success"] <= 1.0, r
     goal_dim = pgser.read_footer(tmp_path / "traj.parquet")["goal_dim"]
-    assert goal_dim == (29 if extra else {"antmaze": 2, "cube": 3}[dataset.split("/")[0]])
+    assert goal_dim == (29 if extra else {"antmaze": 2, "cube": 3, "scene": 7}[dataset.split("/")[0]])

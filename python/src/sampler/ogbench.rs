@@ -146,23 +146,12 @@ fn repr(v: &Bound<'_, PyAny>) -> String {
 /// The environment an OGBench dataset or environment name names, OGBench's way
 /// (`make_env_and_datasets`), and whether it asks for oracle representations: the dataset type
 /// and the word `oraclerep` dropped (`puzzle-4x5-play-oraclerep-v0` → `puzzle-4x5-v0`, true).
-/// OGBench's dataset types, the word a dataset's name has beside its environment's.
-const DATASET_TYPES: [&str; 5] = ["navigate", "stitch", "explore", "play", "noisy"];
-
 pub(super) fn env_of(name: &str) -> (String, bool) {
     let words: Vec<&str> = name.split('-').collect();
     let oracle = words.contains(&"oraclerep");
-    let kept: Vec<&str> = words.iter().copied().filter(|w| *w != "oraclerep").collect();
-    let env = match kept.len() {
-        // NAME-TYPE-vN: the dataset type is the second-to-last word; an environment's name has none.
-        n if n >= 3 && DATASET_TYPES.contains(&kept[n - 2]) => {
-            let mut e = kept[..n - 2].to_vec();
-            e.push(kept[n - 1]);
-            e.join("-")
-        }
-        _ => kept.join("-"),
-    };
-    (env, oracle)
+    let kept = words.iter().copied().filter(|w| *w != "oraclerep").collect::<Vec<_>>().join("-");
+    // A dataset's name drops its type; an environment's name is kept as it is.
+    (pgser::ogbench::env_name(&kept).unwrap_or(kept), oracle)
 }
 
 /// The batch size from `config["batch_size"]`, when an agent's config carries one.
