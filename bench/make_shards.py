@@ -8,6 +8,9 @@ Each shard `NAME-i.npz` (and one `NAME-val.npz`) holds E episodes of M rows each
 as OGBench's locomotion generators save them. The observations are random walks whose first two
 values are an x, y position, so goal maps and distances behave like a maze's, not like noise.
 
+`--no-state` leaves `qpos` and `qvel` out (the 1B-row folder of PointMaze's width, issue 75,
+whose disk they would not fit beside its table).
+
 humanoidmaze-giant's shape is obs 69, act 21, M = 4001, 1000 episodes a shard in the 1B set;
 `--episodes` picks a smaller shard. Shards are written with np.savez (uncompressed, the default)
 or np.savez_compressed (`--compressed`, as OGBench's files are); each is written beside its
@@ -15,7 +18,8 @@ name and renamed, so a killed run leaves no partial shard, and shards already pr
 
 Usage:
     make_shards.py OUT_DIR [--name humanoidmaze-giant-navigate-v0] [--shards 4]
-                   [--episodes 100] [--rows 4001] [--obs 69] [--act 21] [--compressed] [--seed 0]
+                   [--episodes 100] [--rows 4001] [--obs 69] [--act 21] [--compressed] [--no-state]
+                   [--seed 0]
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ import os
 import numpy as np
 
 
-def shard(rng: np.random.Generator, episodes: int, rows: int, obs: int, act: int) -> dict[str, np.ndarray]:
+def shard(rng: np.random.Generator, episodes: int, rows: int, obs: int, act: int, state: bool = True) -> dict[str, np.ndarray]:
     n = episodes * rows
     actions = rng.uniform(-1.0, 1.0, (n, act)).astype(np.float32)
     steps = rng.normal(0.0, 0.05, (episodes, rows, obs)).astype(np.float32)
@@ -35,6 +39,8 @@ def shard(rng: np.random.Generator, episodes: int, rows: int, obs: int, act: int
     terminals = np.zeros(n, np.float32)
     terminals[rows - 1 :: rows] = 1.0
     half = max(obs // 2, 1)
+    if not state:
+        return {"observations": observations, "actions": actions, "terminals": terminals}
     return {
         "observations": observations,
         "actions": actions,
@@ -54,6 +60,7 @@ def main() -> None:
     p.add_argument("--obs", type=int, default=69)
     p.add_argument("--act", type=int, default=21)
     p.add_argument("--compressed", action="store_true")
+    p.add_argument("--no-state", action="store_true", help="no qpos, qvel")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
@@ -66,7 +73,7 @@ def main() -> None:
         rng = np.random.default_rng([a.seed, i])
         episodes = a.episodes if not name.endswith("-val.npz") else max(a.episodes // 10, 1)
         tmp = path + ".part.npz"
-        save(tmp, **shard(rng, episodes, a.rows, a.obs, a.act))
+        save(tmp, **shard(rng, episodes, a.rows, a.obs, a.act, not a.no_state))
         os.replace(tmp, path)
         print(path, flush=True)
 

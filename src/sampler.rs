@@ -9,6 +9,7 @@
 
 pub mod dump;
 pub mod ogbench;
+pub mod open;
 pub mod pool;
 pub mod priority;
 pub mod replay;

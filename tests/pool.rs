@@ -55,7 +55,7 @@ fn one_pass_gives_every_shard_its_share_and_episodes_and_steps_uniform_counts() 
     let (stat, bound) = chi_square(&by_step);
     assert!(stat < bound, "step counts: chi-square {stat:.1} over {bound:.1}");
     let stats = s.pool().unwrap().stats();
-    assert_eq!(stats.swaps as usize, EPISODES / GROUP_EPISODES, "one pass swaps every block in once");
+    assert_eq!(stats.rotations as usize, EPISODES / GROUP_EPISODES, "one pass swaps every block in once");
 }
 
 #[test]
@@ -252,13 +252,13 @@ fn blocks_kept_for_two_draws_a_row_read_half_as_much_and_keep_every_shards_share
             by_episode[e] += 1;
         }
         if k + 1 == PASS_BATCHES {
-            let swaps = s.pool().unwrap().stats().swaps as usize;
+            let swaps = s.pool().unwrap().stats().rotations as usize;
             assert_eq!(swaps, EPISODES / GROUP_EPISODES / 2, "a pass of draws reads half the blocks");
         }
     }
     // Two passes of draws are one pass of reading: every block swapped in once, and every shard,
     // episode and step drawn in its share.
-    assert_eq!(s.pool().unwrap().stats().swaps as usize, EPISODES / GROUP_EPISODES);
+    assert_eq!(s.pool().unwrap().stats().rotations as usize, EPISODES / GROUP_EPISODES);
     let gap = worst_share_gap(by_episode.iter().enumerate().flat_map(|(e, &c)| std::iter::repeat_n(e, c as usize)));
     assert!(gap < 2.0, "a shard's share of the draws is {gap:.2} points off its share of the rows");
     let (stat, bound) = chi_square(&by_episode);
@@ -379,7 +379,7 @@ fn a_pool_drawn_while_every_rayon_worker_is_held_still_reads_its_blocks() {
                     s.next_batch().unwrap();
                 }
                 drawn.store(true, std::sync::atomic::Ordering::SeqCst);
-                Some(s.pool().unwrap().stats().swaps)
+                Some(s.pool().unwrap().stats().rotations)
             } else {
                 while !drawn.load(std::sync::atomic::Ordering::SeqCst) {
                     std::thread::sleep(std::time::Duration::from_millis(1));
@@ -433,4 +433,41 @@ fn a_shard_replaced_after_the_pool_opened_is_refused_as_changed_not_corrupt() {
     let e = (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("a block of the replaced shard is read");
     let e = format!("{e:#}");
     assert!(e.contains("coded-1.parquet") && e.contains("changed since the pool opened it"), "{e}");
+}
+
+/// Every goal the reservoir holds is the achieved goal and the observation of the (episode,
+/// step) it names: after the first fill (from resident blocks and from blocks read for it alone)
+/// and after half a pass of rotations (from the blocks that entered).
+#[test]
+fn reservoir_goals_are_the_rows_they_name() {
+    use pgser::nprandom::NpRandom;
+    use pgser::sampler::view::View;
+    let dir = tempfile::tempdir().unwrap();
+    let data = folder(dir.path());
+    let cfg = config(Swap::Random, 0.5, 0.0, 3);
+    let mut s = BatchSource::open_within(&data, &cfg, Budget::bytes(BUDGET)).unwrap().start(&cfg).unwrap();
+    let check = |pool: &pgser::sampler::pool::Pool| {
+        assert!(pool.reservoir() > 100, "{}", pool.reservoir());
+        let mut rng = NpRandom::new(5);
+        let mut outside = 0;
+        for _ in 0..4 * pool.reservoir() {
+            let g = pool.random_goal(&mut rng);
+            let at = (g.episode as usize, g.step as usize);
+            assert_eq!(decode(pool.goal_obs(g)[0]), at, "slot {}: the observation is another row's", g.slot);
+            assert_eq!(decode(pool.goal_ag(g)[0]), at, "slot {}: the achieved goal is another row's", g.slot);
+            let resident = (0..pool.resident_episodes()).any(|e| pool.episode_number(e) == g.episode as u64);
+            outside += usize::from(!resident);
+        }
+        // Most goals come from blocks that are not resident: the reservoir is the table's.
+        assert!(
+            outside > 2 * pool.reservoir(),
+            "{outside} of {} draws outside the resident blocks",
+            4 * pool.reservoir()
+        );
+    };
+    check(s.pool().unwrap());
+    for _ in 0..PASS_BATCHES / 2 {
+        s.next_batch().unwrap();
+    }
+    check(s.pool().unwrap());
 }

@@ -377,18 +377,18 @@ impl Sampler {
     }
 
     /// What the out-of-core pool's disk reads have cost the drawing so far, as of the last batch
-    /// the background thread drew (it draws `prefetch` ahead): blocks swapped in, swaps that
-    /// waited for their block, the seconds waited in all, the longest wait, and the longest swap
+    /// the background thread drew (it draws `prefetch` ahead): blocks rotated in (each in place of the
+    /// oldest), rotations that waited for their block, the seconds waited in all, the longest wait, and the longest rotation
     /// besides its wait (placing a block between two batches). None while the
     /// table is held whole. Waits here are the disk's; a slow batch without one is scheduling.
     fn pool_stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let Some(s) = *self.pool.lock().unwrap() else { return Ok(None) };
         let d = PyDict::new(py);
-        d.set_item("swaps", s.swaps)?;
+        d.set_item("rotations", s.rotations)?;
         d.set_item("waits", s.waits)?;
         d.set_item("waited_seconds", s.waited.as_secs_f64())?;
         d.set_item("longest_wait_seconds", s.longest_wait.as_secs_f64())?;
-        d.set_item("longest_swap_seconds", s.longest_swap.as_secs_f64())?;
+        d.set_item("longest_rotation_seconds", s.longest_rotation.as_secs_f64())?;
         Ok(Some(d))
     }
 

@@ -77,7 +77,8 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 
-use super::pool::{Beta, ScoredDraw};
+use super::open::Beta;
+use super::pool::ScoredDraw;
 use super::priority::PriorityConfig;
 use super::view::{Budget, View};
 use crate::nprandom::NpRandom;
@@ -225,11 +226,11 @@ impl OgbenchStream {
     }
 
     /// Whether drawing `n` rows now would take a block into the pool (never for β held whole).
-    pub fn would_swap(&self, n: usize) -> bool {
-        self.source.pool().is_some_and(|p| p.swaps_within(n))
+    pub fn would_rotate(&self, n: usize) -> bool {
+        self.source.pool().is_some_and(|p| p.rotates_within(n))
     }
 
-    /// Readies the block the next swap takes in, waiting for the loader (a no-op for β held
+    /// Readies the block the next rotation takes in, waiting for the loader (a no-op for β held
     /// whole): see `Pool::stage`.
     pub fn stage(&mut self) {
         if let Some(p) = self.source.pool_mut() {
@@ -238,7 +239,7 @@ impl OgbenchStream {
     }
 
     /// Forgets `rows` draws of batches drawn ahead and dropped, none of which took a block in
-    /// ([`OgbenchStream::would_swap`]): the next batch is drawn from the pool as it was before them.
+    /// ([`OgbenchStream::would_rotate`]): the next batch is drawn from the pool as it was before them.
     pub fn drop_ahead(&mut self, rows: usize) {
         if let Some(p) = self.source.pool_mut() {
             p.unrefresh(rows);

@@ -16,11 +16,11 @@
 //! - **A loader thread** reads blocks in a random permutation of all the table's blocks (a fresh
 //!   one each pass, seeded), checks each against its checksums, decodes it to float32 (into the
 //!   arrays of a block that left, handed back to it) and hands it over through a channel of one.
-//!   The pool swaps it in for its oldest block **when as many transitions have been drawn as the
+//!   The pool rotates it in for its oldest block **when as many transitions have been drawn as the
 //!   leaving block holds** (times `draws_per_row`, `--draws-per-row`). So one pass
 //!   of draws (as many as the table holds) is one pass of loading, in which every block is
 //!   resident once for about the same number of draws: the long-run share of each shard, episode
-//!   and step is its share of the table. The swap points depend on the draws alone, never on the
+//!   and step is its share of the table. The rotation points depend on the draws alone, never on the
 //!   loader's timing, so the same seed gives the same batches at any speed; the loader reads
 //!   ahead while the current blocks are drawn from, and a batch waits only when reading a block
 //!   takes longer than drawing the previous block's transitions (counted in [`PoolStats`]).
@@ -64,11 +64,10 @@
 //! share a smaller set of episodes (rows in one batch fall in the same episode about `N / P` times
 //! as often as uniform draws do, for P resident episodes of N; tests/pool.rs bounds it), and the
 //! random numbers are used differently, so batches are not those of the in-memory sampler. When
-//! the whole table fits the budget, [`open`] holds it in memory and the batches are the in-memory
+//! the whole table fits the budget, [`super::open::plan`] holds it in memory and the batches are the in-memory
 //! ones, number for number.
 
 use std::collections::VecDeque;
-use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -78,17 +77,17 @@ use rayon::prelude::*;
 mod buffers;
 mod layout;
 mod loader;
+mod reservoir;
 mod resident;
 mod schedule;
 
 use super::view::{GoalSource, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
-use crate::trajectory::Episodes;
-use buffers::Floats;
-use layout::{Block, IN_FLIGHT};
+use layout::Block;
 pub use layout::{Layout, Plan};
 use loader::Loader;
+use reservoir::Reservoir;
 use resident::Resident;
 use schedule::{Entries, Keys};
 
@@ -118,57 +117,6 @@ impl Position {
     pub const START: Position = Position { batches: 0, rows: 0 };
 }
 
-/// β for a sampler within a budget: whole, or a pool.
-pub enum Beta {
-    Whole(Arc<Episodes>),
-    Pool(Box<Pool>),
-}
-
-impl Beta {
-    /// β as draws see it.
-    pub fn view(&self) -> &dyn View {
-        match self {
-            Beta::Whole(d) => d.as_ref(),
-            Beta::Pool(p) => p.as_ref(),
-        }
-    }
-
-    /// The arrays a trainer fits its normalizer on (observations; desired and achieved goals):
-    /// the whole table, or the pool's first blocks, a uniform sample of the table's blocks.
-    pub fn normalizer_arrays(&self) -> (Vec<&[f32]>, Vec<&[f32]>) {
-        match self {
-            Beta::Whole(d) => (vec![&d.obs[..]], vec![&d.g[..], &d.ag[..]]),
-            Beta::Pool(p) => {
-                let (obs, g, ag) = p.resident_arrays();
-                (obs, g.into_iter().chain(ag).collect())
-            }
-        }
-    }
-
-    /// A trajectory table (a file or a table folder) held within `budget`, a pool as it is at
-    /// `at`.
-    pub fn within(path: &Path, budget: super::view::Budget, seed: u64, at: Position) -> Result<Beta> {
-        use super::view::Budget;
-        Ok(match budget {
-            Budget::Unbounded => Beta::Whole(Arc::new(Episodes::load(path)?)),
-            Budget::Bytes { bytes, draws_per_row } => Beta::open(path, bytes, draws_per_row, seed, at)?,
-            Budget::ShardWindow(rows) => Beta::Pool(Box::new(Pool::window(Layout::open(path)?, rows, seed, at)?)),
-        })
-    }
-
-    /// Plans `path` against `budget` and opens it, a pool keeping each block for `draws_per_row`
-    /// draws per transition, as it is at `at`.
-    pub fn open(path: &Path, budget: u64, draws_per_row: u32, seed: u64, at: Position) -> Result<Beta> {
-        let layout = Layout::open(path)?;
-        Ok(match Plan::of(&layout, budget)? {
-            Plan::Whole => Beta::Whole(Arc::new(Episodes::load(path)?)),
-            Plan::Pool { slots, reservoir } => {
-                Beta::Pool(Box::new(Pool::planned(layout, (budget, draws_per_row), seed, (slots, reservoir), at)?))
-            }
-        })
-    }
-}
-
 /// A row drawn by priority from a resident block's scored rows ([`Pool::draw_scored`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ScoredDraw {
@@ -183,15 +131,15 @@ pub struct ScoredDraw {
 /// What waiting for the disk cost, so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PoolStats {
-    /// Blocks swapped in since the pool started (or resumed).
-    pub swaps: u64,
-    /// Swaps that had to wait for their block.
+    /// Blocks rotated in since the pool started (or resumed).
+    pub rotations: u64,
+    /// Rotations that had to wait for their block.
     pub waits: u64,
     pub waited: Duration,
     pub longest_wait: Duration,
-    /// The longest swap itself, its wait left out: placing the block, feeding the reservoir and
+    /// The longest rotation itself, its wait left out: placing the block, feeding the reservoir and
     /// re-indexing the resident episodes, which the drawing thread does between two batches.
-    pub longest_swap: Duration,
+    pub longest_rotation: Duration,
 }
 
 /// β within a memory budget (see the module doc).
@@ -200,22 +148,19 @@ pub struct Pool {
     cfg: PoolConfig,
     slots: usize,
     entries: Entries,
-    /// The next entry to swap in.
+    /// The next entry to rotate in.
     next_entry: u64,
     /// Resident blocks, oldest first, and their episodes.
     resident: Resident,
-    keys: Keys,
-    /// The reservoir's vectors, slot by slot, and the table-wide (episode, step) of each.
-    goal_at: Vec<(u64, u32)>,
-    goal_ag: Floats,
-    goal_obs: Floats,
-    /// Transitions drawn since the last swap.
+    /// The random goals: a sample of the whole table's, not of the resident blocks'.
+    reservoir: Reservoir,
+    /// Transitions drawn since the last rotation.
     drawn: f64,
     /// Started once the pool is filled (`start`), so opening holds no block in flight.
     loader: Mutex<Option<Loader>>,
-    /// The next block, taken from the loader ahead of its swap (`stage`).
+    /// The next block, taken from the loader ahead of its rotation (`stage`).
     staged: Option<Result<Block>>,
-    /// A swap that failed: every later refresh fails with it, so no batch is drawn from blocks
+    /// A rotation that failed: every later refresh fails with it, so no batch is drawn from blocks
     /// that should have left.
     failed: Option<String>,
     stats: PoolStats,
@@ -223,7 +168,7 @@ pub struct Pool {
 
 impl Pool {
     /// The pool at `at` (after `at.batches` batches of `at.rows` draws each; none for a fresh
-    /// one): the swaps and reservoir refreshes those draws made are replayed on block sizes alone,
+    /// one): the rotations and reservoir refreshes those draws made are replayed on block sizes alone,
     /// then the resident blocks are read (in parallel) and the reservoir's vectors filled from the
     /// blocks its entries name (observations and achieved goals only), and the loader starts at
     /// the next entry. A resumed run thus draws what an uninterrupted one does, number for number,
@@ -251,8 +196,7 @@ impl Pool {
             }
         }
         let resident: VecDeque<Block> = queue.par_iter().map(|&id| layout.read(id)).collect::<Result<Vec<_>>>()?.into();
-        let (od, gd) = (layout.task.obs_dim, layout.task.goal_dim);
-        let (goal_ag, goal_obs) = (Floats::zeros(reservoir * gd)?, Floats::zeros(reservoir * od)?);
+        let reservoir = Reservoir::new(&layout, keys)?;
         let mut pool = Pool {
             layout,
             cfg,
@@ -260,10 +204,7 @@ impl Pool {
             entries,
             next_entry,
             resident: Resident::new(slots),
-            keys,
-            goal_at: vec![(0, 0); reservoir],
-            goal_ag,
-            goal_obs,
+            reservoir,
             drawn,
             loader: Mutex::new(None),
             staged: None,
@@ -273,72 +214,10 @@ impl Pool {
         for b in resident {
             pool.resident.enter(b);
         }
-        pool.materialize()?;
+        pool.reservoir.fill(&pool.layout, &pool.resident)?;
         let layout = pool.layout.clone();
         *pool.loader.get_mut().expect("not shared yet") = Some(Loader::spawn(layout, cfg, slots, pool.next_entry));
         Ok(pool)
-    }
-
-    /// The pool of `layout` within `(budget, draws_per_row)` at `at`, as [`Plan::of`] split that
-    /// budget into `slots` resident blocks and a reservoir of `reservoir` goals.
-    pub fn planned(
-        layout: Layout,
-        (budget, draws_per_row): (u64, u32),
-        seed: u64,
-        (slots, reservoir): (usize, usize),
-        at: Position,
-    ) -> Result<Pool> {
-        let cfg = PoolConfig { budget, draws_per_row: draws_per_row as f64, seed, window: None };
-        Pool::start(Arc::new(layout), cfg, slots, reservoir, at)
-    }
-
-    /// Fills every reservoir slot's vectors from the block its key names: resident blocks from
-    /// memory, the others read (observations and achieved goals only), at most `IN_FLIGHT` at a
-    /// time whatever the core count (the plan sets that much aside), each dropped as soon as its
-    /// entries are copied out, so memory is the reservoir and those blocks, never the table's
-    /// columns.
-    fn materialize(&mut self) -> Result<()> {
-        let mut by_block: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-        for (slot, &(id, _, _)) in self.keys.slots.iter().enumerate() {
-            by_block.entry(id as usize).or_default().push(slot);
-        }
-        let layout = &self.layout;
-        let (t, od, gd) = (layout.t, layout.task.obs_dim, layout.task.goal_dim);
-        let keys = &self.keys.slots;
-        // A block's entries, flat: their slots, table-wide (episode, step), achieved goals and
-        // observations (at most the reservoir's own size over all blocks).
-        type Entries = (Vec<usize>, Vec<(u64, u32)>, Vec<f32>, Vec<f32>);
-        let take = |b: &Block, slots: &[usize]| -> Entries {
-            let mut out: Entries = (slots.to_vec(), Vec::new(), Vec::new(), Vec::new());
-            for &slot in slots {
-                let (_, e, s) = keys[slot];
-                let (e, s) = (e as usize, s as usize);
-                out.1.push((b.first_episode + e as u64, s as u32));
-                out.2.extend_from_slice(b.ag(e, s, t, gd));
-                out.3.extend_from_slice(b.obs(e, s, t, od));
-            }
-            out
-        };
-        let resident: std::collections::BTreeMap<usize, &Block> = self.resident.iter().map(|b| (b.id, b)).collect();
-        let mut entries: Vec<Entries> =
-            by_block.iter().filter_map(|(id, slots)| resident.get(id).map(|b| take(b, slots))).collect();
-        let others: Vec<(&usize, &Vec<usize>)> = by_block.iter().filter(|(id, _)| !resident.contains_key(id)).collect();
-        for group in others.chunks(IN_FLIGHT as usize) {
-            entries.extend(
-                group
-                    .par_iter()
-                    .map(|&(&id, slots)| {
-                        Ok(take(&layout.read_columns(id, &[true, true, false, false], Default::default())?, slots))
-                    })
-                    .collect::<Result<Vec<_>>>()?,
-            );
-        }
-        for (slots, at, ag, obs) in entries {
-            for (i, slot) in slots.into_iter().enumerate() {
-                self.set_goal(slot, at[i], &ag[i * gd..][..gd], &obs[i * od..][..od]);
-            }
-        }
-        Ok(())
     }
 
     /// Horizon Reduction's reload scheme, emulated (`--shard-window`): one shard of `layout` (with
@@ -362,7 +241,7 @@ impl Pool {
 
     /// Whether `refresh(rows)` would take a block in: a sampler that draws batches ahead stops
     /// there until it knows the next batch's size (`python/src/sampler/ogbench.rs`).
-    pub fn swaps_within(&self, rows: usize) -> bool {
+    pub fn rotates_within(&self, rows: usize) -> bool {
         let leaving = self.resident.front().expect("a pool holds blocks");
         self.drawn + rows as f64 >= due(&self.layout, &self.cfg, leaving.id)
     }
@@ -370,7 +249,7 @@ impl Pool {
     /// Takes back `rows` draws that `refresh` counted and that took no block in (batches drawn
     /// ahead, then dropped): the pool is then as it was before them.
     pub fn unrefresh(&mut self, rows: usize) {
-        assert!(self.drawn >= rows as f64, "only draws counted since the last swap are taken back");
+        assert!(self.drawn >= rows as f64, "only draws counted since the last rotation are taken back");
         self.drawn -= rows as f64;
     }
 
@@ -391,7 +270,7 @@ impl Pool {
 
     /// Goals in the reservoir.
     pub fn reservoir(&self) -> usize {
-        self.goal_at.len()
+        self.reservoir.len()
     }
 
     /// The resident blocks' arrays (observations, desired goals, achieved goals): what a trainer
@@ -454,7 +333,7 @@ impl Pool {
     }
 
     /// Takes the next block from the loader in place of the oldest, and feeds the reservoir.
-    fn swap(&mut self) -> Result<()> {
+    fn rotate(&mut self) -> Result<()> {
         let t0 = Instant::now();
         let (next, wait) = match self.staged.take() {
             Some(b) => (b, Duration::ZERO),
@@ -466,21 +345,14 @@ impl Pool {
             bail!("the pool's loader sent block {} where block {want} was due", next.id);
         }
         self.next_entry += 1;
-        self.stats.swaps += 1;
+        self.stats.rotations += 1;
         // The leaving block goes back whole: the loader fills its arrays with a later block and
         // drops the rest (its scored rows), off the drawing thread.
         let leaving = self.resident.leave();
         self.loader.get_mut().expect("the loader is never poisoned").as_mut().expect("started").give_back(leaving);
-        let (t, od, gd) = (self.layout.t, self.layout.task.obs_dim, self.layout.task.goal_dim);
-        let len = self.goal_at.len();
-        for j in self.keys.feed(&self.layout, next.id) {
-            let slot = j % len;
-            let (_, e, s) = self.keys.slots[slot];
-            let (e, s) = (e as usize, s as usize);
-            self.set_goal(slot, (next.first_episode + e as u64, s as u32), next.ag(e, s, t, gd), next.obs(e, s, t, od));
-        }
+        self.reservoir.enter(&self.layout, &next);
         self.resident.enter(next);
-        self.stats.longest_swap = self.stats.longest_swap.max(t0.elapsed().saturating_sub(wait));
+        self.stats.longest_rotation = self.stats.longest_rotation.max(t0.elapsed().saturating_sub(wait));
         Ok(())
     }
 
@@ -500,8 +372,8 @@ impl Pool {
         (b, wait)
     }
 
-    /// Takes the next block from the loader ahead of the swap that needs it, waiting for it if
-    /// need be, so that swap does not wait: what a sampler that stops drawing ahead at a swap
+    /// Takes the next block from the loader ahead of the rotation that needs it, waiting for it
+    /// if need be, so that rotation does not wait: what a sampler that stops drawing ahead at one
     /// (`python/src/sampler/ogbench.rs`) does while its learner uses up the batches ready. The
     /// block counts among the plan's blocks in flight (it left the loader's channel).
     pub fn stage(&mut self) {
@@ -510,20 +382,13 @@ impl Pool {
         }
     }
 
-    /// Reservoir slot `slot` now holds the goal of table-wide (episode, step) `at`.
-    fn set_goal(&mut self, slot: usize, at: (u64, u32), ag: &[f32], obs: &[f32]) {
-        self.goal_at[slot] = at;
-        self.goal_ag.as_mut_slice()[slot * ag.len()..][..ag.len()].copy_from_slice(ag);
-        self.goal_obs.as_mut_slice()[slot * obs.len()..][..obs.len()].copy_from_slice(obs);
-    }
-
     fn block(&self, e: usize) -> (&Block, usize) {
         self.resident.episode(e)
     }
 }
 
 /// The draws after which block `id`, the oldest resident, leaves: as many as it has transitions,
-/// times `draws_per_row`. The live pool and its replay on resume both swap by this.
+/// times `draws_per_row`. The live pool and its replay on resume both rotate by this.
 fn due(layout: &Layout, cfg: &PoolConfig, id: usize) -> f64 {
     match cfg.window {
         Some(draws) => draws as f64,
@@ -574,31 +439,27 @@ impl View for Pool {
         b.first_episode + l as u64
     }
     fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
-        if self.goal_at.is_empty() {
+        if self.reservoir.is_empty() {
             // A shard window: uniform over the held shard's observations; the slot is the row.
             let (e, s) = (rng.below(self.resident.episodes()), rng.below(self.layout.t));
             let (episode, slot) = (self.episode_number(e), (e * self.layout.t + s) as u64);
             return GoalSource { episode, step: s as u32, slot };
         }
-        let i = rng.below(self.goal_at.len());
-        let (episode, step) = self.goal_at[i];
-        GoalSource { episode, step, slot: i as u64 }
+        self.reservoir.draw(rng)
     }
     fn goal_ag(&self, g: GoalSource) -> &[f32] {
-        if self.goal_at.is_empty() {
+        if self.reservoir.is_empty() {
             let t = self.layout.t as u64;
             return self.ag((g.slot / t) as usize, (g.slot % t) as usize);
         }
-        let d = self.layout.task.goal_dim;
-        &self.goal_ag[g.slot as usize * d..][..d]
+        self.reservoir.ag(g.slot)
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
-        if self.goal_at.is_empty() {
+        if self.reservoir.is_empty() {
             let t = self.layout.t as u64;
             return self.obs((g.slot / t) as usize, (g.slot % t) as usize);
         }
-        let d = self.layout.task.obs_dim;
-        &self.goal_obs[g.slot as usize * d..][..d]
+        self.reservoir.obs(g.slot)
     }
     fn refresh(&mut self, rows: usize) -> Result<()> {
         if let Some(e) = &self.failed {
@@ -611,7 +472,7 @@ impl View for Pool {
             if self.drawn < due {
                 return Ok(());
             }
-            if let Err(e) = self.swap() {
+            if let Err(e) = self.rotate() {
                 let e = format!("{e:#}");
                 self.failed = Some(e.clone());
                 bail!("{e}");
@@ -628,7 +489,7 @@ impl std::fmt::Debug for Pool {
             f,
             "Pool {{ task: {}, resident blocks: {ids:?}, reservoir: {} }}",
             self.layout.task.name,
-            self.goal_at.len()
+            self.reservoir.len()
         )
     }
 }

@@ -13,7 +13,8 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::pool::{Beta, Layout, Plan, Pool, Position, ScoredDraw};
+use super::open::{self, Beta, Opened, Scoring};
+use super::pool::{Pool, Position, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
 use super::view::{Budget, View};
@@ -83,8 +84,8 @@ impl BatchSource {
         // Every batch of a pool's stream draws `batch_size` rows, its scored ones included.
         let at = Position { batches: first, rows: cfg.batch_size };
         let source = match ScoredTable::open_if_scored(path)? {
-            Some(table) => BatchSource::open_scored(path, table, cfg, budget, at)?,
-            None => BatchSource { data: Beta::within(path, budget, cfg.seed, at)?, scored: None, first },
+            Some(table) => BatchSource::open_scored(table, cfg, budget, at)?,
+            None => BatchSource { data: open::plan(path, budget, None)?.open(cfg.seed, at)?.data, scored: None, first },
         };
         if source.data.view().t() < 2 {
             bail!("{}: episodes of {} step(s) hold no transition", path.display(), source.data.view().t());
@@ -95,15 +96,8 @@ impl BatchSource {
     /// A scored table and its original data: β whole with the prioritized rows drawn from the
     /// whole scored table when both fit `budget`, else a pool whose blocks carry their scored rows
     /// (`pool.rs`, "PGSER within a budget").
-    fn open_scored(
-        path: &Path,
-        table: ScoredTable,
-        cfg: &StreamConfig,
-        budget: Budget,
-        pos: Position,
-    ) -> Result<BatchSource> {
-        let first = pos.batches;
-        let at = path.display();
+    fn open_scored(table: ScoredTable, cfg: &StreamConfig, budget: Budget, pos: Position) -> Result<BatchSource> {
+        let at = table.path.display().to_string();
         if cfg.sampler.swap != Swap::None {
             bail!(
                 "{at}: --swap random with a scored table; its swapped rows already come from the table (use --swap none)"
@@ -112,38 +106,10 @@ impl BatchSource {
         if !(0.0..=1.0).contains(&cfg.aug_ratio) {
             bail!("--aug-ratio {} is not in [0, 1]", cfg.aug_ratio);
         }
-        let source = checked_source(&table)?;
-        let table = match budget {
-            Budget::Unbounded => table,
-            Budget::ShardWindow(rows) => {
-                if let Some(beta) = cfg.priority.is_beta {
-                    bail!("{at}: --is-beta {beta} with --shard-window: priorities are the held shard's own");
-                }
-                let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
-                let pool = Pool::window(layout, rows, cfg.seed, pos)?;
-                return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None, first });
-            }
-            Budget::Bytes { bytes: b, draws_per_row } => {
-                // Planned from the footers before anything is loaded.
-                let layout = Layout::open(&source)?.with_scored(table, cfg.priority.clone())?;
-                match Plan::of(&layout, b)? {
-                    Plan::Whole => layout.into_scored().expect("attached"),
-                    Plan::Pool { slots, reservoir } => {
-                        if let Some(beta) = cfg.priority.is_beta {
-                            bail!(
-                                "{at}: --is-beta {beta} within --memory-budget: a pool ranks swapped rows within each \
-                                 block, so their probabilities over the whole table, which the weights need, are not \
-                                 known; leave --is-beta unset, or give a budget that holds the data"
-                            );
-                        }
-                        let pool = Pool::planned(layout, (b, draws_per_row), cfg.seed, (slots, reservoir), pos)?;
-                        return Ok(BatchSource { data: Beta::Pool(Box::new(pool)), scored: None, first });
-                    }
-                }
-            }
-        };
-        let data = beta_at(&table, &source)?;
-        Ok(BatchSource { data: Beta::Whole(Arc::new(data)), scored: Some(table), first })
+        let source = open::checked_source(&table)?;
+        let scoring = Scoring { table, priority: cfg.priority.clone(), goal_sources: false };
+        let Opened { data, scored } = open::plan(&source, budget, Some(scoring))?.open(cfg.seed, pos)?;
+        Ok(BatchSource { data, scored, first: pos.batches })
     }
 
     /// Whether the data is a scored table (batches then mix in prioritized swapped rows).
@@ -276,37 +242,6 @@ impl BatchStream {
         rows.weight = weight;
         Ok((rows, ids))
     }
-}
-
-/// The trajectory table a scored table names, checked: present, unchanged, same task.
-pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
-    beta_at(table, &checked_source(table)?)
-}
-
-/// The trajectory table at `source`, which [`checked_source`] returned for `table`, loaded and
-/// checked to be of the same task (without hashing it again).
-pub(super) fn beta_at(table: &ScoredTable, source: &std::path::Path) -> Result<Episodes> {
-    let data = Episodes::load(source)?;
-    if data.task != table.task {
-        bail!("{}: its task differs from that of its original data {}", table.path.display(), source.display());
-    }
-    Ok(data)
-}
-
-/// Where the trajectory table a scored table names is, checked present and unchanged.
-pub(super) fn checked_source(table: &ScoredTable) -> Result<std::path::PathBuf> {
-    let at = table.path.display();
-    let (path, sha) = table.trajectory();
-    if !path.exists() {
-        bail!(
-            "{at}: its original data {} is missing (the footer's path is relative to the scored file)",
-            path.display()
-        );
-    }
-    if crate::trajectory::folder::digest(&path)? != sha {
-        bail!("{at}: its original data {} has changed since scoring (sha256 differs)", path.display());
-    }
-    Ok(path)
 }
 
 /// The batch of prioritized rows `drawn` from a pool's blocks: the transition from β, the goal

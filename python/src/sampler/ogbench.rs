@@ -205,7 +205,7 @@ pub(super) fn og_worker(
         if ready.len() >= prefetch || ready.back().is_some_and(|b| b.is_err()) {
             return false;
         }
-        if stream.would_swap(size) {
+        if stream.would_rotate(size) {
             stream.stage();
             return false;
         }

@@ -23,7 +23,8 @@ use anyhow::{Context, Result, bail};
 use super::{At, Goal, GoalKind, OgbenchConfig};
 use crate::nprandom::NpRandom;
 use crate::sampler::RowKey;
-use crate::sampler::pool::{Beta, Layout, Plan, Pool, Position};
+use crate::sampler::open::{self, Beta, Opened, Scoring};
+use crate::sampler::pool::{Pool, Position};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
 use crate::sampler::view::{Budget, View};
@@ -135,12 +136,12 @@ impl Source {
                      score), and this is a trajectory table; give its scored table or folder, or p_swapgoal = 0"
                 );
             }
-            return Ok(Source::Plain(Beta::within(path, budget, seed, Position::START)?));
+            return Ok(Source::Plain(open::plan(path, budget, None)?.open(seed, Position::START)?.data));
         };
-        let source = crate::sampler::stream::checked_source(&table)?;
+        let source = open::checked_source(&table)?;
         if p_swapgoal == 0.0 {
             // Its original data alone: no scored rows held for nothing.
-            return Ok(Source::Plain(Beta::within(&source, budget, seed, Position::START)?));
+            return Ok(Source::Plain(open::plan(&source, budget, None)?.open(seed, Position::START)?.data));
         }
         priority.validate()?;
         if let Some(b) = priority.is_beta {
@@ -152,50 +153,49 @@ impl Source {
                  observation, which OGBench's goals are; score without it"
             );
         }
-        let whole = |table: ScoredTable| -> Result<Source> {
-            let data = crate::sampler::stream::beta_at(&table, &source)?;
-            table.check_whole()?;
-            let q = table.read_q()?;
-            let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
-            let keys = table.read_keys(&data)?;
-            Ok(Source::Whole { data: Arc::new(data), rows: WholeRows { tree, keys } })
-        };
-        if budget == Budget::Unbounded {
-            return whole(table);
-        }
-        let layout = Layout::open(&source)?.with_scored(table, priority.clone())?.with_goal_sources();
+        let task = table.task.clone();
+        let scoring = Scoring { table, priority: priority.clone(), goal_sources: true };
+        let planned = open::plan(&source, budget, Some(scoring))?;
         // Within a budget the stored goal stands for the goal vector: the achieved goal, which
         // is what `oracle_reps` reads; for observation goals, refused unless the task's goals are
-        // its whole observations (the width now, the values below).
-        let (task, bytes) = (layout.task().clone(), layout.bytes());
-        let refuse = || {
+        // its whole observations (the width here, before the pool reads anything; the values once
+        // its first blocks are in).
+        let refuse = |bytes: u64| {
             anyhow::anyhow!(
                 "{at}: p_swapgoal within a memory budget needs goals that are whole observations (a block keeps the \
                  goals its rows were scored with, not the observations they were taken from); {}'s goals are {} of \
-                 its {} observation values. Hold the data in memory (no memory_budget, or one above {}), or use \
-                 layout=\"pgser\"",
+                 its {} observation values. Hold the data in memory (no memory_budget, or one of {} or more), or \
+                 use layout=\"pgser\"",
                 task.name,
                 task.goal_dim,
                 task.obs_dim,
                 crate::progress::bytes(bytes)
             )
         };
-        let pool = match budget {
-            Budget::Unbounded => unreachable!("held whole above"),
-            Budget::ShardWindow(_) | Budget::Bytes { .. } if !cfg.oracle_reps && task.goal_dim != task.obs_dim => {
-                return Err(refuse());
-            }
-            Budget::ShardWindow(rows) => Pool::window(layout, rows, seed, Position::START)?,
-            Budget::Bytes { bytes: b, draws_per_row } => match Plan::of(&layout, b)? {
-                Plan::Whole => return whole(layout.into_scored().expect("attached above")),
-                Plan::Pool { slots, reservoir } => {
-                    Pool::planned(layout, (b, draws_per_row), seed, (slots, reservoir), Position::START)?
-                }
-            },
-        };
-        if !cfg.oracle_reps && !pool.goals_are_observations() {
-            return Err(refuse());
+        if let Some(bytes) = planned.pool_bytes()
+            && !cfg.oracle_reps
+            && task.goal_dim != task.obs_dim
+        {
+            return Err(refuse(bytes));
         }
-        Ok(Source::Pool(Box::new(pool)))
+        let bytes = planned.pool_bytes();
+        match planned.open(seed, Position::START)? {
+            Opened { data: Beta::Whole(data), scored: Some(table) } => {
+                table.check_whole()?;
+                let q = table.read_q()?;
+                let tree = SumTree::new(priority.priorities(q, table.gamma).with_context(|| format!("{at}"))?);
+                let keys = table.read_keys(&data)?;
+                Ok(Source::Whole { data, rows: WholeRows { tree, keys } })
+            }
+            Opened { data: Beta::Pool(pool), .. } => {
+                if !cfg.oracle_reps && !pool.goals_are_observations() {
+                    return Err(refuse(bytes.expect("a pool was planned")));
+                }
+                Ok(Source::Pool(pool))
+            }
+            Opened { data: Beta::Whole(_), scored: None } => {
+                unreachable!("a scored table held whole is opened with it")
+            }
+        }
     }
 }

@@ -240,7 +240,7 @@ impl Layout {
     }
 
     /// Bytes of one reservoir entry: an achieved goal, an observation, where they came from
-    /// (16 bytes: `Pool::goal_at`) and its key (12 bytes: `Keys::slots`).
+    /// (16 bytes: `Reservoir::at`) and its key (12 bytes: `Keys::slots`).
     pub(super) fn entry_bytes(&self) -> u64 {
         4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16 + 12
     }
@@ -370,8 +370,9 @@ pub enum Plan {
 
 impl Plan {
     /// The budget's split: the reservoir takes an eighth (at most one entry per observation of the
-    /// table) and as much again while it is first filled, `IN_FLIGHT` blocks are set aside, and
-    /// the rest holds blocks of the largest size.
+    /// table) and as much again (what the first fill's reads leave behind in the allocator,
+    /// measured on a 1B-row folder: `Reservoir::fill`), `IN_FLIGHT` blocks are set aside, and the
+    /// rest holds blocks of the largest size.
     /// Refused, saying what would do, when fewer than two blocks fit. The budget is β's: the
     /// process's own memory (code, networks, batches, Parquet metadata) comes on top of it, and
     /// BENCHMARKS.md measures the whole.
@@ -383,7 +384,9 @@ impl Plan {
         let observations = layout.episodes * layout.t as u64;
         let reservoir =
             ((budget as f64 * RESERVOIR_SHARE) as u64 / layout.entry_bytes()).min(observations).max(1) as usize;
-        // The reservoir twice: its first fill gathers every block's entries before they are placed.
+        // The reservoir twice: the first fill places each block's entries as it is read, but
+        // with one reservoir's worth set aside the process stayed within the budget at 1B rows
+        // (BENCHMARKS.md), and without it did not.
         let fixed = 2 * reservoir as u64 * layout.entry_bytes() + IN_FLIGHT * block;
         let slots = budget.saturating_sub(fixed) / block.max(1);
         if slots < 2 {

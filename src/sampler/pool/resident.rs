@@ -7,7 +7,7 @@ use std::ops::Deref;
 use super::layout::Block;
 
 /// The resident blocks, oldest first, and their episodes in that order. Blocks leave oldest first
-/// and enter last, so a swap pops the leaving block's episodes off the front of the index and
+/// and enter last, so a rotation pops the leaving block's episodes off the front of the index and
 /// pushes the new one's at the back: its cost is the two blocks' episodes, not the resident
 /// ones', and resident episode numbers are those a rebuilt index would give.
 pub(super) struct Resident {

@@ -46,7 +46,7 @@ impl Entries {
 
 /// The reservoir's entries as (block, episode in it, step): what the pool's random numbers decide
 /// alone, before any data is read. Vectors are filled in from the blocks afterwards
-/// (`Pool::materialize`, `Pool::swap`).
+/// (`Pool::materialize`, `Pool::rotate`).
 pub(super) struct Keys {
     pub(super) slots: Vec<(u32, u32, u32)>,
     /// Next slot to replace (the oldest).
@@ -108,9 +108,9 @@ impl Keys {
 /// every later pass starts with the same `head` blocks (pass 0's first ones, the first fill) and
 /// shuffles the rest afresh.
 ///
-/// Why the fixed head: a block is resident for `S` swaps. The first fill's block k leaves at swap
+/// Why the fixed head: a block is resident for `S` rotations. The first fill's block k leaves at rotation
 /// k + 1, having had k + 1 of its S turns; as the pass ends, the same block enters again as the
-/// next pass's k-th and has S − 1 − k turns before the pass's last swap. So within every pass of
+/// next pass's k-th and has S − 1 − k turns before the pass's last rotation. So within every pass of
 /// draws each block is resident for exactly S turns, and each shard's share of the draws is its
 /// share of the rows, up to sampling noise, with no block half-drawn at a pass's edges.
 pub(super) fn permutation(blocks: usize, head: usize, seed: u64, pass: u64) -> Vec<usize> {
