@@ -172,13 +172,13 @@ impl Source {
                 crate::progress::bytes(bytes)
             )
         };
-        if let Some(bytes) = planned.pool_bytes()
+        let bytes = planned.pool_bytes();
+        if let Some(b) = bytes
             && !cfg.oracle_reps
             && task.goal_dim != task.obs_dim
         {
-            return Err(refuse(bytes));
+            return Err(refuse(b));
         }
-        let bytes = planned.pool_bytes();
         match planned.open(seed, Position::START)? {
             Opened { data: Beta::Whole(data), scored: Some(table) } => {
                 table.check_whole()?;

@@ -68,14 +68,12 @@ impl Reservoir {
         for (id, run) in here {
             self.take(held[&id], run, layout.t);
         }
-        let ids: Vec<usize> = others.iter().map(|&(id, _)| id).collect();
-        let group_runs: Vec<&[u32]> = others.iter().map(|&(_, run)| run).collect();
-        for (group, ids) in group_runs.chunks(IN_FLIGHT as usize).zip(ids.chunks(IN_FLIGHT as usize)) {
-            let blocks = ids
+        for group in others.chunks(IN_FLIGHT as usize) {
+            let blocks = group
                 .par_iter()
-                .map(|&id| layout.read_columns(id, &[true, true, false, false], Default::default()))
+                .map(|&(id, _)| layout.read_columns(id, &[true, true, false, false], Default::default()))
                 .collect::<Result<Vec<_>>>()?;
-            for (run, b) in group.iter().zip(&blocks) {
+            for (&(_, run), b) in group.iter().zip(&blocks) {
                 self.take(b, run, layout.t);
             }
         }
