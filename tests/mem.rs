@@ -123,7 +123,7 @@ fn disk_batches_hold_the_rows_they_name() {
     let (_, _, scored) = scored();
     let cfg = PriorityConfig { is_beta: Some(1.0), ..PriorityConfig::default() };
     let table = ScoredTable::open(scored).unwrap();
-    let beta = std::sync::Arc::new(pgser::sampler::stream::beta_of(&table).unwrap());
+    let beta = std::sync::Arc::new(pgser::sampler::open::beta_of(&table).unwrap());
     let mut disk = ScoredSampler::start(table, beta, &cfg, 64, 5, 0, false).unwrap();
     // Batch row i must equal table row rows[i].
     let (t, _) = read_table(scored);
