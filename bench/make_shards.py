@@ -11,6 +11,13 @@ values are an x, y position, so goal maps and distances behave like a maze's, no
 `--no-state` leaves `qpos` and `qvel` out (the 1B-row folder of PointMaze's width, issue 75,
 whose disk they would not fit beside its table).
 
+`--visual H` makes the observations uint8 images [E*M, H, H, 3], as OGBench's visual datasets
+hold them (64 for theirs), and `qpos` (15 values, the first two the walk's x, y) and `qvel`
+(14) an ant's widths, so that `visual-antmaze-*` names convert (the goal is qpos[0:2]). Each
+image is a smooth colour field moved by the walk's position plus a little noise: not a
+rendering, but neither constant (which zstd would shrink to nothing) nor noise (which it could
+not shrink at all).
+
 humanoidmaze-giant's shape is obs 69, act 21, M = 4001, 1000 episodes a shard in the 1B set;
 `--episodes` picks a smaller shard. Shards are written with np.savez (uncompressed, the default)
 or np.savez_compressed (`--compressed`, as OGBench's files are); each is written beside its
@@ -19,7 +26,7 @@ name and renamed, so a killed run leaves no partial shard, and shards already pr
 Usage:
     make_shards.py OUT_DIR [--name humanoidmaze-giant-navigate-v0] [--shards 4]
                    [--episodes 100] [--rows 4001] [--obs 69] [--act 21] [--compressed] [--no-state]
-                   [--seed 0]
+                   [--visual 64] [--seed 0]
 """
 from __future__ import annotations
 
@@ -50,6 +57,31 @@ def shard(rng: np.random.Generator, episodes: int, rows: int, obs: int, act: int
     }
 
 
+def visual_shard(rng: np.random.Generator, episodes: int, rows: int, act: int, side: int) -> dict[str, np.ndarray]:
+    walk = shard(rng, episodes, rows, 29, act, state=False)
+    xy = walk["observations"][:, :2]
+    n = len(xy)
+    u = np.linspace(0.0, 2 * np.pi, side, dtype=np.float32)
+    images = np.empty((n, side, side, 3), np.uint8)
+    for start in range(0, n, 4096):
+        p = xy[start : start + 4096]
+        k = len(p)
+        fx = np.sin(u[None, :, None] + p[:, 0, None, None] * 0.3)  # (k, side, 1)
+        fy = np.cos(u[None, None, :] + p[:, 1, None, None] * 0.3)  # (k, 1, side)
+        base = (fx * fy)[..., None] * np.array([60.0, 45.0, 30.0], np.float32) + 128.0
+        noise = rng.integers(0, 2, (k, side, side, 3), dtype=np.uint8)
+        images[start : start + k] = np.clip(base, 0, 254).astype(np.uint8) + noise
+    qpos = np.zeros((n, 15), np.float32)
+    qpos[:, :2] = xy
+    return {
+        "observations": images,
+        "actions": walk["actions"],
+        "terminals": walk["terminals"],
+        "qpos": qpos,
+        "qvel": rng.normal(0.0, 0.1, (n, 14)).astype(np.float32),
+    }
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out")
@@ -62,6 +94,7 @@ def main() -> None:
     p.add_argument("--compressed", action="store_true")
     p.add_argument("--no-state", action="store_true", help="no qpos, qvel")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--visual", type=int, default=0, metavar="H", help="uint8 images H x H x 3 as observations")
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
     save = np.savez_compressed if a.compressed else np.savez
@@ -73,7 +106,11 @@ def main() -> None:
         rng = np.random.default_rng([a.seed, i])
         episodes = a.episodes if not name.endswith("-val.npz") else max(a.episodes // 10, 1)
         tmp = path + ".part.npz"
-        save(tmp, **shard(rng, episodes, a.rows, a.obs, a.act, not a.no_state))
+        if a.visual:
+            arrays = visual_shard(rng, episodes, a.rows, a.act, a.visual)
+        else:
+            arrays = shard(rng, episodes, a.rows, a.obs, a.act, not a.no_state)
+        save(tmp, **arrays)
         os.replace(tmp, path)
         print(path, flush=True)
 

@@ -239,6 +239,7 @@ fn type_text(t: &DataType) -> String {
         DataType::FixedSizeList(item, n) => {
             format!("fixed_size_list<{}>[{n}]", type_text(item.data_type()))
         }
+        DataType::FixedSizeBinary(n) => format!("fixed_size_binary[{n}]"),
         other => other.to_string().to_lowercase(),
     }
 }
@@ -366,9 +367,16 @@ pub fn render(s: &Summary, per_dim: bool) -> String {
     }
     if let (Some(e), Some(ok), Some(rate)) = (s.episodes, s.final_success, s.success_rate) {
         let f = s.footer.as_ref().expect("trajectory tables have a footer");
+        let images = match f["image_shape"].as_array() {
+            Some(shape) => {
+                let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+                format!(" (uint8 images {})", dims.join("×"))
+            }
+            None => String::new(),
+        };
         let _ = writeln!(
             o,
-            "episodes: {e}  T: {}  dims: obs {} goal {} act {}  task: {}",
+            "episodes: {e}  T: {}  dims: obs {}{images} goal {} act {}  task: {}",
             f["T"],
             f["obs_dim"],
             f["goal_dim"],

@@ -47,6 +47,11 @@ fn writer_properties(schema: &Schema) -> WriterProperties {
         .set_statistics_enabled(EnabledStatistics::Chunk)
         .set_created_by(format!("pgser {}", env!("CARGO_PKG_VERSION")));
     for f in schema.fields() {
+        // An image column's statistics would be two 12 kB values per chunk in the footer, and
+        // prune nothing.
+        if let DataType::FixedSizeBinary(_) = f.data_type() {
+            b = b.set_column_statistics_enabled(ColumnPath::new(vec![f.name().clone()]), EnabledStatistics::None);
+        }
         // Float leaves only: a passthrough column may hold lists of bools or integers.
         if let DataType::FixedSizeList(item, _) = f.data_type()
             && matches!(item.data_type(), DataType::Float32 | DataType::Float64)

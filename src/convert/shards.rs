@@ -102,13 +102,20 @@ fn plans(opts: &ConvertOptions, shards: &[PathBuf], out: &Path) -> Result<Vec<Co
     Ok(plans)
 }
 
-/// Refuses shard `s` (planned as `p`) unless its environment, episode length, widths and float
-/// type are those of `shards0` (planned as `first`).
+/// Refuses shard `s` (planned as `p`) unless its environment, episode length, image shape,
+/// widths and float type are those of `shards0` (planned as `first`).
 fn agree((first, shard0): (&ConvertPlan, &Path), (p, s): (&ConvertPlan, &Path), why: &str) -> Result<()> {
     let (a, b, at) = (&first.task, &p.task, shard0.display());
     let differs = [
         (a.name != b.name).then(|| format!("environment {} where {at} has {}", b.name, a.name)),
         (a.t != b.t).then(|| format!("episodes of {} rows where {at} has {}", b.t, a.t)),
+        (first.image_shape != p.image_shape).then(|| {
+            let obs = |shape: &[usize]| match shape {
+                [] => "float observations".to_string(),
+                s => format!("observations uint8 images {}", crate::trajectory::shape_text(s)),
+            };
+            format!("{} where {at} has {}", obs(&p.image_shape), obs(&first.image_shape))
+        }),
         ((a.obs_dim, a.goal_dim, a.act_dim) != (b.obs_dim, b.goal_dim, b.act_dim)).then(|| {
             format!(
                 "obs {}, goal {}, act {} where {at} has obs {}, goal {}, act {}",
@@ -136,6 +143,8 @@ pub(super) fn check(opts: &ConvertOptions, files: &[PathBuf]) -> Result<ConvertP
     Ok(ConvertPlan {
         task: plans[0].task.clone(),
         float_type: plans[0].float_type,
+        image_shape: plans[0].image_shape.clone(),
+        row_bytes: plans[0].row_bytes,
         episodes_in_file: plans.iter().flat_map(|p| p.episodes_in_file.iter().copied()).collect(),
         episodes_taken: plans.iter().flat_map(|p| p.episodes_taken.iter().copied()).collect(),
     })
@@ -228,21 +237,33 @@ fn convert_into(
     let settings = settings(opts);
     let same = prepare(out, shards, &settings)?;
     bar.set_length(plans.iter().map(|p| (p.episodes_taken[0] * p.task.t) as u64).sum());
-    let done: Vec<(Option<ConvertSummary>, usize)> = shards
-        .par_iter()
-        .zip(&plans)
-        .map(|(shard, plan)| {
-            let o = shard_opts(opts, shard, out);
-            let rows = plan.episodes_taken[0] * plan.task.t;
-            let summary = if finished(&o, shard, same)? {
-                None
-            } else {
-                Some(ogbench::convert(&o, shard, &ProgressBar::hidden())?)
-            };
-            crate::progress::advance(bar, rows as u64)?;
-            Ok((summary, rows))
-        })
-        .collect::<Result<_>>()?;
+    // Shards side by side, as many as there are threads but within ogbench::WINDOW_BYTES of
+    // their rows together: each gets an equal share, at least two of its row groups, so that
+    // wide shards (humanoid's 18 MB groups, an image table's 32 MiB) run fewer at a time
+    // rather than each holding more, and convert's memory does not grow with the thread count.
+    let threads = rayon::current_num_threads().max(1);
+    let group = plans.iter().map(|p| ogbench::group_bytes(p, opts.row_group_rows)).max().unwrap_or(1).max(1);
+    let side_by_side = (ogbench::WINDOW_BYTES / (2 * group)).clamp(1, threads);
+    let share = ogbench::WINDOW_BYTES / side_by_side;
+    let work: Vec<(&PathBuf, &ConvertPlan)> = shards.iter().zip(&plans).collect();
+    let mut done: Vec<(Option<ConvertSummary>, usize)> = Vec::with_capacity(work.len());
+    for wave in work.chunks(side_by_side) {
+        let part: Vec<(Option<ConvertSummary>, usize)> = wave
+            .par_iter()
+            .map(|&(shard, plan)| {
+                let o = shard_opts(opts, shard, out);
+                let rows = plan.episodes_taken[0] * plan.task.t;
+                let summary = if finished(&o, shard, same)? {
+                    None
+                } else {
+                    Some(ogbench::convert_within(&o, shard, &ProgressBar::hidden(), share)?)
+                };
+                crate::progress::advance(bar, rows as u64)?;
+                Ok((summary, rows))
+            })
+            .collect::<Result<_>>()?;
+        done.extend(part);
+    }
     let files: Vec<String> = shards.iter().map(|s| format!("{}.parquet", stem(s))).collect();
     let manifest = Manifest::of_shards(out, &files, &opts.command, validation, Some(settings))?;
     manifest.write(out)?;

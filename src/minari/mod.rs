@@ -415,6 +415,8 @@ pub fn check(opts: &ConvertOptions, dir: &Path) -> Result<ConvertPlan> {
     Ok(ConvertPlan {
         task,
         float_type: source.float_type(opts.float32),
+        image_shape: Vec::new(),
+        row_bytes: 0,
         episodes_in_file: vec![source.meta.total_episodes],
         episodes_taken: vec![source.episodes],
     })

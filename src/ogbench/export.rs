@@ -26,7 +26,7 @@ use super::npz::NpzWriter;
 use crate::dtype::Dtype;
 use crate::output::AtomicFile;
 use crate::trajectory::extra::{append_source_bytes, kept_for};
-use crate::trajectory::read::{check_all_read, check_keys, open_checked};
+use crate::trajectory::read::{check_all_read, check_keys, open_checked, open_images};
 use crate::trajectory::{FloatType, Footer, Per};
 
 /// Writes `table` as the OGBench dataset file `out`, less the passthrough columns `drop` names
@@ -39,7 +39,7 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
         );
     }
     crate::output::check_not_an_input(out, std::slice::from_ref(&table.to_path_buf()))?;
-    let (footer, _) = open_checked(table, &["obs"], 64)?;
+    let (footer, _) = open_images(table, &["obs"], 64)?;
     let source = footer.sources.first().map(|s| s.format.as_str()).filter(|f| f.starts_with("ogbench-npz"));
     let regular = source == Some("ogbench-npz-regular");
     // A row per observation holds what is per step; a row per transition what is per transition.
@@ -64,9 +64,19 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     let all = |_: usize| true;
     let but_last = |s: usize| s < t - 1;
     let but_first = |s: usize| s > 0;
-    w.start("observations", float(obs_size), &[rows, footer.obs_dim])?;
+    // Observations: float rows, or uint8 images of the footer's shape, as the file had them.
+    let obs_shape: Vec<usize> = if footer.is_image() { footer.image_shape.clone() } else { vec![footer.obs_dim] };
+    let obs_dtype = if footer.is_image() { Dtype::U8 } else { float(obs_size) };
+    let obs_stream = |steps: &dyn Fn(usize) -> bool, w: &mut NpzWriter<_>| -> Result<()> {
+        if footer.is_image() {
+            stream_images(table, steps, |v| w.write(v))
+        } else {
+            stream_floats(table, "obs", obs_size, steps, |_, v| w.write(v))
+        }
+    };
+    w.start("observations", obs_dtype, &[&[rows][..], &obs_shape].concat())?;
     let obs_steps: &dyn Fn(usize) -> bool = if regular { &but_last } else { &all };
-    stream_floats(table, "obs", obs_size, obs_steps, |_, v| w.write(v)).with_context(|| fail("observations"))?;
+    obs_stream(obs_steps, &mut w).with_context(|| fail("observations"))?;
     w.start("actions", float(act_size), &[rows, footer.act_dim])?;
     let zeros = vec![0u8; footer.act_dim * act_size];
     let act_steps: &dyn Fn(usize) -> bool = if last_action { &all } else { &but_last };
@@ -92,9 +102,8 @@ pub fn export_npz(table: &Path, out: &Path, drop: &[String]) -> Result<Footer> {
     }
     // The source's own next observations, where the table kept them, were written above.
     if regular && !extras.iter().any(|p| p.column == "next_observations") {
-        w.start("next_observations", float(obs_size), &[rows, footer.obs_dim])?;
-        stream_floats(table, "obs", obs_size, &but_first, |_, v| w.write(v))
-            .with_context(|| fail("next_observations"))?;
+        w.start("next_observations", obs_dtype, &[&[rows][..], &obs_shape].concat())?;
+        obs_stream(&but_first, &mut w).with_context(|| fail("next_observations"))?;
     }
     use std::io::Write;
     w.finish()?.flush().with_context(|| format!("{}: write failed", out.display()))?;
@@ -147,6 +156,27 @@ fn stream_floats(
                     .for_each(|v| bytes.extend(v.to_le_bytes())),
             }
             each(step, &bytes)?;
+        }
+        row += batch.num_rows();
+    }
+    check_all_read(&at, row, &footer)
+}
+
+/// Calls `each` with the bytes of each image observation on the steps `steps` keeps, in table
+/// order.
+fn stream_images(table: &Path, steps: &dyn Fn(usize) -> bool, mut each: impl FnMut(&[u8]) -> Result<()>) -> Result<()> {
+    let at = table.display().to_string();
+    let (footer, reader) = open_images(table, &["obs"], 4)?;
+    let t = footer.t;
+    let mut row = 0;
+    for batch in reader {
+        let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
+        check_keys(&at, &batch, row, &footer)?;
+        let images = batch.column_by_name("obs").expect("projected").as_fixed_size_binary();
+        for r in 0..batch.num_rows() {
+            if steps((row + r) % t) {
+                each(images.value(r))?;
+            }
         }
         row += batch.num_rows();
     }

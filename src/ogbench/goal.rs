@@ -25,6 +25,11 @@
 //!   drawer's and the window's positions, read from the observation, so the regular layout keeps
 //!   its goals too; each part is reached within its own tolerance ([`GoalMetric::Scene`]).
 //!
+//! - Visual datasets (`visual-antmaze-*`, `visual-cube-*`, `visual-puzzle-*`): observations are
+//!   images, so the goal is the oracle representation read from the file's state
+//!   ([`member_map`]): the agent's x, y from `qpos`, the cubes' positions from `qpos` centred and
+//!   scaled as a state observation has them, the buttons' states.
+//!
 //! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
 //! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
 //! `convert --full-goal` makes the whole observation the goal instead ([`GoalMap::full`]), with
@@ -32,7 +37,7 @@
 
 use std::ops::Range;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 
 use crate::task::GoalMetric;
 
@@ -51,8 +56,12 @@ pub struct GoalMap {
     pub threshold: f64,
     pub metric: GoalMetric,
     /// The file's member the goal is, where it is not part of the observation (a puzzle's
-    /// `button_states`); None: the goal is observation values.
+    /// `button_states`, a visual environment's `qpos`); None: the goal is observation values.
     pub member: Option<String>,
+    /// Per goal value, (centre, scale): the value is (x − centre) · scale, as OGBench's oracle
+    /// representation of a cube is its position centred on the workspace and scaled by 10.
+    /// Empty: the values as they are.
+    pub affine: Vec<(f64, f64)>,
 }
 
 impl GoalMap {
@@ -62,7 +71,7 @@ impl GoalMap {
         // One range: the goal is the whole observation (a Vec of ranges, not a range of values).
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..obs_dim];
-        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean, member: None }
+        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean, member: None, affine: Vec::new() }
     }
 
     /// A member's whole row of `width` values as the goal (a puzzle's `button_states`).
@@ -70,7 +79,7 @@ impl GoalMap {
         // One range: the member's whole row.
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..width];
-        GoalMap { ranges, threshold, metric, member: Some(key.to_string()) }
+        GoalMap { ranges, threshold, metric, member: Some(key.to_string()), affine: Vec::new() }
     }
 
     pub fn goal_dim(&self) -> usize {
@@ -78,7 +87,7 @@ impl GoalMap {
     }
 
     /// φ of observation rows of `size`-byte values (one row of `obs_dim` values each): the goal
-    /// rows, appended to `out` (not for a member's goal: [`member_rows`]).
+    /// rows, appended to `out` (not for a member's goal: [`GoalMap::member_goal_rows`]).
     pub fn map_bytes(&self, rows: &[u8], obs_dim: usize, size: usize, out: &mut Vec<u8>) {
         for row in rows.chunks_exact(obs_dim * size) {
             for r in &self.ranges {
@@ -96,10 +105,89 @@ impl GoalMap {
 /// The families pgser maps, for error messages.
 pub const FAMILIES: [&str; 6] = ["pointmaze", "antmaze", "humanoidmaze", "cube", "scene", "puzzle"];
 
-/// The member an environment's goal is, where it is not observation values, with its success
-/// test: a puzzle's `button_states`, every button within 0.5 of its target state (0 or 1).
-pub fn member_goal(env: &str) -> Option<(&'static str, f64, GoalMetric)> {
-    (env.split('-').next() == Some("puzzle")).then_some(("button_states", 0.5, GoalMetric::EachValue))
+/// An environment's family (`cube` for `visual-cube-double-v0`), and whether it is a visual one
+/// (its observations images, `visual-` before its name).
+fn family(env: &str) -> (&str, bool) {
+    let (name, visual) = match env.strip_prefix("visual-") {
+        Some(rest) => (rest, true),
+        None => (env, false),
+    };
+    (name.split('-').next().unwrap_or_default(), visual)
+}
+
+/// qpos of a cube scene: the arm's joints, the gripper's, then 7 per cube (position, quaternion)
+/// from here (`add_oracle_reps`'s `qpos_obj_start_idx`, `qpos_cube_length`).
+const CUBE_QPOS: usize = 14;
+const CUBE_QPOS_VALUES: usize = 7;
+/// A cube observation's (and oracle representation's) cube positions: centred here, scaled by
+/// 10 (`CubeEnv.compute_observation`, `add_oracle_reps`).
+const CUBE_CENTRE: [f64; 3] = [0.425, 0.0, 0.0];
+const CUBE_SCALE: f64 = 10.0;
+
+/// The member an environment's goal is read from, where it is not observation values: a puzzle's
+/// `button_states` (visual or not), and a visual maze's or cube scene's `qpos`, since its
+/// observations are images ([`member_map`] maps it).
+pub fn goal_member(env: &str) -> Option<&'static str> {
+    match family(env) {
+        ("puzzle", _) => Some("button_states"),
+        ("antmaze" | "humanoidmaze" | "cube", true) => Some("qpos"),
+        _ => None,
+    }
+}
+
+/// The goal map over rows of `width` values of [`goal_member`]'s member, OGBench's oracle
+/// representation (`add_oracle_reps`) and its success test:
+/// - a puzzle's button states, every one within 0.5 of its target state (0 or 1);
+/// - a visual maze's agent x, y (`qpos[0:2]`), within `goal_tol` (0.5 for the ant and the
+///   humanoid; OGBench has no visual pointmaze);
+/// - a visual cube scene's cube positions (`qpos[14 + 7i : 17 + 7i]`), centred and scaled as a
+///   state observation has them, every cube within 0.4 (0.04 m).
+pub fn member_map(env: &str, width: usize) -> Result<GoalMap> {
+    let Some(key) = goal_member(env) else { bail!("{env}: its goal is observation values, not a member's") };
+    let need = |n: usize, what: &str| -> Result<()> {
+        if width < n {
+            bail!("{env}: {key} has {width} values a row; {what} needs {n}");
+        }
+        Ok(())
+    };
+    let maze = |tol: f64| -> Result<GoalMap> {
+        need(2, "the agent's x, y (its first 2)")?;
+        #[allow(clippy::single_range_in_vec_init)]
+        let ranges = vec![0..2];
+        Ok(GoalMap {
+            ranges,
+            threshold: tol,
+            metric: GoalMetric::Euclidean,
+            member: Some(key.into()),
+            affine: Vec::new(),
+        })
+    };
+    match family(env).0 {
+        "puzzle" => Ok(GoalMap::member(key, width, 0.5, GoalMetric::EachValue)),
+        "antmaze" | "humanoidmaze" => maze(0.5),
+        _ => {
+            let cubes = cube_count(env)
+                .with_context(|| format!("{env}: a visual cube scene names its cubes (visual-cube-double-v0)"))?;
+            need(CUBE_QPOS + CUBE_QPOS_VALUES * cubes, &format!("a scene of {cubes} cube(s)"))?;
+            let ranges =
+                (0..cubes).map(|i| CUBE_QPOS + CUBE_QPOS_VALUES * i..CUBE_QPOS + CUBE_QPOS_VALUES * i + 3).collect();
+            let affine = (0..cubes).flat_map(|_| CUBE_CENTRE.map(|c| (c, CUBE_SCALE))).collect();
+            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: Some(key.into()), affine })
+        }
+    }
+}
+
+/// The cubes a cube scene's name gives (`cube-double-v0`: 2), if it names them.
+fn cube_count(env: &str) -> Option<usize> {
+    let name = env.strip_prefix("visual-").unwrap_or(env);
+    match name.split('-').nth(1) {
+        Some("single") => Some(1),
+        Some("double") => Some(2),
+        Some("triple") => Some(3),
+        Some("quadruple") => Some(4),
+        Some("octuple") => Some(8),
+        _ => None,
+    }
 }
 
 /// The goal map of an OGBench environment (`antmaze-large-v0`, `cube-double-v0`) whose
@@ -112,7 +200,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
         }
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..2];
-        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean, member: None })
+        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean, member: None, affine: Vec::new() })
     };
     match family {
         "pointmaze" => maze(1.0),
@@ -124,15 +212,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
                     "{env}: observations have {obs_dim} values; a cube scene's have {CUBE_PROPRIO} + {CUBE_VALUES} per cube"
                 );
             }
-            let named = match env.split('-').nth(1) {
-                Some("single") => Some(1),
-                Some("double") => Some(2),
-                Some("triple") => Some(3),
-                Some("quadruple") => Some(4),
-                Some("octuple") => Some(8),
-                _ => None,
-            };
-            if let Some(n) = named.filter(|&n| n != cubes) {
+            if let Some(n) = cube_count(env).filter(|&n| n != cubes) {
                 bail!(
                     "{env}: a scene of {n} cubes has {} observation values, these have {obs_dim} ({cubes} cube{})",
                     CUBE_PROPRIO + n * CUBE_VALUES,
@@ -141,7 +221,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
             }
             let ranges =
                 (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
-            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: None })
+            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: None, affine: Vec::new() })
         }
         "scene" => {
             use crate::task::SCENE_BUTTONS;
@@ -162,16 +242,57 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
             // The state one-hot's second value is the state (np.eye(2)[state]).
             ranges.extend((0..SCENE_BUTTONS).map(|b| buttons + BUTTON_VALUES * b + 1..buttons + BUTTON_VALUES * b + 2));
             ranges.extend([drawer..drawer + 1, drawer + 2..drawer + 3]);
-            Ok(GoalMap { ranges, threshold: 1.0, metric: GoalMetric::Scene, member: None })
+            Ok(GoalMap { ranges, threshold: 1.0, metric: GoalMetric::Scene, member: None, affine: Vec::new() })
         }
         "puzzle" => {
             bail!("{env}: a puzzle's goal is its button states (the dataset's button_states), not observation values")
         }
+        "visual" => bail!(
+            "{env}: a visual environment's observations are images; its goal is read from the dataset's qpos \
+             (mazes, cube scenes) or button_states (puzzles); a visual scene's, from both, is not mapped yet"
+        ),
         _ => bail!(
             "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual observations are images, not \
              mapped yet)",
             FAMILIES.join(", ")
         ),
+    }
+}
+
+impl GoalMap {
+    /// φ of a member's rows (`row_len` values of `dtype` each, as the file stores them): the
+    /// goal's ranges of each row, centred and scaled where [`GoalMap::affine`] says, in float64
+    /// from the stored value (as numpy's `(qpos - centre) * scale` computes it), as goal rows of
+    /// `size`-byte little-endian floats appended to `out`.
+    pub fn member_goal_rows(
+        &self,
+        rows: &[u8],
+        dtype: crate::dtype::Dtype,
+        row_len: usize,
+        size: usize,
+        out: &mut Vec<u8>,
+    ) {
+        let mut picked = Vec::with_capacity(self.goal_dim() * dtype.size);
+        let mut values = Vec::with_capacity(self.goal_dim() * size);
+        for row in rows.chunks_exact(row_len * dtype.size) {
+            picked.clear();
+            for r in &self.ranges {
+                picked.extend_from_slice(&row[r.start * dtype.size..r.end * dtype.size]);
+            }
+            values.clear();
+            member_rows(&picked, dtype, 8, &mut values);
+            for (i, v) in values.chunks_exact(8).enumerate() {
+                let mut x = f64::from_le_bytes(v.try_into().expect("8 bytes"));
+                if let Some(&(centre, scale)) = self.affine.get(i) {
+                    x = (x - centre) * scale;
+                }
+                if size == 4 {
+                    out.extend_from_slice(&(x as f32).to_le_bytes());
+                } else {
+                    out.extend_from_slice(&x.to_le_bytes());
+                }
+            }
+        }
     }
 }
 
@@ -230,6 +351,29 @@ mod tests {
     }
 
     #[test]
+    fn a_visual_cube_goal_is_its_qpos_centred_and_scaled() {
+        use crate::dtype::Dtype;
+        let g = member_map("visual-cube-double-v0", 28).unwrap();
+        assert_eq!((g.ranges.clone(), g.member.as_deref(), g.threshold), (vec![14..17, 21..24], Some("qpos"), 0.4));
+        let row: Vec<f32> = (0..28).map(|i| i as f32 / 8.0).collect();
+        let bytes: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut out = Vec::new();
+        g.member_goal_rows(&bytes, Dtype::F32, 28, 4, &mut out);
+        let got: Vec<f32> = out.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        // numpy's (qpos - [0.425, 0, 0]) * 10 on float32 qpos, in float64, then float32.
+        let want: Vec<f32> = [14, 15, 16, 21, 22, 23]
+            .iter()
+            .enumerate()
+            .map(|(i, &j)| ((row[j] as f64 - if i % 3 == 0 { 0.425 } else { 0.0 }) * 10.0) as f32)
+            .collect();
+        assert_eq!(got, want);
+        assert!(member_map("visual-cube-double-v0", 27).unwrap_err().to_string().contains("needs 28"));
+        let m = member_map("visual-antmaze-large-v0", 15).unwrap();
+        assert_eq!((m.ranges.clone(), m.threshold, m.affine.len()), (vec![0..2], 0.5, 0));
+        assert!(member_map("visual-cube-v0", 28).is_err());
+    }
+
+    #[test]
     fn maps_of_the_families() {
         assert_eq!(goal_map("pointmaze-medium-v0", 2).unwrap().ranges, vec![0..2]);
         assert_eq!(goal_map("antmaze-large-v0", 29).unwrap().threshold, 0.5);
@@ -245,8 +389,12 @@ mod tests {
         assert_eq!((s.goal_dim(), s.threshold, s.metric), (7, 1.0, GoalMetric::Scene));
         assert!(goal_map("scene-v0", 41).unwrap_err().to_string().contains("(40 with one cube)"));
         assert!(goal_map("visual-scene-v0", 40).unwrap_err().to_string().contains("not mapped yet"));
-        assert_eq!(member_goal("puzzle-4x5-v0"), Some(("button_states", 0.5, GoalMetric::EachValue)));
-        assert_eq!(member_goal("cube-double-v0"), None);
+        assert_eq!(goal_member("puzzle-4x5-v0"), Some("button_states"));
+        assert_eq!(goal_member("visual-puzzle-4x5-v0"), Some("button_states"));
+        assert_eq!(goal_member("cube-double-v0"), None);
+        assert_eq!(goal_member("visual-scene-v0"), None);
+        let p = member_map("puzzle-4x5-v0", 20).unwrap();
+        assert_eq!((p.ranges.clone(), p.threshold, p.metric), (vec![0..20], 0.5, GoalMetric::EachValue));
         assert!(goal_map("visual-cube-single-v0", 28).is_err());
     }
 }

@@ -101,6 +101,32 @@ pub struct Dataset {
     pub goal: GoalMap,
 }
 
+impl Dataset {
+    /// The shape of one image observation (`[64, 64, 3]`), where observations are images
+    /// (uint8 `[N, H, W, C]`); empty for float rows.
+    pub fn image_shape(&self) -> Vec<usize> {
+        if self.observations.dtype == Dtype::U8 { self.observations.shape[1..].to_vec() } else { Vec::new() }
+    }
+
+    /// Bytes of one row of the file, every member a convert streams: what a window of its rows
+    /// holds as read.
+    pub fn row_bytes(&self) -> usize {
+        let member = |m: &Member| m.row_len() * m.dtype.size;
+        let next = self.next_observations.as_ref().map_or(0, |(m, _)| member(m));
+        member(&self.observations)
+            + member(&self.actions)
+            + next
+            + self.extras.iter().map(|(m, _)| member(m)).sum::<usize>()
+    }
+
+    /// Bytes per value of the goal rows the table gets: the observation's float for a goal of
+    /// observation values, float32 for one read from a member (OGBench's oracle representations
+    /// are float32) of an image dataset.
+    pub fn goal_value_bytes(&self) -> usize {
+        if self.observations.dtype == Dtype::U8 { 4 } else { self.observations.dtype.size }
+    }
+}
+
 /// OGBench's dataset types: the word a dataset's name has beside its environment's
 /// (`cube-double-play-v0` is a `play` dataset of `cube-double-v0`).
 pub const DATASET_TYPES: [&str; 5] = ["navigate", "stitch", "explore", "play", "noisy"];
@@ -152,24 +178,35 @@ impl Dataset {
             |key: &str| get(key).cloned().with_context(|| format!("{at}: no {key} array: not an OGBench dataset"));
         let observations = need("observations")?;
         let actions = need("actions")?;
+        // A visual dataset's observations are uint8 images [N, H, W, C] (OGBench's 64 × 64 × 3).
+        let image = observations.dtype == Dtype::U8 && observations.shape.len() >= 3;
         for m in [&observations, &actions] {
-            if m.shape.len() != 2 || !matches!(m.dtype, Dtype::F32 | Dtype::F64) {
-                bail!(
-                    "{at}: {}: {} values of shape {:?}; pgser reads float rows [N, dim]",
-                    m.key,
-                    m.dtype.name(),
-                    m.shape
-                );
+            if (m.key == "observations" && image) || (m.shape.len() == 2 && matches!(m.dtype, Dtype::F32 | Dtype::F64))
+            {
+                continue;
             }
+            bail!(
+                "{at}: {}: {} values of shape {:?}; pgser reads float rows [N, dim]{}",
+                m.key,
+                m.dtype.name(),
+                m.shape,
+                if m.key == "observations" { ", or uint8 images [N, H, W, C]" } else { "" }
+            );
+        }
+        if image && observations.shape.iter().skip(1).any(|&d| d == 0) {
+            bail!("{at}: observations: images of shape {:?} hold no pixels", &observations.shape[1..]);
+        }
+        if image && full_goal {
+            bail!("{at}: --full-goal: observations are images, which no distance on pixels makes a goal of");
         }
         let layout = match (get("next_observations"), get("valids")) {
             (Some(_), _) => Layout::Regular,
             (None, Some(_)) => Layout::Compact,
             (None, None) => Layout::Dataset,
         };
-        let goal = match goal::member_goal(&env) {
+        let goal = match goal::goal_member(&env) {
             _ if full_goal => GoalMap::full(observations.row_len()),
-            Some((key, threshold, metric)) => {
+            Some(key) => {
                 let m = get(key).with_context(|| {
                     format!("{at}: {env}'s goal is its {key} (OGBench's oracle representation), and the file has none")
                 })?;
@@ -191,8 +228,13 @@ impl Dataset {
                         observations.rows()
                     );
                 }
-                GoalMap::member(key, m.row_len(), threshold, metric)
+                goal::member_map(&env, m.row_len()).with_context(|| format!("{at}"))?
             }
+            None if image => bail!(
+                "{at}: observations are images, and {env} is no environment whose goal pgser reads from the dataset's \
+                 state (visual-antmaze, visual-humanoidmaze, visual-cube, visual-puzzle; a visual scene's goal needs \
+                 both qpos and button_states, not mapped yet)"
+            ),
             None => goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?,
         };
         let n = observations.rows();
@@ -409,6 +451,8 @@ pub fn check(opts: &ConvertOptions, path: &Path) -> Result<ConvertPlan> {
     Ok(ConvertPlan {
         task: d.task(opts.threshold)?,
         float_type: float_type(&d, opts.float32),
+        image_shape: d.image_shape(),
+        row_bytes: d.row_bytes(),
         episodes_in_file: vec![d.episodes],
         episodes_taken: vec![take],
     })
@@ -427,17 +471,49 @@ fn take(opts: &ConvertOptions, d: &Dataset) -> Result<usize> {
 }
 
 fn float_type(d: &Dataset, float32: bool) -> FloatType {
-    if float32 || (d.observations.dtype == Dtype::F32 && d.actions.dtype == Dtype::F32) {
+    if float32 || (d.goal_value_bytes() == 4 && d.actions.dtype == Dtype::F32) {
         FloatType::Float32
     } else {
         FloatType::Float64
     }
 }
 
+/// The most bytes of a file's rows (every member) `convert` reads at once, whatever the thread
+/// count: a window holds this once as read, once laid out as the table's rows and about twice
+/// as Arrow columns and their encoding, so convert's memory is a small multiple of it
+/// (BENCHMARKS.md, "Convert's memory"). Shards converted side by side share it
+/// ([`convert_within`]).
+pub const WINDOW_BYTES: usize = 256 << 20;
+
 /// `pgser-etl convert DATASET.npz -o traj.parquet`: a window of episodes at a time, observations
 /// and actions (and a regular file's next observations) streamed side by side, so memory holds a
 /// window, not the dataset.
 pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<ConvertSummary> {
+    convert_within(opts, path, bar, WINDOW_BYTES)
+}
+
+/// The bytes of one row group of a table of `plan`'s episodes as read from the source (every
+/// member), written with `row_group_rows` (an image table's groups capped by bytes:
+/// [`TrajectoryWriter`]).
+pub fn group_bytes(plan: &ConvertPlan, row_group_rows: usize) -> usize {
+    let t = plan.task.t;
+    let per_group = if plan.image_shape.is_empty() {
+        crate::trajectory::episodes_per_group(row_group_rows, t)
+    } else {
+        crate::trajectory::image_episodes_per_group(row_group_rows, t, plan.task.obs_dim)
+    };
+    per_group * t * plan.row_bytes.max(1)
+}
+
+/// [`convert`] reading at most `window_bytes` of the file's rows at a time (at least one row
+/// group): a folder's shards, converted side by side, each get their share of
+/// [`WINDOW_BYTES`].
+pub fn convert_within(
+    opts: &ConvertOptions,
+    path: &Path,
+    bar: &ProgressBar,
+    window_bytes: usize,
+) -> Result<ConvertSummary> {
     crate::output::check_not_an_input(&opts.output, &opts.inputs)?;
     let mut d = Dataset::open(path, opts.task.as_deref(), opts.full_goal, &opts.drop)?;
     let episodes = take(opts, &d)?;
@@ -454,10 +530,16 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         allow_nonfinite: opts.allow_nonfinite,
         extras: specs,
         last_action,
+        image_shape: d.image_shape(),
         ..WriterOptions::new(opts.row_group_rows)
     };
     let mut writer = TrajectoryWriter::create(&opts.output, &task, float, options)?;
-    let window = writer.episodes_per_group() * rayon::current_num_threads().max(1) * 2;
+    // Two row groups a thread to encode, but no more than `window_bytes` of the file's rows
+    // held (a whole number of row groups, at least one): image episodes are 12 MB each.
+    let per_group = writer.episodes_per_group();
+    let episode_bytes = (d.t() * d.row_bytes()).max(1);
+    let groups = (rayon::current_num_threads().max(1) * 2).min(window_bytes / (per_group * episode_bytes)).max(1);
+    let window = per_group * groups;
     bar.set_length(episodes as u64);
     let at = path.display().to_string();
     // Observations, actions, the regular layout's next observations and every passthrough
@@ -494,14 +576,18 @@ pub fn convert(opts: &ConvertOptions, path: &Path, bar: &ProgressBar) -> Result<
         episodes_taken: episodes,
         steps_dropped: 0,
         float_bytes: {
-            // o, ag, g, u as the footer orders them: the goals are parts of the observations.
-            let (o, u) = (d.observations.dtype.size, d.actions.dtype.size);
+            // o, ag, g, u as the footer orders them: the goals are parts of the observations
+            // (images' goals are float32 oracle representations).
+            let (o, g, u) = (d.observations.dtype.size, d.goal_value_bytes(), d.actions.dtype.size);
             let table = if float == FloatType::Float32 { 4 } else { 8 };
-            if o == table && u == table { Vec::new() } else { vec![o, o, o, u] }
+            if o == table && g == table && u == table { Vec::new() } else { vec![o, g, g, u] }
         },
     }];
     let bytes = writer.finish(&footer)?;
-    let ranges = d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + ");
+    let mut ranges = d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + ");
+    if !d.goal.affine.is_empty() {
+        ranges.push_str(", centred and scaled as OGBench's oracle representation");
+    }
     let mut notes = vec![format!(
         "{at}: OGBench's {} (environment {}): goal = {}{ranges}, success within {}{}; each transition's desired \
          goal is its episode's last (the data have no goals)",

@@ -18,6 +18,8 @@ pub(super) struct Window {
     layout: Layout,
     obs: (usize, usize),
     act: (usize, usize),
+    /// Bytes per goal value ([`Dataset::goal_value_bytes`]).
+    goal_size: usize,
     arrays: [Vec<u8>; 4],
     raw_obs: Vec<u8>,
     raw_act: Vec<u8>,
@@ -36,6 +38,7 @@ impl Window {
             layout: d.layout,
             obs: (d.observations.row_len(), d.observations.dtype.size),
             act: (d.actions.row_len(), d.actions.dtype.size),
+            goal_size: d.goal_value_bytes(),
             arrays: Default::default(),
             raw_obs: Vec::new(),
             raw_act: Vec::new(),
@@ -68,7 +71,7 @@ impl Window {
             buf.resize(k * file_rows * *row_bytes, 0);
             r.read_exact(buf).with_context(|| format!("{} is cut short", p.column))?;
         }
-        let (orow, arow, grow) = (od * os, ad * asz, self.goal.goal_dim() * os);
+        let (orow, arow, grow) = (od * os, ad * asz, self.goal.goal_dim() * self.goal_size);
         self.arrays.iter_mut().for_each(Vec::clear);
         for e in 0..k {
             let o = &self.raw_obs[e * file_rows * orow..(e + 1) * file_rows * orow];
@@ -86,7 +89,8 @@ impl Window {
                 Some(i) => {
                     let (p, row_bytes, buf) = &self.extras[i];
                     let rows = &buf[e * file_rows * row_bytes..(e + 1) * file_rows * row_bytes];
-                    super::goal::member_rows(rows, p.dtype, os, &mut ag);
+                    let row_len = p.shape.iter().product();
+                    self.goal.member_goal_rows(rows, p.dtype, row_len, self.goal_size, &mut ag);
                 }
                 None => self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag),
             }
@@ -106,7 +110,8 @@ impl Window {
         let (t, (od, os), (ad, asz)) = (self.t, self.obs, self.act);
         let g = self.goal.goal_dim();
         let act_steps = if self.layout == Layout::Regular { t - 1 } else { t };
-        let spec = [(t, od, os), (t, g, os), (act_steps, ad, asz), (t - 1, g, os)];
+        let gs = self.goal_size;
+        let spec = [(t, od, os), (t, g, gs), (act_steps, ad, asz), (t - 1, g, gs)];
         let arrays = std::array::from_fn(|i| FloatArray {
             data: &self.arrays[i],
             size: spec[i].2,

@@ -27,11 +27,12 @@ use crate::task::Task;
 pub const KEYS: [&str; 4] = ["o", "ag", "u", "g"];
 
 /// One WGCSL array `[episodes, steps, dim]`: little-endian, C-order float32 or float64 bytes
-/// (borrowed from a mapped file, hence possibly unaligned: read with `from_le_bytes`).
+/// (borrowed from a mapped file, hence possibly unaligned: read with `from_le_bytes`), or, for
+/// the observations of an image table ([`WriterOptions::image_shape`]), uint8 image bytes.
 #[derive(Debug, Clone, Copy)]
 pub struct FloatArray<'a> {
     pub data: &'a [u8],
-    /// Bytes per value: 4 or 8.
+    /// Bytes per value: 4 or 8 (1: an image's bytes).
     pub size: usize,
     pub steps: usize,
     pub dim: usize,
@@ -66,6 +67,12 @@ pub fn episodes_per_group(row_group_rows: usize, t: usize) -> usize {
     (row_group_rows / t).max(1)
 }
 
+/// Whole episodes per row group of an image table: [`episodes_per_group`], and at most
+/// [`IMAGE_GROUP_BYTES`] of images of `image_bytes` each (at least one episode).
+pub fn image_episodes_per_group(row_group_rows: usize, t: usize, image_bytes: usize) -> usize {
+    episodes_per_group(row_group_rows, t).min(IMAGE_GROUP_BYTES / (t * image_bytes).max(1)).max(1)
+}
+
 /// How a [`TrajectoryWriter`] writes a table: what its caller (`convert` of each format,
 /// `collect`, the online trainer's buffer) decides beyond the task and the float type.
 #[derive(Debug, Clone)]
@@ -79,14 +86,30 @@ pub struct WriterOptions {
     /// An action on every episode's last step (`u` of T steps, not T − 1), as OGBench's files
     /// have one, kept on step T − 1.
     pub last_action: bool,
+    /// Observations are uint8 images of this shape (`obs` holds `obs_dim` bytes a row: the
+    /// footer's `image_shape`); empty for float observations.
+    pub image_shape: Vec<usize>,
 }
 
 impl WriterOptions {
-    /// Row groups of `row_group_rows`; finite values only, no passthrough columns, no last actions.
+    /// Row groups of `row_group_rows`; finite values only, no passthrough columns, no last
+    /// actions, float observations.
     pub fn new(row_group_rows: usize) -> WriterOptions {
-        WriterOptions { row_group_rows, allow_nonfinite: false, extras: Vec::new(), last_action: false }
+        WriterOptions {
+            row_group_rows,
+            allow_nonfinite: false,
+            extras: Vec::new(),
+            last_action: false,
+            image_shape: Vec::new(),
+        }
     }
 }
+
+/// The most image bytes a row group of an image table holds (whole episodes, at least one):
+/// 65,536 rows of 12 kB images would be a 805 MB row group, which every reader (a sampler's
+/// block, a convert window) holds at once. 32 MiB is two 1001-step episodes of OGBench's
+/// 64 × 64 × 3 images, and still large enough that a column chunk's pages amortize their reads.
+pub const IMAGE_GROUP_BYTES: usize = 32 << 20;
 
 /// Streams episodes into a trajectory table file (written atomically on `finish`).
 pub struct TrajectoryWriter {
@@ -101,17 +124,24 @@ pub struct TrajectoryWriter {
     extras: Vec<Passthrough>,
     /// Whether `action` holds each episode's last action on step T − 1 (OGBench's files have it).
     last_action: bool,
+    /// The shape of an image observation; empty for float observations.
+    image_shape: Vec<usize>,
 }
 
 impl TrajectoryWriter {
     /// A table of `task`'s episodes in `float` at `dest`, written as `options` say.
     pub fn create(dest: &Path, task: &Task, float: FloatType, options: WriterOptions) -> Result<Self> {
-        let WriterOptions { row_group_rows, allow_nonfinite, extras, last_action } = options;
-        let mut fields: Vec<arrow_schema::FieldRef> = schema(float, task).fields().iter().cloned().collect();
+        let WriterOptions { row_group_rows, allow_nonfinite, extras, last_action, image_shape } = options;
+        let image = !image_shape.is_empty();
+        let mut fields: Vec<arrow_schema::FieldRef> = schema(float, task, image).fields().iter().cloned().collect();
         fields.extend(extras.iter().map(|p| Arc::new(p.field())));
         let schema = Arc::new(arrow_schema::Schema::new(fields));
         let table = TableWriter::create(dest, schema.clone())?;
-        let per_group = episodes_per_group(row_group_rows, task.t);
+        let per_group = if image {
+            image_episodes_per_group(row_group_rows, task.t, task.obs_dim)
+        } else {
+            episodes_per_group(row_group_rows, task.t)
+        };
         Ok(Self {
             table,
             schema,
@@ -122,6 +152,7 @@ impl TrajectoryWriter {
             episodes: 0,
             extras,
             last_action,
+            image_shape,
         })
     }
 
@@ -145,10 +176,12 @@ impl TrajectoryWriter {
         let groups: Vec<(usize, usize)> =
             (start..end).step_by(self.per_group).map(|s| (s, (s + self.per_group).min(end))).collect();
         let next = self.episodes;
+        let image = !self.image_shape.is_empty();
         let batches: Vec<RecordBatch> = groups
             .par_iter()
             .map(|&(e0, e1)| {
-                build_batch(src, e0, e1, next + (e0 - start), &self.schema, self.float, self.allow_nonfinite)
+                let out = Out { float: self.float, image, allow_nonfinite: self.allow_nonfinite };
+                build_batch(src, e0, e1, next + (e0 - start), &self.schema, out)
             })
             .collect::<Result<_>>()?;
         self.table.write_row_groups(&batches)?;
@@ -160,9 +193,11 @@ impl TrajectoryWriter {
         let t = &self.task;
         let act_steps = if self.last_action { t.t } else { t.t - 1 };
         let want = [(t.t, t.obs_dim), (t.t, t.goal_dim), (act_steps, t.act_dim), (t.t - 1, t.goal_dim)];
-        for ((name, a), (steps, dim)) in src.keys.iter().zip(&src.arrays).zip(want) {
+        let image = !self.image_shape.is_empty();
+        for (k, ((name, a), (steps, dim))) in src.keys.iter().zip(&src.arrays).zip(want).enumerate() {
             let bytes = src.episodes * steps * dim * a.size;
-            if (a.steps, a.dim) != (steps, dim) || !matches!(a.size, 4 | 8) || a.data.len() != bytes {
+            let sized = if image && k == 0 { a.size == 1 } else { matches!(a.size, 4 | 8) };
+            if (a.steps, a.dim) != (steps, dim) || !sized || a.data.len() != bytes {
                 bail!(
                     "{}: `{name}` is {} episodes × {} × {} values of {} bytes in {} bytes; {} needs {steps} × {dim}",
                     src.origin,
@@ -203,16 +238,36 @@ impl TrajectoryWriter {
     /// gets the passthrough columns' records and the last-action flag from the writer.
     pub fn finish(self, footer: &Footer) -> Result<u64> {
         debug_assert_eq!(footer.episodes, self.episodes);
-        let footer = Footer { passthrough: self.extras.clone(), last_action: self.last_action, ..footer.clone() };
+        let footer = self.complete(footer);
         self.table.finish(&serde_json::to_value(footer)?)
     }
 
     /// Write the footer, leaving the file for the caller to commit (`TableWriter::finish_staged`).
     pub fn finish_staged(self, footer: &Footer) -> Result<crate::output::AtomicFile> {
         debug_assert_eq!(footer.episodes, self.episodes);
-        let footer = Footer { passthrough: self.extras.clone(), last_action: self.last_action, ..footer.clone() };
+        let footer = self.complete(footer);
         self.table.finish_staged(&serde_json::to_value(footer)?)
     }
+
+    /// The caller's footer with what the writer knows: the passthrough columns' records, the
+    /// last-action flag and the image shape.
+    fn complete(&self, footer: &Footer) -> Footer {
+        Footer {
+            passthrough: self.extras.clone(),
+            last_action: self.last_action,
+            image_shape: self.image_shape.clone(),
+            ..footer.clone()
+        }
+    }
+}
+
+/// How a batch's columns are written: the vectors' float type, whether observations are image
+/// bytes, and whether non-finite floats are kept.
+#[derive(Clone, Copy)]
+struct Out {
+    float: FloatType,
+    image: bool,
+    allow_nonfinite: bool,
 }
 
 /// Episodes [e0, e1) of `src` as one record batch, numbered from `first_episode`.
@@ -222,8 +277,7 @@ fn build_batch(
     e1: usize,
     first_episode: usize,
     schema: &SchemaRef,
-    out: FloatType,
-    allow_nonfinite: bool,
+    out: Out,
 ) -> Result<RecordBatch> {
     let t = src.t();
     let rows = (e1 - e0) * t;
@@ -232,7 +286,11 @@ fn build_batch(
     let mut columns: Vec<ArrayRef> = vec![Arc::new(episode), Arc::new(step)];
     // Table column order: obs (o), achieved_goal (ag), desired_goal (g), action (u).
     for key_index in [0, 1, 3, 2] {
-        columns.push(vector_column(src, key_index, e0, e1, out, allow_nonfinite)?);
+        columns.push(if key_index == 0 && out.image {
+            image_column(&src.arrays[0], e0, e1)?
+        } else {
+            vector_column(src, key_index, e0, e1, out.float, out.allow_nonfinite)?
+        });
     }
     for e in &src.extras {
         columns.push(extra::column(e, t, e0, e1)?);
@@ -269,6 +327,14 @@ fn vector_column(
     let nulls = padded.then(|| NullBuffer::new(BooleanBuffer::collect_bool(rows, |r| r % t != t - 1)));
     let item = Arc::new(Field::new("item", out.arrow(), false));
     Ok(Arc::new(FixedSizeListArray::try_new(item, dim as i32, values, nulls)?))
+}
+
+/// Episodes [e0, e1) of image observations (one byte a value) as a FixedSizeBinary column, a
+/// row per image, the bytes copied once.
+fn image_column(a: &FloatArray, e0: usize, e1: usize) -> Result<ArrayRef> {
+    let per_episode = a.steps * a.dim;
+    let bytes = arrow_buffer::Buffer::from(&a.data[e0 * per_episode..e1 * per_episode]);
+    Ok(Arc::new(arrow_array::FixedSizeBinaryArray::try_new(a.dim as i32, bytes, None)?))
 }
 
 /// Same float type in and out: copy whole episodes as bytes (the source may be unaligned, so

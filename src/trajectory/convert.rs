@@ -133,6 +133,11 @@ impl Source<'_> {
 pub struct ConvertPlan {
     pub task: Task,
     pub float_type: FloatType,
+    /// The shape of an image observation (`[64, 64, 3]`); empty for float observations.
+    pub image_shape: Vec<usize>,
+    /// Bytes of one row of the source, every array it streams (observations, actions, the
+    /// passthrough members): what a window of rows holds (OGBench's files; 0 where unknown).
+    pub row_bytes: usize,
     /// Episodes in each input, and taken from it.
     pub episodes_in_file: Vec<usize>,
     pub episodes_taken: Vec<usize>,
@@ -144,6 +149,8 @@ pub fn check(opts: &ConvertOptions) -> Result<ConvertPlan> {
     Ok(ConvertPlan {
         task,
         float_type,
+        image_shape: Vec::new(),
+        row_bytes: 0,
         episodes_in_file: sources.iter().map(|s| s.episodes).collect(),
         episodes_taken: sources.iter().map(|s| s.take).collect(),
     })

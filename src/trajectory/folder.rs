@@ -104,13 +104,14 @@ fn difference(a: &Footer, b: &Footer) -> Option<String> {
     if a == b {
         return None;
     }
-    let checks: [(&str, String, String); 9] = [
+    let checks: [(&str, String, String); 10] = [
         ("task", a.task.clone(), b.task.clone()),
         ("T", a.t.to_string(), b.t.to_string()),
         ("obs_dim", a.obs_dim.to_string(), b.obs_dim.to_string()),
         ("goal_dim", a.goal_dim.to_string(), b.goal_dim.to_string()),
         ("act_dim", a.act_dim.to_string(), b.act_dim.to_string()),
         ("float_type", format!("{:?}", a.float_type), format!("{:?}", b.float_type)),
+        ("image_shape", format!("{:?}", a.image_shape), format!("{:?}", b.image_shape)),
         ("success_threshold", a.success_threshold.to_string(), b.success_threshold.to_string()),
         ("goal_metric", format!("{:?}", a.goal_metric), format!("{:?}", b.goal_metric)),
         ("last_action", a.last_action.to_string(), b.last_action.to_string()),

@@ -18,7 +18,10 @@ use serde::{Deserialize, Serialize};
 use crate::table::{FOOTER_KEY, SCHEMA_VERSION};
 use crate::task::{GoalMetric, Task};
 
-pub use batch::{EpisodeArrays, FloatArray, KEYS, TrajectoryWriter, WriterOptions, episodes_per_group};
+pub use batch::{
+    EpisodeArrays, FloatArray, IMAGE_GROUP_BYTES, KEYS, TrajectoryWriter, WriterOptions, episodes_per_group,
+    image_episodes_per_group,
+};
 pub use convert::{ConvertOptions, ConvertPlan, ConvertSummary, check as check_convert, convert};
 pub(crate) use convert::{describe, task_for};
 pub use extra::{ExtraArray, Passthrough, Per};
@@ -54,15 +57,32 @@ pub fn vector_field(name: &str, float: FloatType, dim: usize, nullable: bool) ->
     Field::new(name, DataType::FixedSizeList(item, dim as i32), nullable)
 }
 
-pub fn schema(float: FloatType, task: &Task) -> SchemaRef {
+/// The `obs` column of image observations: each row one image's bytes (`obs_dim` of them, C
+/// order), as Parquet's FIXED_LEN_BYTE_ARRAY. Why not a fixed-size list of uint8, as a
+/// passthrough array of bytes is: a list carries a repetition and a definition level for every
+/// byte (12,288 per OGBench image), which every reader decodes, where a fixed-size binary value
+/// has none and decodes as a copy; and any Parquet reader gives it back as one `bytes` per row
+/// (`np.frombuffer(...).reshape(n, 64, 64, 3)`).
+pub fn image_field(name: &str, bytes: usize) -> Field {
+    Field::new(name, DataType::FixedSizeBinary(bytes as i32), false)
+}
+
+/// The trajectory schema: `obs` float vectors, or with `image` uint8 images ([`image_field`]).
+pub fn schema(float: FloatType, task: &Task, image: bool) -> SchemaRef {
+    let obs = if image { image_field("obs", task.obs_dim) } else { vector_field("obs", float, task.obs_dim, false) };
     Arc::new(Schema::new(vec![
         Field::new("episode", DataType::Int64, false),
         Field::new("step", DataType::Int32, false),
-        vector_field("obs", float, task.obs_dim, false),
+        obs,
         vector_field("achieved_goal", float, task.goal_dim, false),
         vector_field("desired_goal", float, task.goal_dim, true),
         vector_field("action", float, task.act_dim, true),
     ]))
+}
+
+/// `64×64×3`.
+pub fn shape_text(shape: &[usize]) -> String {
+    shape.iter().map(usize::to_string).collect::<Vec<_>>().join("×")
 }
 
 /// Where a table's episodes came from.
@@ -105,7 +125,13 @@ pub struct Footer {
     pub act_dim: usize,
     pub goal_metric: GoalMetric,
     pub success_threshold: f64,
+    /// The float type of the vector columns: every one but `obs` in an image table.
     pub float_type: FloatType,
+    /// Where observations are images (OGBench's visual datasets: 64 × 64 × 3): the shape of one,
+    /// whose `obs_dim` bytes each `obs` row holds as uint8 in C order ([`image_field`]). Empty
+    /// (absent) for state observations, float vectors of `float_type`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub image_shape: Vec<usize>,
     pub episodes: usize,
     pub rows: usize,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -142,6 +168,7 @@ impl Footer {
             goal_metric: task.metric,
             success_threshold: task.threshold,
             float_type,
+            image_shape: Vec::new(),
             episodes,
             rows: episodes * task.t,
             sources: Vec::new(),
@@ -174,7 +201,35 @@ impl Footer {
         {
             bail!("{at}: the trajectory footer is corrupt: it lists the passthrough column `{}` twice", p.column);
         }
+        if !f.image_shape.is_empty()
+            && f.image_shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)) != Some(f.obs_dim)
+        {
+            bail!(
+                "{at}: the trajectory footer is corrupt: images of shape {:?} are not obs_dim = {} bytes",
+                f.image_shape,
+                f.obs_dim
+            );
+        }
         Ok(f)
+    }
+
+    /// Whether observations are images ([`Footer::image_shape`]).
+    pub fn is_image(&self) -> bool {
+        !self.image_shape.is_empty()
+    }
+
+    /// Refuses an image table where `what` needs state observations (float vectors): training,
+    /// scoring and the samplers read observations as floats, and a 12,288-value "state" of bytes
+    /// is no observation a pgser agent was built for.
+    pub fn state_only(&self, at: &str, what: &str) -> Result<()> {
+        if self.is_image() {
+            bail!(
+                "{at}: observations are {} uint8 images (a visual dataset), and {what} takes state observations \
+                 (float vectors); convert, export --format ogbench, inspect and verify read image tables",
+                shape_text(&self.image_shape)
+            );
+        }
+        Ok(())
     }
 
     /// The task this table was written for, with the threshold recorded in the file.

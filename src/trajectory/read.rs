@@ -150,8 +150,27 @@ fn append_file(path: &Path, out: &mut Option<[Vec<f32>; 4]>, episodes: Option<us
 
 /// Opens `path` as a trajectory table: footer, row count and all six columns checked, `columns`
 /// (plus episode and step, always) projected, batches of `batch_episodes` whole episodes.
-/// Both the in-memory load and `score`'s streaming reader start here.
+/// Both the in-memory load and `score`'s streaming reader start here. The observations of an
+/// image table are refused here ([`Footer::state_only`]): every caller reads them as floats but
+/// [`open_images`]'s.
 pub(crate) fn open_checked(
+    path: &Path,
+    columns: &[&str],
+    batch_episodes: usize,
+) -> Result<(Footer, ParquetRecordBatchReader)> {
+    let (footer, reader) = open_images(path, columns, batch_episodes)?;
+    if columns.contains(&"obs") {
+        footer.state_only(
+            &path.display().to_string(),
+            "the in-memory reader (of training, score, the samplers and export to Minari)",
+        )?;
+    }
+    Ok((footer, reader))
+}
+
+/// [`open_checked`] for a reader of image observations' bytes too (`export`): an image table's
+/// `obs` projected as its FixedSizeBinary column.
+pub(crate) fn open_images(
     path: &Path,
     columns: &[&str],
     batch_episodes: usize,
@@ -265,6 +284,18 @@ fn check_schema(at: &str, schema: &Schema, f: &Footer, dims: [usize; 4]) -> Resu
     let dim_names = ["obs_dim", "goal_dim", "goal_dim", "act_dim"];
     for ((name, dim), dim_name) in VECTORS.into_iter().zip(dims).zip(dim_names) {
         let i = index(name)?;
+        if name == "obs" && f.is_image() {
+            let want = DataType::FixedSizeBinary(dim as i32);
+            if *schema.field(i).data_type() != want {
+                bail!(
+                    "{at}: `obs` is {}, but the footer says {} uint8 images ({want})",
+                    schema.field(i).data_type(),
+                    super::shape_text(&f.image_shape)
+                );
+            }
+            indices.push(i);
+            continue;
+        }
         let DataType::FixedSizeList(item, size) = schema.field(i).data_type() else {
             bail!("{at}: `{name}` is {}, not a fixed-size list of floats", schema.field(i).data_type());
         };

@@ -118,6 +118,7 @@ impl Layout {
             let f = shard_footer(path)?;
             (f.clone(), vec![(path.to_path_buf(), f, 0)])
         };
+        footer.state_only(&path.display().to_string(), "the out-of-core pool")?;
         let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
         if t < 2 {
             bail!("{}: episodes of {t} step(s) hold no transition", path.display());
