@@ -137,13 +137,7 @@ fn an_exported_file_loads_in_ogbench_as_the_original() {
 fn bad_files_fail_in_one_line_and_leave_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.parquet");
-    let fails = |input: &Path, extra: &[&str], want: &str| {
-        let o = etl().arg("convert").arg(input).arg("-o").arg(&out).args(extra).output().unwrap();
-        let e = text(&o.stderr);
-        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
-        assert!(e.contains(&*input.file_name().unwrap().to_string_lossy()), "{e}");
-        assert!(!out.exists(), "{want}: an output was left");
-    };
+    let fails = |input: &Path, extra: &[&str], want: &str| convert_fails(input, &out, extra, want);
     let bytes = std::fs::read(fixture("pointmaze-medium-navigate-v0.npz")).unwrap();
     // Not a zip archive at all.
     let junk = dir.path().join("pointmaze-medium-navigate-v0.npz");
@@ -435,14 +429,6 @@ fn oracle_reps(src: &Path) -> Vec<f32> {
         Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect())
     })
     .unwrap()
-}
-
-/// A float32 table's achieved goals, every row's in order.
-fn achieved_goals(table: &Path) -> Vec<f32> {
-    use arrow_array::cast::AsArray;
-    let (t, _) = read_table(table);
-    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
-    ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec()
 }
 
 /// Cube datasets (tests/fixtures/ogbench/cube, from ogbench's own cube scenes by

@@ -6,7 +6,7 @@
 
 mod common;
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use arrow_array::Array;
@@ -46,13 +46,6 @@ fn f32s(b: &[u8]) -> Vec<f32> {
     b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
 }
 
-/// A float32 table's achieved goals, every row's in order.
-fn achieved_goals(table: &Path) -> Vec<f32> {
-    let (t, _) = read_table(table);
-    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
-    ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec()
-}
-
 /// Every visual fixture converts to a table whose `obs` rows are the file's images byte for
 /// byte (a fixed-size binary column of 12,288 bytes, the footer's `image_shape` [64, 64, 3]),
 /// and exports back to the same file, member for member, as numpy reads it; `verify`, `inspect`
@@ -89,6 +82,8 @@ fn visual_datasets_come_back_whole() {
         assert!(o.status.success(), "{name}: {}", text(&o.stderr));
         let said = text(&o.stdout);
         assert!(said.contains("uint8 images 64×64×3") && said.contains("fixed_size_binary[12288]"), "{said}");
+        let o = etl().args(["query", "SELECT COUNT(*) AS n FROM t WHERE step = 0"]).arg(&table).output().unwrap();
+        assert!(o.status.success() && text(&o.stdout).ends_with("\n2\n"), "{name}: {}", text(&o.stderr));
     }
 }
 
@@ -245,18 +240,12 @@ fn write_raw_npz(path: &Path, members: &[(&str, &str, &str, &[u8])]) {
 /// Each fault in one line naming the file, and nothing written: a cut-short image member,
 /// float "images", `--full-goal`, a visual scene (its goal not mapped), a visual cube file
 /// without its qpos; and an image table given to what reads observations as floats
-/// (`pgser-train`, `score`, export to Minari).
+/// (`pgser-train`, with and without a memory budget, and export to Minari).
 #[test]
 fn bad_visual_input_fails_in_one_line_and_leaves_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.parquet");
-    let fails = |input: &Path, extra: &[&str], want: &str| {
-        let o = etl().arg("convert").arg(input).arg("-o").arg(&out).args(extra).output().unwrap();
-        let e = text(&o.stderr);
-        assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
-        assert!(e.contains(&*input.file_name().unwrap().to_string_lossy()), "{e}");
-        assert!(!out.exists(), "{want}: an output was left");
-    };
+    let fails = |input: &Path, extra: &[&str], want: &str| convert_fails(input, &out, extra, want);
     let good = dir.path().join("visual-cube-single-play-v0.npz");
     write_npz(&good, &small_visual(3, 5));
     convert_ok(&good, &out, &[]);

@@ -104,6 +104,24 @@ pub fn read_table(path: &Path) -> (arrow_array::RecordBatch, usize) {
     (arrow_select::concat::concat_batches(&schema, &batches).unwrap(), groups)
 }
 
+/// `pgser-etl convert INPUT -o OUT EXTRA…` must fail with one line that names the input and says
+/// `want`, and leave no `out`.
+pub fn convert_fails(input: &Path, out: &Path, extra: &[&str], want: &str) {
+    let o = etl().arg("convert").arg(input).arg("-o").arg(out).args(extra).output().unwrap();
+    let e = text(&o.stderr);
+    assert!(!o.status.success() && e.contains(want) && e.trim().lines().count() == 1, "{want}: {e}");
+    assert!(e.contains(&*input.file_name().unwrap().to_string_lossy()), "{e}");
+    assert!(!out.exists(), "{want}: an output was left");
+}
+
+/// A float32 trajectory table's achieved goals, every row's in order.
+pub fn achieved_goals(table: &Path) -> Vec<f32> {
+    use arrow_array::cast::AsArray;
+    let (t, _) = read_table(table);
+    let ag = t.column_by_name("achieved_goal").unwrap().as_fixed_size_list();
+    ag.values().as_primitive::<arrow_array::types::Float32Type>().values().to_vec()
+}
+
 /// A checkpoint's online weights (actor, critic1, critic2), for comparing runs exactly.
 pub fn checkpoint_weights(path: &Path) -> Vec<Vec<f32>> {
     let (agent, _) = pgser::agent::checkpoint::load(path, burn::tensor::Device::flex()).unwrap();
