@@ -455,7 +455,7 @@ fn reservoir_goals_are_the_rows_they_name() {
             let at = (g.episode as usize, g.step as usize);
             assert_eq!(decode(pool.goal_obs(g)[0]), at, "slot {}: the observation is another row's", g.slot);
             assert_eq!(decode(pool.goal_ag(g)[0]), at, "slot {}: the achieved goal is another row's", g.slot);
-            let resident = (0..pool.resident_episodes()).any(|e| pool.episode_number(e) == g.episode as u64);
+            let resident = (0..pool.resident_episodes()).any(|e| pool.episode_number(e) == g.episode);
             outside += usize::from(!resident);
         }
         // Most goals come from blocks that are not resident: the reservoir is the table's.

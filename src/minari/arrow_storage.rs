@@ -338,7 +338,7 @@ pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> 
     // Dict's keys in Gymnasium's (sorted) order.
     for (key, descr, shape, bytes) in &ep.obs_extras {
         let width = shape.iter().product::<usize>().max(1);
-        let (_, array) = infos::to_arrow(&[(key.clone(), descr.clone(), vec![width], bytes.clone())], t)?;
+        let (_, array) = infos::to_arrow(&[(key.clone(), *descr, vec![width], bytes.clone())], t)?;
         let column = array.as_struct().column(0).clone();
         obs.push((Field::new(key, column.data_type().clone(), true), column));
     }
@@ -358,7 +358,7 @@ pub fn write_episode(dir: &Path, spaces: &Spaces, ep: EpisodeOut) -> Result<()> 
         let Some((_, descr, bytes)) = ep.outcomes.iter().find(|o| o.0 == name) else { return Ok(None) };
         let mut padded = bytes.clone();
         padded.extend(std::iter::repeat_n(0u8, bytes.len() / (t - 1).max(1)));
-        let (_, array) = infos::to_arrow(&[(name.to_string(), descr.clone(), vec![], padded)], t)?;
+        let (_, array) = infos::to_arrow(&[(name.to_string(), *descr, vec![], padded)], t)?;
         Ok(Some(array.as_struct().column(0).clone()))
     };
     let rewards: ArrayRef = recorded("rewards")?.unwrap_or_else(|| Arc::new(Float32Array::from(rewards)));

@@ -318,12 +318,12 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
             .extras
             .iter()
             .filter(|(p, _)| is_outcome(p))
-            .map(|(p, bytes)| (p.column.clone(), p.dtype.clone(), slice(p, bytes)))
+            .map(|(p, bytes)| (p.column.clone(), p.dtype, slice(p, bytes)))
             .collect();
         let obs_extras = table
             .extras
             .iter()
-            .filter_map(|(p, bytes)| Some((obs_key(p)?.to_string(), p.dtype.clone(), p.shape.clone(), slice(p, bytes))))
+            .filter_map(|(p, bytes)| Some((obs_key(p)?.to_string(), p.dtype, p.shape.clone(), slice(p, bytes))))
             .collect();
         let infos = table
             .extras
@@ -331,12 +331,7 @@ fn write_minari(table: &Table, source: &Path, out: &Path, id: &str) -> Result<()
             .filter(|(p, _)| !is_outcome(p) && obs_key(p).is_none())
             .map(|(p, bytes)| {
                 let per = p.episode_bytes(t);
-                (
-                    info_key(&p.column).to_string(),
-                    p.dtype.clone(),
-                    p.shape.clone(),
-                    bytes[e * per..(e + 1) * per].to_vec(),
-                )
+                (info_key(&p.column).to_string(), p.dtype, p.shape.clone(), bytes[e * per..(e + 1) * per].to_vec())
             })
             .collect();
         let ep = EpisodeOut {

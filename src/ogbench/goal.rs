@@ -351,6 +351,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::single_range_in_vec_init)]
     fn a_visual_cube_goal_is_its_qpos_centred_and_scaled() {
         use crate::dtype::Dtype;
         let g = member_map("visual-cube-double-v0", 28).unwrap();
@@ -374,6 +375,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::single_range_in_vec_init)]
     fn maps_of_the_families() {
         assert_eq!(goal_map("pointmaze-medium-v0", 2).unwrap().ranges, vec![0..2]);
         assert_eq!(goal_map("antmaze-large-v0", 29).unwrap().threshold, 0.5);

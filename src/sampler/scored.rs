@@ -280,8 +280,7 @@ impl ScoredTable {
                 let Some(values) = values.filter(|v| v.null_count() == 0) else {
                     bail!("{at}: `goal` must be {gd} non-null float32 values per row");
                 };
-                let vals =
-                    &values.values()[list.expect("checked").value_offset_at(0) as usize..][..batch.num_rows() * gd];
+                let vals = &values.values()[list.expect("checked").value_offset_at(0)..][..batch.num_rows() * gd];
                 if let Some(j) = vals.iter().position(|v| !v.is_finite()) {
                     bail!(
                         "{}: row {}: `goal`[{}] is {}",

@@ -133,7 +133,7 @@ impl Layout {
                 let Ok(rows) = usize::try_from(rg.num_rows()) else {
                     bail!("{}: row group {g} has a negative row count: the file is corrupt", p.display());
                 };
-                if row % t != 0 || rows % t != 0 {
+                if !row.is_multiple_of(t) || !rows.is_multiple_of(t) {
                     bail!(
                         "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
                          groups between episodes; convert the data again)",
@@ -175,7 +175,7 @@ impl Layout {
         let f = &table.footer;
         let at = table.path.display();
         let transitions = self.episodes as usize * (self.t - 1);
-        if table.task != self.task || f.transitions != transitions || f.rows % transitions.max(1) != 0 {
+        if table.task != self.task || f.transitions != transitions || !f.rows.is_multiple_of(transitions.max(1)) {
             bail!(
                 "{at}: scores {} transitions of {} where its original data holds {transitions} of {}: it is not this \
                  table's scored table",
