@@ -19,6 +19,8 @@ Each agent runs in a child process (both codes name their packages `agents` and 
 Usage:
     peer_agents.py --ogbench-src DIR --hr-src DIR --table FOLDER [--steps 300] [--log-every 100]
                    [--memory-budget 64MB] [--batch-size 256] [--hidden 128] [--env-name NAME]
+                   [--agents ogbench:gciql,...] [--encoder impala_small --p-aug 0.5 [--frame-stack 3]]
+(a visual dataset's table with --encoder: their pixel agents, as hyperparameters.sh runs them)
 """
 from __future__ import annotations
 
@@ -51,6 +53,14 @@ def worker(a: argparse.Namespace) -> None:
     config = mod.get_config()
     # What their command line would set (`--agent.batch_size=...`): sizes for a CPU.
     config["batch_size"] = a.batch_size
+    # A visual dataset's command line (OGBench's hyperparameters.sh): `--agent.encoder=impala_small
+    # --agent.p_aug=0.5`, and `--agent.frame_stack=K` where it stacks.
+    if a.encoder:
+        config["encoder"] = a.encoder
+    if a.p_aug is not None:
+        config["p_aug"] = a.p_aug
+    if a.frame_stack:
+        config["frame_stack"] = a.frame_stack
     for k in ("actor_hidden_dims", "value_hidden_dims"):
         if k in config:
             config[k] = (a.hidden, a.hidden)
@@ -100,6 +110,9 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env-name", default="pointmaze-medium-navigate-oraclerep-v0")
     p.add_argument("--agents", help="comma-separated CODE:NAME to run (default: all)")
+    p.add_argument("--encoder", help="a visual encoder of theirs (impala_small): a visual dataset's table")
+    p.add_argument("--p-aug", type=float, help="their p_aug (0.5 on visual datasets)")
+    p.add_argument("--frame-stack", type=int, help="their frame_stack")
     p.add_argument("--json")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--src", help=argparse.SUPPRESS)
@@ -118,6 +131,9 @@ def main() -> None:
                "--steps", str(a.steps), "--log-every", str(a.log_every), "--memory-budget", a.memory_budget,
                "--batch-size", str(a.batch_size), "--hidden", str(a.hidden), "--seed", str(a.seed),
                "--env-name", a.env_name]
+        cmd += ["--encoder", a.encoder] if a.encoder else []
+        cmd += ["--p-aug", str(a.p_aug)] if a.p_aug is not None else []
+        cmd += ["--frame-stack", str(a.frame_stack)] if a.frame_stack else []
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             print(f"{code} {name}: FAILED\n{r.stderr[-3000:]}")

@@ -347,3 +347,278 @@ fn image_row_groups_are_bounded_by_bytes() {
     convert_ok(&src, &table, &["--row-group-rows", "6"]);
     assert_eq!(read_table(&table).1, 6, "--row-group-rows still counts where it is the smaller");
 }
+
+/// A visual cube dataset of `episodes` of `rows` steps of `side` × `side` × 3 images whose bytes
+/// are pseudo-random (every image its own), with actions, terminals and qpos.
+fn random_visual(
+    episodes: usize,
+    rows: usize,
+    side: usize,
+    seed: u64,
+) -> Vec<(&'static str, Dtype, Vec<usize>, Vec<u8>)> {
+    let mut m = small_visual(episodes, rows);
+    let n = episodes * rows;
+    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let images: Vec<u8> = (0..n * side * side * 3)
+        .map(|_| {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (x >> 56) as u8
+        })
+        .collect();
+    m[0] = ("observations", Dtype::U8, vec![n, side, side, 3], images);
+    m
+}
+
+/// A folder of `shards` visual shards, converted with `--row-group-rows rows_per_group`.
+fn visual_folder(dir: &Path, shards: usize, (episodes, rows, side): (usize, usize, usize), group: usize) -> PathBuf {
+    let src = dir.join("shards");
+    std::fs::create_dir_all(&src).unwrap();
+    for i in 0..shards {
+        write_npz(
+            &src.join(format!("visual-cube-single-play-v0-{i}.npz")),
+            &random_visual(episodes, rows, side, i as u64),
+        );
+    }
+    let out = dir.join("folder");
+    convert_ok(&src, &out, &["--row-group-rows", &group.to_string()]);
+    out
+}
+
+mod batches {
+    //! pgser's visual batches against OGBench's rules, re-implemented here from
+    //! `impls/utils/datasets.py` on flat indices: the compact layout's `terminals` (1 on an
+    //! episode's last two steps), `initial_locs`, `get_stacked_observations` and
+    //! `random_crop` (3 pixels of edge padding, then a cut at the row's offsets).
+
+    use super::*;
+    use pgser::sampler::ogbench::{Code, DatasetClass, OgbenchBatch, OgbenchConfig, OgbenchStream};
+    use pgser::sampler::priority::PriorityConfig;
+    use pgser::sampler::view::Budget;
+    use pgser::trajectory::Episodes;
+
+    /// OGBench's frames of the stack at flat index `idx` (oldest first), in a table of episodes
+    /// of `t` steps, by its compact layout's trajectory starts.
+    fn stack_indices(idx: usize, t: usize, episodes: usize, k: usize) -> Vec<usize> {
+        let terminals: Vec<usize> = (0..episodes * t).filter(|i| i % t == t - 1 || i % t == t - 2).collect();
+        let mut initial = vec![0];
+        initial.extend(terminals[..terminals.len() - 1].iter().map(|i| i + 1));
+        // initial_locs[np.searchsorted(initial_locs, idx, side='right') - 1]
+        let start = initial[initial.partition_point(|&i| i <= idx) - 1];
+        (0..k).rev().map(|i| idx.saturating_sub(i).max(start)).collect()
+    }
+
+    /// `random_crop` of an h × w × c image at (dy, dx): np.pad by 3 in edge mode, then the cut.
+    fn crop(img: &[u8], [h, w, c]: [usize; 3], (dy, dx): (usize, usize)) -> Vec<u8> {
+        let mut out = Vec::with_capacity(h * w * c);
+        for y in 0..h {
+            for x in 0..w {
+                let sy = (y + dy).saturating_sub(3).min(h - 1);
+                let sx = (x + dx).saturating_sub(3).min(w - 1);
+                out.extend_from_slice(&img[(sy * w + sx) * c..][..c]);
+            }
+        }
+        out
+    }
+
+    /// The image key `key` of batch `b` row by row, against the re-implementation from the
+    /// table's images (`data`), at its provenance's (episode, step) (`at`), with the row's crop.
+    fn check_key(b: &OgbenchBatch, data: &Episodes, key: &str, at: (&str, &str), next: usize, k: usize) {
+        let [h, w, c] = [data.footer.image_shape[0], data.footer.image_shape[1], data.footer.image_shape[2]];
+        let (values, shape) = b.u8(key).unwrap_or_else(|| panic!("{key} is not an image key"));
+        assert_eq!(shape, &[h, w, c * k], "{key}");
+        let (eps, steps) = (b.i64(at.0).unwrap(), b.i64(at.1).unwrap());
+        let (cy, cx) = (b.i64("crop_y").unwrap(), b.i64("crop_x").unwrap());
+        let row = h * w * c * k;
+        for i in 0..b.n {
+            let idx = eps[i] as usize * data.t + steps[i] as usize + next;
+            let frames: Vec<&[u8]> =
+                stack_indices(idx, data.t, data.n, k).into_iter().map(|j| data.image(j / data.t, j % data.t)).collect();
+            // np.concatenate(frames, axis=-1)
+            let mut stacked = Vec::with_capacity(row);
+            for p in 0..h * w {
+                for f in &frames {
+                    stacked.extend_from_slice(&f[p * c..][..c]);
+                }
+            }
+            let want =
+                if cy[i] < 0 { stacked } else { crop(&stacked, [h, w, c * k], (cy[i] as usize, cx[i] as usize)) };
+            assert_eq!(&values[i * row..][..row], &want[..], "{key}, row {i} (episode {}, step {})", eps[i], steps[i]);
+        }
+    }
+
+    fn keys(class: DatasetClass) -> Vec<(&'static str, (&'static str, &'static str), usize)> {
+        let goal = |k: &'static str, e: &'static str, s: &'static str| (k, (e, s), 0);
+        let mut v = vec![("observations", ("episode", "step"), 0), ("next_observations", ("episode", "step"), 1)];
+        match class {
+            DatasetClass::GCDataset => v.extend([
+                goal("value_goals", "value_goal_episode", "value_goal_step"),
+                goal("actor_goals", "actor_goal_episode", "actor_goal_step"),
+            ]),
+            DatasetClass::HGCDataset => v.extend([
+                goal("value_goals", "value_goal_episode", "value_goal_step"),
+                goal("low_actor_goals", "low_actor_goal_episode", "low_actor_goal_step"),
+                goal("high_actor_goals", "high_actor_goal_episode", "high_actor_goal_step"),
+                goal("high_actor_targets", "high_actor_target_episode", "high_actor_target_step"),
+            ]),
+        }
+        v
+    }
+
+    /// Every image key of both of OGBench's classes is the re-implementation's, byte for byte,
+    /// stacked (3 frames, and 1) and cropped: held whole, and within a budget three fifths of the
+    /// folder's (random goals' frames from the pool's reservoir); random goals are drawn, and
+    /// batches come cropped and not.
+    #[test]
+    fn every_image_key_is_ogbench_stacked_and_cropped_whole_and_within_a_budget() {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = visual_folder(dir.path(), 4, (6, 12, 8), 12);
+        let data = Episodes::load_with_images(&folder).unwrap();
+        assert_eq!((data.n, data.t, data.images.len()), (24, 12, 24 * 12 * 192));
+        let whole = pgser::sampler::pool::Layout::open(&folder).unwrap().bytes();
+        for class in [DatasetClass::GCDataset, DatasetClass::HGCDataset] {
+            for k in [1usize, 3] {
+                for budget in [Budget::Unbounded, Budget::bytes(whole * 3 / 5)] {
+                    let cfg = OgbenchConfig {
+                        dataset_class: class,
+                        subgoal_steps: (class == DatasetClass::HGCDataset).then_some(4),
+                        actor_p_randomgoal: 0.3,
+                        actor_p_trajgoal: 0.7,
+                        frame_stack: (k > 1).then_some(k as u64),
+                        p_aug: 0.5,
+                        ..OgbenchConfig::default()
+                    };
+                    let mut s = OgbenchStream::open(&folder, budget, cfg, &PriorityConfig::default(), 3).unwrap();
+                    assert_eq!(s.pool_stats().is_some(), budget != Budget::Unbounded, "a pool within {budget:?}");
+                    let (mut cropped, mut plain, mut random) = (0, 0, 0);
+                    for _ in 0..12 {
+                        let b = s.next_batch(64).unwrap();
+                        for (key, at, next) in keys(class) {
+                            check_key(&b, &data, key, at, next, k);
+                        }
+                        let cy = b.i64("crop_y").unwrap();
+                        assert!(cy.iter().all(|&v| v >= 0) || cy.iter().all(|&v| v < 0), "one decision a batch");
+                        if cy[0] >= 0 {
+                            cropped += 1
+                        } else {
+                            plain += 1
+                        }
+                        random += b
+                            .kinds("value_goal_kind")
+                            .unwrap()
+                            .iter()
+                            .filter(|k| **k == pgser::sampler::ogbench::GoalKind::Random)
+                            .count();
+                    }
+                    assert!(
+                        cropped > 0 && plain > 0 && random > 0,
+                        "{class:?} k={k} {budget:?}: {cropped} {plain} {random}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// An evaluation batch is the training batch of the same index uncropped; the crop offsets
+    /// are uniform on 0..=6 on both axes, one decision of `p_aug` a batch; the same seed gives the
+    /// same bytes on 1 and 4 threads.
+    #[test]
+    fn crops_are_uniform_evaluation_batches_are_not_cropped_and_threads_change_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = visual_folder(dir.path(), 2, (4, 10, 8), 20);
+        let cfg = OgbenchConfig { p_aug: 0.5, frame_stack: Some(2), ..OgbenchConfig::default() };
+        let open =
+            || OgbenchStream::open(&folder, Budget::Unbounded, cfg.clone(), &PriorityConfig::default(), 5).unwrap();
+        let mut s = open();
+        let mut counts = [[0u64; 7]; 2];
+        let mut cropped = 0;
+        let batches = 400;
+        for k in 0..batches {
+            let b = s.batch_for(k, 32, false).unwrap();
+            let e = s.batch_for(k, 32, true).unwrap();
+            assert!(e.i64("crop_y").unwrap().iter().all(|&v| v == -1), "an evaluation batch is never cropped");
+            for key in ["episode", "step", "value_goal_episode", "value_goal_step", "actor_goal_step"] {
+                assert_eq!(b.i64(key), e.i64(key), "{key}: the same rows");
+            }
+            let (cy, cx) = (b.i64("crop_y").unwrap(), b.i64("crop_x").unwrap());
+            if cy[0] >= 0 {
+                cropped += 1;
+                for i in 0..b.n {
+                    counts[0][cy[i] as usize] += 1;
+                    counts[1][cx[i] as usize] += 1;
+                }
+            } else {
+                assert_eq!(b.u8("observations"), e.u8("observations"), "an uncropped batch is its evaluation batch");
+            }
+        }
+        // Binomial(400, 0.5): 200 ± 5σ (σ = 10).
+        assert!((cropped as i64 - 200).abs() < 50, "{cropped} of {batches} batches cropped");
+        for axis in counts {
+            let (stat, crit) = common::coded::chi_square(&axis);
+            assert!(stat < crit, "offsets {axis:?}: χ² {stat} ≥ {crit}");
+        }
+        let at = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut s = open();
+                (0..6).map(|_| s.next_batch(256).unwrap()).collect::<Vec<_>>()
+            })
+        };
+        assert_eq!(at(1), at(4));
+    }
+
+    /// Bad pixel settings are refused in one line naming the value: p_aug outside [0, 1], a
+    /// stack of 0 frames or longer than an episode, crops or stacks of a state table, and
+    /// either with Horizon Reduction's classes, which read neither.
+    #[test]
+    fn bad_pixel_settings_are_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = visual_folder(dir.path(), 1, (3, 6, 4), 12);
+        let states = common::coded::folder(&dir.path().join("states"));
+        let open = |path: &Path, cfg: OgbenchConfig| {
+            OgbenchStream::open(path, Budget::Unbounded, cfg, &PriorityConfig::default(), 0)
+                .err()
+                .map(|e| format!("{e:#}"))
+                .unwrap_or_else(|| panic!("taken: {path:?}"))
+        };
+        let og = OgbenchConfig::default();
+        let hr = OgbenchConfig { code: Code::HorizonReduction, ..OgbenchConfig::default() };
+        for (path, cfg, want) in [
+            (&folder, OgbenchConfig { p_aug: 1.5, ..og.clone() }, "p_aug = 1.5: must be in [0, 1]"),
+            (&folder, OgbenchConfig { frame_stack: Some(0), ..og.clone() }, "frame_stack = 0"),
+            (
+                &folder,
+                OgbenchConfig { frame_stack: Some(7), ..og.clone() },
+                "frame_stack = 7: longer than this table's episodes (6 observations each)",
+            ),
+            (
+                &states,
+                OgbenchConfig { p_aug: 0.5, ..og.clone() },
+                "p_aug = 0.5: random crops are of images, and this table's observations are states",
+            ),
+            (
+                &states,
+                OgbenchConfig { frame_stack: Some(3), ..og.clone() },
+                "frame_stack = 3: frames stacked are images",
+            ),
+            (
+                &folder,
+                OgbenchConfig { p_aug: 0.5, ..hr.clone() },
+                "p_aug = 0.5: a key of OGBench's dataset classes, which Horizon Reduction's do not read",
+            ),
+            (&folder, OgbenchConfig { frame_stack: Some(2), ..hr }, "frame_stack = 2: a key of OGBench's"),
+        ] {
+            let e = open(path, cfg);
+            assert!(e.contains(want) && e.lines().count() == 1, "{e}");
+        }
+        assert!(
+            OgbenchStream::open(
+                &folder,
+                Budget::Unbounded,
+                OgbenchConfig { frame_stack: Some(6), ..og },
+                &PriorityConfig::default(),
+                0
+            )
+            .is_ok()
+        );
+    }
+}

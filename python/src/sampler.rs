@@ -167,7 +167,7 @@ impl Sampler {
         value_p_trajgoal=None, value_p_randomgoal=None, value_geom_sample=None, actor_p_curgoal=None,
         actor_p_trajgoal=None, actor_p_randomgoal=None, actor_geom_sample=None, gc_negative=None,
         p_swapgoal=None, swap_actor_goals=None, draws_per_row=None, oracle_reps=None, clip_actions=None,
-        env_name=None, provenance=true, shard_window=None))]
+        env_name=None, provenance=true, shard_window=None, p_aug=None, frame_stack=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -206,6 +206,8 @@ impl Sampler {
         env_name: Option<&str>,
         provenance: bool,
         shard_window: Option<u64>,
+        p_aug: Option<f64>,
+        frame_stack: Option<u64>,
     ) -> PyResult<Sampler> {
         existing(&path)?;
         let mut budget = parse_budget(memory_budget, draws_per_row)?;
@@ -218,6 +220,7 @@ impl Sampler {
             ("actor_p_trajgoal", actor_p_trajgoal),
             ("actor_p_randomgoal", actor_p_randomgoal),
             ("p_swapgoal", p_swapgoal),
+            ("p_aug", p_aug),
         ];
         let kw_bools = [
             ("value_geom_sample", value_geom_sample),
@@ -266,7 +269,8 @@ impl Sampler {
         }
         match layout {
             "pgser" => {
-                let og = kw.iter().filter(|k| k.1.is_some()).map(|k| k.0);
+                let stack = frame_stack.map(|_| "frame_stack");
+                let og = kw.iter().filter(|k| k.1.is_some()).map(|k| k.0).chain(stack);
                 let og_bools = kw_bools.iter().filter(|k| k.1.is_some()).map(|k| k.0);
                 let with_config = config.filter(|c| !c.is_none()).map(|_| "config");
                 misplaced(&mut og.chain(og_bools).chain(with_config), "ogbench")?;
@@ -312,7 +316,8 @@ impl Sampler {
                     (None, Some((_, named))) => Some(*named),
                     (None, None) => None,
                 };
-                let overrides = Overrides { floats: kw.to_vec(), bools: kw_bools.to_vec(), oracle_reps, clip_actions };
+                let overrides =
+                    Overrides { floats: kw.to_vec(), bools: kw_bools.to_vec(), oracle_reps, clip_actions, frame_stack };
                 let cfg = ogbench_config(code, config, &overrides)?;
                 let live = Live {
                     config: config.filter(|c| !c.is_none()).map(|c| c.clone().unbind()),
@@ -350,7 +355,7 @@ impl Sampler {
         if self.num_batches.is_some_and(|n| self.handed.load(Ordering::SeqCst) >= n) {
             return Err(PyStopIteration::new_err(()));
         }
-        self.draw(py, self.batch_size)
+        self.draw(py, self.batch_size, false)
     }
 
     /// A batch of `batch_size` rows (default: the sampler's). `layout="ogbench"`: any size, as
@@ -360,8 +365,22 @@ impl Sampler {
     /// across a folder), value_goal_episode, value_goal_step, actor_goal_episode, actor_goal_step,
     /// and scored_row (the scored table's row of a swapped row, −1 for the others).
     /// `layout="pgser"`: the next batch, whose size is fixed when the sampler is made.
-    #[pyo3(signature = (batch_size=None))]
-    fn sample<'py>(&self, py: Python<'py>, batch_size: Option<usize>) -> PyResult<Bound<'py, PyDict>> {
+    /// `evaluation=True` (OGBench's `sample(..., evaluation=True)`): the batch's images are not
+    /// cropped.
+    #[pyo3(signature = (batch_size=None, idxs=None, evaluation=false))]
+    fn sample<'py>(
+        &self,
+        py: Python<'py>,
+        batch_size: Option<usize>,
+        idxs: Option<&Bound<'py, PyAny>>,
+        evaluation: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        if idxs.is_some_and(|i| !i.is_none()) {
+            return Err(PyValueError::new_err(
+                "idxs=: pgser draws its own rows (from disk, within the budget); batches at given indices are not \
+                 drawn",
+            ));
+        }
         let n = batch_size.unwrap_or(self.batch_size);
         if n == 0 {
             return Err(PyValueError::new_err("batch_size=0: must be at least 1"));
@@ -373,7 +392,12 @@ impl Sampler {
                 self.batch_size
             )));
         }
-        self.draw(py, n)
+        if evaluation && matches!(self.kind, Kind::Pgser { .. }) {
+            return Err(PyValueError::new_err(
+                "evaluation=True: a key of OGBench's layout (no crops); layout=\"pgser\" has none",
+            ));
+        }
+        self.draw(py, n, evaluation)
     }
 
     /// What the out-of-core pool's disk reads have cost the drawing so far, as of the last batch
@@ -513,7 +537,7 @@ impl Sampler {
     }
 
     /// The next batch, of `n` rows (`n` is the sampler's own size for `layout="pgser"`).
-    fn draw<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Bound<'py, PyDict>> {
+    fn draw<'py>(&self, py: Python<'py>, n: usize, evaluation: bool) -> PyResult<Bound<'py, PyDict>> {
         let d = match &self.kind {
             Kind::Pgser { rx, dims, .. } => {
                 let drawn = loop {
@@ -556,7 +580,7 @@ impl Sampler {
                     if let Some(cfg) = changed {
                         c.req.send(Request::Config(Box::new(cfg))).map_err(|_| ended())?;
                     }
-                    c.req.send(Request::Batch(n)).map_err(|_| ended())?;
+                    c.req.send(Request::Batch(n, evaluation)).map_err(|_| ended())?;
                     loop {
                         match c.rx.recv_timeout(TICK) {
                             Ok(b) => return Ok(b),

@@ -363,6 +363,7 @@ fn random_episodes(task: &Task, n: usize) -> Episodes {
         ag: noise(n * t * task.goal_dim),
         g: noise(n * (t - 1) * task.goal_dim),
         u: noise(n * (t - 1) * task.act_dim),
+        images: Vec::new(),
     }
 }
 

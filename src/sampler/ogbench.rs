@@ -58,14 +58,19 @@
 //! is decided as for every goal, by (episode, step). Where the rows come from, within a budget
 //! too: `swapped.rs`.
 //!
-//! # What is left out
-//! - OGBench's `frame_stack` and `p_aug` (pixel-based tasks: stacked frames, random crops).
+//! # Pixels
+//! A visual dataset's table keeps its observations as uint8 images; every observation key of a
+//! batch (observations, next observations, and goals that are observations) is then a uint8
+//! array [n, H, W, C], stacked by `frame_stack` to [n, H, W, K·C] and randomly cropped with
+//! probability `p_aug` a batch, as OGBench's `GCDataset` does both (`images.rs`). The draws of
+//! rows and goals are those of a state table; the crops' draws come after them.
 //!
 //! # Provenance
 //! Every batch says where each row and each goal came from: `episode`, `step` (table-wide
 //! episode numbers, shard order across a folder), and for each goal key `K`s (`value_goals`,
 //! `high_actor_targets`, …) `K_episode`, `K_step` and `K_kind` ([`GoalKind`]), and
-//! `scored_row` (the scored table's row of a swapped row, −1 for the others).
+//! `scored_row` (the scored table's row of a swapped row, −1 for the others); in an image
+//! table, `crop_y` and `crop_x`, each row's crop offsets (−1 in a batch not cropped).
 //!
 //! # Streams
 //! Batch k of a stream draws from its own generator, `NpRandom::spawned(seed, [STREAM_OGBENCH,
@@ -90,6 +95,7 @@ use swapped::{Source, Swapper};
 mod batch;
 mod config;
 mod hierarchical;
+mod images;
 mod swapped;
 
 /// Spawn key of OGBench-layout batches ("OGBN"), beside the batch streams' 1–4 and the pool's 5–6.
@@ -204,9 +210,9 @@ impl OgbenchStream {
     /// its dataset was made, as Horizon Reduction's double SHARSA sets `low_discount`); refused,
     /// and the stream unchanged, if this table or the open stream cannot take it.
     pub fn reconfigure(&mut self, cfg: OgbenchConfig) -> Result<()> {
-        let fixed = |c: &OgbenchConfig| (c.code, c.oracle_reps, c.p_swapgoal > 0.0);
+        let fixed = |c: &OgbenchConfig| (c.code, c.oracle_reps, c.p_swapgoal > 0.0, c.frame_stack);
         if fixed(&cfg) != fixed(&self.cfg) {
-            bail!("a config change of layout, oracle_reps or p_swapgoal's use needs a new sampler");
+            bail!("a config change of layout, oracle_reps, frame_stack or p_swapgoal's use needs a new sampler");
         }
         check(self.source.view(), &cfg)?;
         self.cfg = cfg;
@@ -249,12 +255,18 @@ impl OgbenchStream {
     /// Batch `k` of the stream, of `n` rows (not moving the stream on): the view is refreshed
     /// for `n` draws first, so a pool's resident data follow the rows drawn.
     pub fn batch(&mut self, k: u64, n: usize) -> Result<OgbenchBatch> {
+        self.batch_for(k, n, false)
+    }
+
+    /// [`OgbenchStream::batch`], as an `evaluation` batch when asked (OGBench's
+    /// `sample(..., evaluation=True)`: never cropped; everything else drawn alike).
+    pub fn batch_for(&mut self, k: u64, n: usize, evaluation: bool) -> Result<OgbenchBatch> {
         if n == 0 {
             bail!("batch_size must be at least 1");
         }
         self.source.refresh(n)?;
         let mut rng = NpRandom::spawned(self.seed, &[STREAM_OGBENCH, k]);
-        let ctx = Ctx { view: self.source.view(), swap: self.source.swapper(), cfg: &self.cfg };
+        let ctx = Ctx { view: self.source.view(), swap: self.source.swapper(), cfg: &self.cfg, augment: !evaluation };
         Ok(match self.cfg.dataset_class {
             DatasetClass::GCDataset => draw(&ctx, &mut rng, n),
             DatasetClass::HGCDataset => hierarchical::draw(&ctx, &mut rng, n),
@@ -280,6 +292,26 @@ fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
     }
     if cfg.oracle_reps {
         oracle_reps_of(view.task())?;
+    }
+    let images = view.image_shape();
+    if images.is_empty() {
+        let pixels = [
+            (cfg.p_aug > 0.0).then(|| format!("p_aug = {}: random crops are of images", cfg.p_aug)),
+            cfg.frame_stack.map(|k| format!("frame_stack = {k}: frames stacked are images")),
+        ];
+        if let Some(k) = pixels.into_iter().flatten().next() {
+            bail!(
+                "{k}, and this table's observations are states ({} floats; a visual dataset's are images)",
+                view.task().obs_dim
+            );
+        }
+    } else if images.len() != 3 {
+        bail!("images of shape {}: OGBench's are [H, W, C]", crate::trajectory::shape_text(images));
+    }
+    if let Some(k) = cfg.frame_stack
+        && k > t as u64
+    {
+        bail!("frame_stack = {k}: longer than this table's episodes ({t} observations each)");
     }
     Ok(())
 }
@@ -312,6 +344,8 @@ struct Ctx<'a> {
     view: &'a dyn View,
     swap: Option<&'a dyn Swapper>,
     cfg: &'a OgbenchConfig,
+    /// Whether images may be cropped (not in an evaluation batch).
+    augment: bool,
 }
 
 /// Which vector of a point a key reads.
@@ -367,6 +401,22 @@ impl Ctx<'_> {
         }
     }
 
+    /// Whether a key of `read` holds observations (images, in an image table), not oracle
+    /// representations.
+    fn is_obs(&self, read: Read) -> bool {
+        read == Read::Obs || !self.cfg.oracle_reps
+    }
+
+    /// The image `back` steps before goal `g` in its stack (`images.rs`).
+    fn frame(&self, g: &Goal, back: usize) -> &[u8] {
+        match g.at {
+            At::Resident(e, s) => self.view.image(e, images::stack_step(s, back, self.view.t())),
+            At::Source(src) => self.view.goal_image(src, back),
+            // Image tables are never scored (scoring reads states), so no swapped goal is an image.
+            At::Scored(_) => &[],
+        }
+    }
+
     fn width(&self, read: Read) -> usize {
         let task = self.view.task();
         if read == Read::Rep && self.cfg.oracle_reps { task.goal_dim } else { task.obs_dim }
@@ -376,9 +426,12 @@ impl Ctx<'_> {
     /// actions clipped by `clip_actions`, terminals; Horizon Reduction's compact datasets'
     /// `valids` too), then the keys of `points`, the class's `scalars`, and the provenance. The vectors are copied in
     /// parallel, in chunks of rows (copying is most of a batch's time on wide observations, and
-    /// it does not touch the generator, so the batch is the same at any thread count).
+    /// it does not touch the generator, so the batch is the same at any thread count). In an
+    /// image table the observation keys are images, stacked and cropped by `images.rs`, whose
+    /// crops are drawn here, after the rows.
     fn batch(
         &self,
+        rng: &mut NpRandom,
         rows: &[(usize, usize)],
         scored: Vec<i64>,
         points: Vec<(&str, Read, Vec<Goal>)>,
@@ -388,8 +441,27 @@ impl Ctx<'_> {
         let (od, ad) = (view.task().obs_dim, view.task().act_dim);
         let mut b = OgbenchBatch { n, keys: Vec::new() };
         let floats = |dim, values| Column::F32 { dim: Some(dim), values };
-        b.push("observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1))));
-        b.push("next_observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1 + 1))));
+        let shape = view.image_shape();
+        let image =
+            (!shape.is_empty()).then(|| images::Geometry::of(shape, self.cfg.frame_stack.unwrap_or(1) as usize));
+        let crops = image.and_then(|_| images::crops(rng, self.cfg.p_aug, self.augment, n));
+        let pixels = |goals: &[Goal], g: images::Geometry| Column::U8 {
+            shape: g.shape(),
+            values: images::gather(goals, g, crops.as_deref(), |goal, j| self.frame(goal, g.stack - 1 - j)),
+        };
+        match image {
+            Some(g) => {
+                let at = |next: usize| -> Vec<Goal> {
+                    rows.iter().map(|&(e, s)| self.point(e, s + next, s + next)).collect()
+                };
+                b.push("observations", pixels(&at(0), g));
+                b.push("next_observations", pixels(&at(1), g));
+            }
+            None => {
+                b.push("observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1))));
+                b.push("next_observations", floats(od, super::gather_rows(rows, od, |r| view.obs(r.0, r.1 + 1))));
+            }
+        }
         let mut actions = super::gather_rows(rows, ad, |r| view.action(r.0, r.1));
         if let Some(eps) = self.cfg.clip_actions {
             // np.clip(float32, −1 + eps, 1 − eps): the bounds as float32, NaN kept.
@@ -408,6 +480,10 @@ impl Ctx<'_> {
             }
         }
         for (name, read, goals) in &points {
+            if let Some(g) = image.filter(|_| self.is_obs(*read)) {
+                b.push(name, pixels(goals, g));
+                continue;
+            }
             let dim = self.width(*read);
             b.push(name, floats(dim, super::gather_rows(goals, dim, |g| self.read(g, *read))));
         }
@@ -427,6 +503,13 @@ impl Ctx<'_> {
             b.push_provenance(&format!("{stem}_kind"), Column::Kind(goals.iter().map(|g| g.kind).collect()));
         }
         b.push_provenance("scored_row", Column::I64(scored));
+        if image.is_some() {
+            // Each row's crop offsets, −1 in a batch not cropped.
+            for (name, axis) in [("crop_y", 0), ("crop_x", 1)] {
+                let at = |i: usize| crops.as_ref().map_or(-1, |c| i64::from(if axis == 0 { c[i].0 } else { c[i].1 }));
+                b.push_provenance(name, Column::I64((0..n).map(at).collect()));
+            }
+        }
         b
     }
 }
@@ -458,6 +541,7 @@ fn draw(ctx: &Ctx, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
     let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
     let successes = successes(ctx, &rows, &value_goals);
     ctx.batch(
+        rng,
         &rows,
         scored,
         vec![("value_goals", Read::Rep, value_goals), ("actor_goals", Read::Rep, actor_goals)],

@@ -48,6 +48,17 @@ impl Beta {
     }
 }
 
+/// Which observations a sampler takes: pgser's agents read float vectors (an image table is
+/// refused, naming the file); OGBench's layout takes a visual dataset's images too, kept as bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Observations {
+    States,
+    /// Images too, a pool's random goals keeping `frames` of them each (`frame_stack`).
+    StatesOrImages {
+        frames: usize,
+    },
+}
+
 /// A scored table opened beside its original data: its rows' priorities by `priority`; with
 /// `goal_sources`, a pool's blocks keep each scored row's goal (episode, step), 8 bytes a row
 /// (OGBench's layout reports them; pgser's batches do not need them).
@@ -68,6 +79,7 @@ pub struct Opened {
 pub struct Planned {
     data: PathBuf,
     how: How,
+    observations: Observations,
 }
 
 enum How {
@@ -83,12 +95,20 @@ enum How {
 /// of a scored table of it when `scoring` is given (the caller has checked, with
 /// [`checked_source`], that `data` is the table it was scored from). Settings a pool cannot serve
 /// are refused here, naming the file: importance weights (`--is-beta`) need probabilities over
-/// the whole scored table, which a pool, ranking rows within each block, does not have.
-pub fn plan(data: &Path, budget: Budget, scoring: Option<Scoring>) -> Result<Planned> {
+/// the whole scored table, which a pool, ranking rows within each block, does not have; and an
+/// image table unless `observations` takes images.
+pub fn plan(data: &Path, budget: Budget, scoring: Option<Scoring>, observations: Observations) -> Result<Planned> {
     let is_beta = scoring.as_ref().and_then(|s| s.priority.is_beta);
     let at = scoring.as_ref().map_or_else(|| data.display().to_string(), |s| s.table.path.display().to_string());
     let layout = |scoring: Option<Scoring>| -> Result<Box<Layout>> {
-        let layout = Layout::open(data)?;
+        let layout = match observations {
+            Observations::States => {
+                let l = Layout::open(data)?;
+                crate::trajectory::state_only(&data.display().to_string(), l.image_shape(), "this sampler")?;
+                l
+            }
+            Observations::StatesOrImages { frames } => Layout::open(data)?.with_frames(frames),
+        };
         Ok(Box::new(match scoring {
             None => layout,
             Some(s) => {
@@ -122,7 +142,7 @@ pub fn plan(data: &Path, budget: Budget, scoring: Option<Scoring>) -> Result<Pla
             }
         }
     };
-    Ok(Planned { data: data.to_path_buf(), how })
+    Ok(Planned { data: data.to_path_buf(), how, observations })
 }
 
 impl Planned {
@@ -144,7 +164,7 @@ impl Planned {
     pub fn open(self, seed: u64, at: Position) -> Result<Opened> {
         Ok(match self.how {
             How::Whole(scored) => {
-                let data = load_whole(&self.data, scored.as_ref())?;
+                let data = load_whole(&self.data, scored.as_ref(), self.observations)?;
                 Opened { data: Beta::Whole(Arc::new(data)), scored }
             }
             How::Window(layout, rows) => {
@@ -164,12 +184,15 @@ impl Planned {
 /// The trajectory table a scored table names, loaded whole and checked: present, unchanged, of
 /// the same task.
 pub fn beta_of(table: &ScoredTable) -> Result<Episodes> {
-    load_whole(&checked_source(table)?, Some(table))
+    load_whole(&checked_source(table)?, Some(table), Observations::States)
 }
 
 /// The trajectory table `data` whole; the original data of `scored` when given, so of its task.
-fn load_whole(data: &Path, scored: Option<&ScoredTable>) -> Result<Episodes> {
-    let episodes = Episodes::load(data)?;
+fn load_whole(data: &Path, scored: Option<&ScoredTable>, observations: Observations) -> Result<Episodes> {
+    let episodes = match observations {
+        Observations::States => Episodes::load(data)?,
+        Observations::StatesOrImages { .. } => Episodes::load_with_images(data)?,
+    };
     if let Some(t) = scored
         && episodes.task != t.task
     {

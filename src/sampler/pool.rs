@@ -84,6 +84,7 @@ mod schedule;
 use super::view::{GoalSource, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
+pub(crate) use buffers::advise_huge_pages;
 use layout::Block;
 pub use layout::{Layout, Plan};
 use loader::Loader;
@@ -315,7 +316,8 @@ impl Pool {
     /// achieved goal equal to its observation, bit for bit): then a scored row's stored goal is
     /// the observation it was taken from.
     pub fn goals_are_observations(&self) -> bool {
-        self.layout.task.goal_dim == self.layout.task.obs_dim
+        !self.layout.is_image()
+            && self.layout.task.goal_dim == self.layout.task.obs_dim
             && self.resident.iter().all(|b| b.ag.iter().zip(b.obs.iter()).all(|(a, o)| a.to_bits() == o.to_bits()))
     }
 
@@ -417,6 +419,9 @@ impl View for Pool {
     fn obs(&self, e: usize, s: usize) -> &[f32] {
         let (b, l) = self.block(e);
         let d = self.layout.task.obs_dim;
+        if b.obs.is_empty() {
+            return &[];
+        }
         &b.obs[(l * self.layout.t + s) * d..][..d]
     }
     fn ag(&self, e: usize, s: usize) -> &[f32] {
@@ -460,6 +465,20 @@ impl View for Pool {
             return self.obs((g.slot / t) as usize, (g.slot % t) as usize);
         }
         self.reservoir.obs(g.slot)
+    }
+    fn image_shape(&self) -> &[usize] {
+        &self.layout.image_shape
+    }
+    fn image(&self, e: usize, s: usize) -> &[u8] {
+        let (b, l) = self.block(e);
+        b.image(l, s, self.layout.t, self.layout.task.obs_dim)
+    }
+    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+        if self.reservoir.is_empty() {
+            let t = self.layout.t as u64;
+            return self.image((g.slot / t) as usize, ((g.slot % t) as usize).saturating_sub(back));
+        }
+        self.reservoir.image(g.slot, back)
     }
     fn refresh(&mut self, rows: usize) -> Result<()> {
         if let Some(e) = &self.failed {

@@ -160,6 +160,7 @@ pub fn empty(task: &Task) -> Episodes {
         ag: Vec::new(),
         g: Vec::new(),
         u: Vec::new(),
+        images: Vec::new(),
         task,
     }
 }

@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 
-use super::open::{self, Beta, Opened, Scoring};
+use super::open::{self, Beta, Observations, Opened, Scoring};
 use super::pool::{Pool, Position, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::{ScoredSampler, ScoredTable};
@@ -85,7 +85,11 @@ impl BatchSource {
         let at = Position { batches: first, rows: cfg.batch_size };
         let source = match ScoredTable::open_if_scored(path)? {
             Some(table) => BatchSource::open_scored(table, cfg, budget, at)?,
-            None => BatchSource { data: open::plan(path, budget, None)?.open(cfg.seed, at)?.data, scored: None, first },
+            None => BatchSource {
+                data: open::plan(path, budget, None, Observations::States)?.open(cfg.seed, at)?.data,
+                scored: None,
+                first,
+            },
         };
         if source.data.view().t() < 2 {
             bail!("{}: episodes of {} step(s) hold no transition", path.display(), source.data.view().t());
@@ -108,7 +112,8 @@ impl BatchSource {
         }
         let source = open::checked_source(&table)?;
         let scoring = Scoring { table, priority: cfg.priority.clone(), goal_sources: false };
-        let Opened { data, scored } = open::plan(&source, budget, Some(scoring))?.open(cfg.seed, pos)?;
+        let Opened { data, scored } =
+            open::plan(&source, budget, Some(scoring), Observations::States)?.open(cfg.seed, pos)?;
         Ok(BatchSource { data, scored, first: pos.batches })
     }
 

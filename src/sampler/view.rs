@@ -55,6 +55,17 @@ pub trait View: Send + Sync {
     fn goal_ag(&self, g: GoalSource) -> &[f32];
     /// The observation of a source `random_goal` returned.
     fn goal_obs(&self, g: GoalSource) -> &[f32];
+    /// The shape of an image observation, [H, W, C], when the table's observations are images
+    /// (then `obs` and `goal_obs` are empty and `image` and `goal_image` hold them); empty for
+    /// state observations. Only OGBench's layout opens image tables.
+    fn image_shape(&self) -> &[usize];
+    /// o[e, s]'s bytes, s < T, of an image table (empty for state observations).
+    fn image(&self, e: usize, s: usize) -> &[u8];
+    /// The image `back` steps before a source `random_goal` returned, clamped to its episode's
+    /// first step (the frames OGBench stacks before a goal; `back` 0 is the goal's own image). A
+    /// pool's reservoir keeps the frames its layout was opened with (`Layout::with_frames`):
+    /// `back` is less than that.
+    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8];
     /// Called before each batch with the number of transitions it will draw: a pool counts
     /// them and takes in the blocks its loader has read when their turn comes (after as many
     /// draws as the leaving block has transitions), so what is resident depends on the draws
@@ -77,7 +88,7 @@ impl View for Episodes {
         self.t
     }
     fn obs(&self, e: usize, s: usize) -> &[f32] {
-        Episodes::obs(self, e, s)
+        if self.obs.is_empty() { &[] } else { Episodes::obs(self, e, s) }
     }
     fn ag(&self, e: usize, s: usize) -> &[f32] {
         Episodes::ag(self, e, s)
@@ -100,7 +111,16 @@ impl View for Episodes {
         Episodes::ag(self, g.episode as usize, g.step as usize)
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
-        Episodes::obs(self, g.episode as usize, g.step as usize)
+        View::obs(self, g.episode as usize, g.step as usize)
+    }
+    fn image_shape(&self) -> &[usize] {
+        &self.footer.image_shape
+    }
+    fn image(&self, e: usize, s: usize) -> &[u8] {
+        if self.images.is_empty() { &[] } else { Episodes::image(self, e, s) }
+    }
+    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+        View::image(self, g.episode as usize, (g.step as usize).saturating_sub(back))
     }
 }
 
@@ -119,7 +139,7 @@ impl View for InMemory {
         self.0.t
     }
     fn obs(&self, e: usize, s: usize) -> &[f32] {
-        self.0.obs(e, s)
+        View::obs(&*self.0, e, s)
     }
     fn ag(&self, e: usize, s: usize) -> &[f32] {
         self.0.ag(e, s)
@@ -141,6 +161,15 @@ impl View for InMemory {
     }
     fn goal_obs(&self, g: GoalSource) -> &[f32] {
         View::goal_obs(&*self.0, g)
+    }
+    fn image_shape(&self) -> &[usize] {
+        View::image_shape(&*self.0)
+    }
+    fn image(&self, e: usize, s: usize) -> &[u8] {
+        View::image(&*self.0, e, s)
+    }
+    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+        View::goal_image(&*self.0, g, back)
     }
 }
 

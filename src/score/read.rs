@@ -196,6 +196,7 @@ impl FileBlocks {
             ag: Vec::with_capacity(n * t * f.goal_dim),
             g: Vec::with_capacity(if self.with_goals { n * (t - 1) * f.goal_dim } else { 0 }),
             u: Vec::with_capacity(n * (t - 1) * f.act_dim),
+            images: Vec::new(),
         };
         while self.row < end_row {
             let batch = match self.rest.take() {

@@ -80,6 +80,19 @@ pub fn schema(float: FloatType, task: &Task, image: bool) -> SchemaRef {
     ]))
 }
 
+/// [`Footer::state_only`] for a table whose observations have `image_shape` (empty: states).
+pub fn state_only(at: &str, image_shape: &[usize], what: &str) -> Result<()> {
+    if !image_shape.is_empty() {
+        bail!(
+            "{at}: observations are {} uint8 images (a visual dataset), and {what} takes state observations (float \
+             vectors); convert, export --format ogbench, inspect, verify and pgser.Sampler(layout=\"ogbench\") read \
+             image tables",
+            shape_text(image_shape)
+        );
+    }
+    Ok(())
+}
+
 /// `64×64×3`.
 pub fn shape_text(shape: &[usize]) -> String {
     shape.iter().map(usize::to_string).collect::<Vec<_>>().join("×")
@@ -222,14 +235,7 @@ impl Footer {
     /// scoring and the samplers read observations as floats, and a 12,288-value "state" of bytes
     /// is no observation a pgser agent was built for.
     pub fn state_only(&self, at: &str, what: &str) -> Result<()> {
-        if self.is_image() {
-            bail!(
-                "{at}: observations are {} uint8 images (a visual dataset), and {what} takes state observations \
-                 (float vectors); convert, export --format ogbench, inspect and verify read image tables",
-                shape_text(&self.image_shape)
-            );
-        }
-        Ok(())
+        state_only(at, &self.image_shape, what)
     }
 
     /// The task this table was written for, with the threshold recorded in the file.

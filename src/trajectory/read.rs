@@ -54,6 +54,9 @@ pub struct Episodes {
     pub g: Vec<f32>,
     /// `[n, t − 1, act_dim]` actions.
     pub u: Vec<f32>,
+    /// An image table's observations, `[n, t, obs_dim]` bytes (`footer.image_shape` each), where
+    /// `obs` is empty; empty for state observations. Only [`Episodes::load_with_images`] fills it.
+    pub images: Vec<u8>,
 }
 
 impl std::fmt::Debug for Episodes {
@@ -67,20 +70,38 @@ impl Episodes {
     /// in the manifest's order, episodes numbered across the folder); errors are one line naming
     /// the file and where.
     pub fn load(path: &Path) -> Result<Episodes> {
+        Self::load_as(path, false)
+    }
+
+    /// [`Episodes::load`] for a reader of image observations too (OGBench's layout of the
+    /// samplers): an image table's observations are kept as their bytes, in `images`.
+    pub fn load_with_images(path: &Path) -> Result<Episodes> {
+        Self::load_as(path, true)
+    }
+
+    fn load_as(path: &Path, images: bool) -> Result<Episodes> {
         let mut out = None;
+        let mut bytes = Vec::new();
         let footer = if super::folder::is_folder(path) {
             // Opening checks that every shard's footer agrees with the manifest's.
             let folder = super::folder::TableFolder::open(path)?;
             let whole = folder.footer().clone();
             for file in folder.shard_paths() {
-                append_file(&file, &mut out, Some(whole.episodes))?;
+                append_file(&file, &mut out, &mut bytes, images, Some(whole.episodes))?;
             }
             whole
         } else {
-            append_file(path, &mut out, None)?
+            append_file(path, &mut out, &mut bytes, images, None)?
         };
         let [obs, ag, g, u] = out.expect("at least one file read");
-        Ok(Episodes { task: footer.task(), n: footer.episodes, t: footer.t, footer, obs, ag, g, u })
+        Ok(Episodes { task: footer.task(), n: footer.episodes, t: footer.t, footer, obs, ag, g, u, images: bytes })
+    }
+
+    /// o[ep, step]'s bytes, step < T, of an image table read with its images.
+    pub fn image(&self, ep: usize, step: usize) -> &[u8] {
+        debug_assert!(step < self.t);
+        let d = self.footer.obs_dim;
+        &self.images[(ep * self.t + step) * d..][..d]
     }
 
     /// o[ep, step], step < T.
@@ -123,23 +144,45 @@ impl Episodes {
 }
 
 /// Reads the file `path` and appends its rows to `out`, which the first file makes, with room for
-/// `episodes` (a folder's total; else the file's own). Returns the file's footer.
-fn append_file(path: &Path, out: &mut Option<[Vec<f32>; 4]>, episodes: Option<usize>) -> Result<Footer> {
+/// `episodes` (a folder's total; else the file's own); with `images`, an image table's
+/// observations go to `bytes` (and `out`'s observations stay empty). Returns the file's footer.
+fn append_file(
+    path: &Path,
+    out: &mut Option<[Vec<f32>; 4]>,
+    bytes: &mut Vec<u8>,
+    images: bool,
+    episodes: Option<usize>,
+) -> Result<Footer> {
     let at = path.display().to_string();
-    let (footer, reader) = open_checked(path, &VECTORS, BATCH_EPISODES)?;
+    let (footer, reader) = if images {
+        open_images(path, &VECTORS, BATCH_EPISODES)?
+    } else {
+        open_checked(path, &VECTORS, BATCH_EPISODES)?
+    };
     let t = footer.t;
     let dims = [footer.obs_dim, footer.goal_dim, footer.goal_dim, footer.act_dim];
     let steps = [t, t, t - 1, t - 1];
     let n = episodes.unwrap_or(footer.episodes);
+    let image = footer.is_image();
     let out = out.get_or_insert_with(|| {
-        std::array::from_fn(|k| Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE)))
+        std::array::from_fn(|k| {
+            let n = if image && k == 0 { 0 } else { n };
+            Vec::with_capacity(n.saturating_mul(steps[k]).saturating_mul(dims[k]).min(MAX_RESERVE))
+        })
     });
+    if image && bytes.is_empty() {
+        bytes.reserve(n.saturating_mul(t).saturating_mul(dims[0]).min(4 * MAX_RESERVE));
+    }
     let mut row = 0;
     for batch in reader {
         let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
         check_keys(&at, &batch, row, &footer)?;
         for (k, v) in out.iter_mut().enumerate() {
             let col = batch.column_by_name(VECTORS[k]).expect("projected");
+            if image && k == 0 {
+                append_images(bytes, col, dims[0], row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+                continue;
+            }
             append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
         }
         row += batch.num_rows();
@@ -350,10 +393,39 @@ pub(crate) fn check_keys(at: &str, batch: &RecordBatch, first_row: usize, f: &Fo
     Ok(())
 }
 
-/// Append the rows of one vector column to `out` as f32: every row, or with `padded` (goal,
-/// action) the rows with step < T − 1, whose last-step row may be null. Rows already passed
-/// [`check_keys`], so row r of the batch is table row `first_row + r`. Errors name the row,
-/// episode, step and column; the caller adds the file.
+/// Where [`append_images`] writes an image column's bytes: a `Vec`, or the pool's own mappings.
+pub(crate) trait ByteSink {
+    fn push_bytes(&mut self, v: &[u8]);
+}
+
+impl ByteSink for Vec<u8> {
+    fn push_bytes(&mut self, v: &[u8]) {
+        self.extend_from_slice(v);
+    }
+}
+
+/// Appends an image table's `obs` column (FixedSizeBinary of `dim` bytes, as `open_images`
+/// checked) to `out`, every row: an image is never null. Errors name the row, episode and step;
+/// the caller adds the file.
+pub(crate) fn append_images(
+    out: &mut impl ByteSink,
+    col: &ArrayRef,
+    dim: usize,
+    first_row: usize,
+    t: usize,
+) -> Result<()> {
+    let images = col.as_fixed_size_binary();
+    if let Some(bad) = (0..images.len()).find(|&i| images.is_null(i)) {
+        let row = first_row + bad;
+        bail!("row {row} (episode {}, step {}): `obs` is null; an image is never null", row / t, row % t);
+    }
+    if images.value_length() as usize != dim {
+        bail!("`obs` holds images of {} bytes where the footer says {dim}", images.value_length());
+    }
+    out.push_bytes(&images.value_data()[..images.len() * dim]);
+    Ok(())
+}
+
 /// Where [`append`] writes a column's values: a `Vec`, or the out-of-core pool's own arrays
 /// (`sampler/pool/buffers.rs`).
 pub(crate) trait Sink {
@@ -379,6 +451,10 @@ impl Sink for Vec<f32> {
     }
 }
 
+/// Append the rows of one vector column to `out` as f32: every row, or with `padded` (goal,
+/// action) the rows with step < T − 1, whose last-step row may be null. Rows already passed
+/// [`check_keys`], so row r of the batch is table row `first_row + r`. Errors name the row,
+/// episode, step and column; the caller adds the file.
 pub(crate) fn append(
     out: &mut impl Sink,
     col: &ArrayRef,
@@ -454,6 +530,7 @@ impl Episodes {
             ag: vec![],
             g: vec![],
             u: vec![],
+            images: vec![],
         };
         for e in 0..n {
             for s in 0..t {

@@ -84,7 +84,7 @@ pub fn coded_of(task: &Task, first: usize, n: usize) -> Episodes {
         }
     }
     let footer = Footer::new(&task, FloatType::Float32, n, "test".into());
-    Episodes { footer, task, n, t: T, obs, ag, g, u }
+    Episodes { footer, task, n, t: T, obs, ag, g, u, images: Vec::new() }
 }
 
 /// The shard holding the folder's episode `e`.

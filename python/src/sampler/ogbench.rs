@@ -16,7 +16,7 @@ use super::OgDrawn;
 use crate::py_err;
 
 /// The config keys this sampler reads; any other key of an agent's config is ignored.
-pub(super) const OG_FLOATS: [&str; 8] = [
+pub(super) const OG_FLOATS: [&str; 9] = [
     "discount",
     "p_swapgoal",
     "value_p_curgoal",
@@ -25,6 +25,7 @@ pub(super) const OG_FLOATS: [&str; 8] = [
     "actor_p_curgoal",
     "actor_p_trajgoal",
     "actor_p_randomgoal",
+    "p_aug",
 ];
 pub(super) const OG_BOOLS: [&str; 4] = ["value_geom_sample", "actor_geom_sample", "gc_negative", "swap_actor_goals"];
 /// HGCDataset's subgoal steps (Horizon Reduction's class reads the value and actor ones apart).
@@ -37,6 +38,7 @@ pub(super) struct Overrides {
     pub bools: Vec<(&'static str, Option<bool>)>,
     pub oracle_reps: Option<bool>,
     pub clip_actions: Option<f64>,
+    pub frame_stack: Option<u64>,
 }
 
 /// The settings of `code`'s classes: pgser's defaults, then an agent's `config` (any mapping: a
@@ -91,18 +93,10 @@ pub(super) fn ogbench_config(code: Code, config: Option<&Bound<'_, PyAny>>, kw: 
             }
         }
         if let Some(v) = get("frame_stack")? {
-            return Err(PyValueError::new_err(format!(
-                "config[\"frame_stack\"] = {}: frame stacking (OGBench's pixel tasks) is not drawn by pgser; use None",
-                repr(&v)
-            )));
-        }
-        if let Some(v) = get("p_aug")?
-            && v.extract::<f64>().map_or(true, |p| p != 0.0)
-        {
-            return Err(PyValueError::new_err(format!(
-                "config[\"p_aug\"] = {}: image augmentation (OGBench's pixel tasks) is not done by pgser; use 0 or None",
-                repr(&v)
-            )));
+            let k: u64 = v.extract().map_err(|_| {
+                PyValueError::new_err(format!("config[\"frame_stack\"] = {}: not a whole number of frames", repr(&v)))
+            })?;
+            obj.insert("frame_stack".into(), k.into());
         }
         if let Some(v) = get("dataset_class")? {
             let name: String = v.str()?.to_cow()?.into_owned();
@@ -133,6 +127,9 @@ pub(super) fn ogbench_config(code: Code, config: Option<&Bound<'_, PyAny>>, kw: 
     }
     if let Some(x) = kw.clip_actions {
         obj.insert("clip_actions".into(), x.into());
+    }
+    if let Some(x) = kw.frame_stack {
+        obj.insert("frame_stack".into(), x.into());
     }
     let cfg: OgbenchConfig = serde_json::from_value(values).map_err(|e| PyValueError::new_err(e.to_string()))?;
     cfg.validate().map_err(py_err)?;
@@ -168,8 +165,8 @@ pub(super) fn config_batch_size(config: Option<&Bound<'_, PyAny>>) -> PyResult<O
 
 /// What the sampler asks its worker for.
 pub(super) enum Request {
-    /// The next batch, of this many rows.
-    Batch(usize),
+    /// The next batch, of this many rows; an evaluation batch (no crops) when true.
+    Batch(usize, bool),
     /// Draw the batches from the next on with these settings (the agent's config changed).
     Config(Box<OgbenchConfig>),
 }
@@ -213,8 +210,8 @@ pub(super) fn og_worker(
         *pool.lock().unwrap() = stream.pool_stats();
         true
     };
-    let on_request = |stream: &mut OgbenchStream, n: usize, k: u64| {
-        let b = stream.batch(k, n);
+    let on_request = |stream: &mut OgbenchStream, n: usize, k: u64, evaluation: bool| {
+        let b = stream.batch_for(k, n, evaluation);
         *pool.lock().unwrap() = stream.pool_stats();
         b
     };
@@ -250,19 +247,22 @@ pub(super) fn og_worker(
                 }
                 continue;
             }
-            Request::Batch(n) => n,
+            Request::Batch(n, evaluation) => (n, evaluation),
         };
+        let (n, evaluation) = n;
+        // Batches drawn ahead are training batches of the default size; any other is drawn at
+        // its request, the queue given back first.
         let b = if let Some(e) = refused.take() {
             Err(e)
-        } else if n == size {
+        } else if n == size && !evaluation {
             match ready.pop_front() {
                 Some(b) => b,
-                None => on_request(&mut stream, n, k),
+                None => on_request(&mut stream, n, k, false),
             }
         } else {
             match drop_queue(&mut stream, &mut ready) {
                 Some(failed) => failed,
-                None => on_request(&mut stream, n, k),
+                None => on_request(&mut stream, n, k, evaluation),
             }
         };
         k += 1;
@@ -274,6 +274,7 @@ pub(super) fn og_worker(
 }
 
 /// A batch as the class it follows gives it, with its dtypes: float32 vectors and terminals,
+/// uint8 images [n, H, W, C] (a visual dataset's observation keys),
 /// float64 rewards and masks (`successes.astype(float)`), int64 subgoal steps and offsets; and,
 /// with `provenance`, pgser's columns of where each row and goal came from (int64 episodes and
 /// steps, uint8 goal kinds: `GoalKind::code`).
@@ -293,6 +294,10 @@ pub(super) fn og_dict(py: Python<'_>, b: OgbenchBatch, provenance: bool) -> PyRe
             Column::I64(v) => d.set_item(key.name, v.into_pyarray(py))?,
             Column::Kind(v) => {
                 d.set_item(key.name, v.iter().map(|k| k.code()).collect::<Vec<u8>>().into_pyarray(py))?
+            }
+            Column::U8 { shape, values } => {
+                let dims: Vec<usize> = std::iter::once(n).chain(shape).collect();
+                d.set_item(key.name, values.into_pyarray(py).reshape(dims)?)?
             }
         }
     }

@@ -21,6 +21,8 @@ pub enum Column {
     I64(Vec<i64>),
     /// A drawn goal's kind, one a row (uint8 codes in Python: [`GoalKind::code`]).
     Kind(Vec<GoalKind>),
+    /// uint8 images, each of `shape` ([H, W, C], C·frame_stack channels when stacked), row-major.
+    U8 { shape: Vec<usize>, values: Vec<u8> },
 }
 
 /// A named column, and whether it is provenance (pgser's account of where a row came from, not
@@ -76,6 +78,14 @@ impl OgbenchBatch {
     pub fn i64(&self, name: &str) -> Option<&[i64]> {
         match self.get(name)? {
             Column::I64(v) => Some(v),
+            _ => None,
+        }
+    }
+
+    /// An image key's bytes and each row's shape; None if the batch has no such image key.
+    pub fn u8(&self, name: &str) -> Option<(&[u8], &[usize])> {
+        match self.get(name)? {
+            Column::U8 { shape, values } => Some((values, shape)),
             _ => None,
         }
     }

@@ -76,6 +76,12 @@ pub struct OgbenchConfig {
     pub p_swapgoal: f64,
     /// A swapped row's actor goal is its swapped goal (true) or drawn by the actor's fractions.
     pub swap_actor_goals: bool,
+    /// OGBench's image augmentation: the probability that a batch's images are randomly cropped
+    /// (`images.rs`); 0 (or None in a config): never.
+    pub p_aug: f64,
+    /// OGBench's frame stacking: each observation key holds this many frames, oldest first, on
+    /// the channel axis (`images.rs`); None: one.
+    pub frame_stack: Option<u64>,
 }
 
 impl Default for OgbenchConfig {
@@ -102,6 +108,8 @@ impl Default for OgbenchConfig {
             clip_actions: None,
             p_swapgoal: 0.0,
             swap_actor_goals: true,
+            p_aug: 0.0,
+            frame_stack: None,
         }
     }
 }
@@ -118,6 +126,24 @@ impl OgbenchConfig {
         }
         if !(0.0..=1.0).contains(&self.p_swapgoal) {
             bail!("p_swapgoal = {}: must be in [0, 1]", self.p_swapgoal);
+        }
+        if !(0.0..=1.0).contains(&self.p_aug) {
+            bail!("p_aug = {}: must be in [0, 1] (the probability that a batch's images are cropped)", self.p_aug);
+        }
+        if self.frame_stack == Some(0) {
+            bail!("frame_stack = 0: a stack holds at least one frame (None: no stacking)");
+        }
+        if self.code == Code::HorizonReduction {
+            let pixels = [
+                (self.p_aug > 0.0).then(|| format!("p_aug = {}", self.p_aug)),
+                self.frame_stack.map(|k| format!("frame_stack = {k}")),
+            ];
+            if let Some(k) = pixels.into_iter().flatten().next() {
+                bail!(
+                    "{k}: a key of OGBench's dataset classes, which Horizon Reduction's do not read (they neither crop \
+                     nor stack frames): use layout=\"ogbench\", or leave it out"
+                );
+            }
         }
         for (who, [cur, traj, random]) in [
             ("value", [self.value_p_curgoal, self.value_p_trajgoal, self.value_p_randomgoal]),

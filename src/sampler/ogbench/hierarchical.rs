@@ -110,6 +110,7 @@ fn ogbench(ctx: &Ctx, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
     let successes = successes(ctx, &rows, &value);
     let offset = if cfg.gc_negative { 1.0 } else { 0.0 };
     ctx.batch(
+        rng,
         &rows,
         scored,
         vec![
@@ -196,7 +197,7 @@ fn horizon_reduction(ctx: &Ctx, rng: &mut NpRandom, n: usize) -> OgbenchBatch {
         ("high_actor_next_observations", Read::Obs, ha_next),
         ("low_actor_goals", Read::Rep, low_actor),
     ]);
-    ctx.batch(&rows, scored, points, scalars)
+    ctx.batch(rng, &rows, scored, points, scalars)
 }
 
 #[cfg(test)]

@@ -23,7 +23,7 @@ use anyhow::{Context, Result, bail};
 use super::{At, Goal, GoalKind, OgbenchConfig};
 use crate::nprandom::NpRandom;
 use crate::sampler::RowKey;
-use crate::sampler::open::{self, Beta, Opened, Scoring};
+use crate::sampler::open::{self, Beta, Observations, Opened, Scoring};
 use crate::sampler::pool::{Pool, Position};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
@@ -136,12 +136,30 @@ impl Source {
                      score), and this is a trajectory table; give its scored table or folder, or p_swapgoal = 0"
                 );
             }
-            return Ok(Source::Plain(open::plan(path, budget, None)?.open(seed, Position::START)?.data));
+            return Ok(Source::Plain(
+                open::plan(
+                    path,
+                    budget,
+                    None,
+                    Observations::StatesOrImages { frames: cfg.frame_stack.unwrap_or(1) as usize },
+                )?
+                .open(seed, Position::START)?
+                .data,
+            ));
         };
         let source = open::checked_source(&table)?;
         if p_swapgoal == 0.0 {
             // Its original data alone: no scored rows held for nothing.
-            return Ok(Source::Plain(open::plan(&source, budget, None)?.open(seed, Position::START)?.data));
+            return Ok(Source::Plain(
+                open::plan(
+                    &source,
+                    budget,
+                    None,
+                    Observations::StatesOrImages { frames: cfg.frame_stack.unwrap_or(1) as usize },
+                )?
+                .open(seed, Position::START)?
+                .data,
+            ));
         }
         priority.validate()?;
         if let Some(b) = priority.is_beta {
@@ -155,7 +173,12 @@ impl Source {
         }
         let task = table.task.clone();
         let scoring = Scoring { table, priority: priority.clone(), goal_sources: true };
-        let planned = open::plan(&source, budget, Some(scoring))?;
+        let planned = open::plan(
+            &source,
+            budget,
+            Some(scoring),
+            Observations::StatesOrImages { frames: cfg.frame_stack.unwrap_or(1) as usize },
+        )?;
         // Within a budget the stored goal stands for the goal vector: the achieved goal, which
         // is what `oracle_reps` reads; for observation goals, refused unless the task's goals are
         // its whole observations (the width here, before the pool reads anything; the values once

@@ -62,7 +62,7 @@ fn flat(b: &OgbenchBatch) -> Flat {
 }
 
 pub(super) fn drawn(v: &InMemory, cfg: &OgbenchConfig, n: usize, seed: u64) -> OgbenchBatch {
-    let ctx = Ctx { view: v, swap: None, cfg };
+    let ctx = Ctx { view: v, swap: None, cfg, augment: true };
     let mut rng = NpRandom::spawned(seed, &[STREAM_OGBENCH, 0]);
     match cfg.dataset_class {
         DatasetClass::GCDataset => draw(&ctx, &mut rng, n),

@@ -26,28 +26,34 @@ use anyhow::{Result, bail};
 
 const HUGE: usize = 2 << 20;
 
-/// A run of float32 values in a mapping of its own: `len` written, room for `cap`.
-pub(super) struct Floats {
-    ptr: *mut f32,
+/// A run of values in a mapping of its own: `len` written, room for `cap`. Float32 arrays
+/// ([`Floats`]) and an image table's observation bytes ([`Bytes`]).
+pub(super) struct Mapped<T: Copy> {
+    ptr: *mut T,
     len: usize,
     cap: usize,
 }
 
-// SAFETY: a `Floats` owns its mapping alone, as a `Vec<f32>` owns its buffer.
-unsafe impl Send for Floats {}
-// SAFETY: shared access only reads.
-unsafe impl Sync for Floats {}
+/// A block's or the reservoir's float32 arrays.
+pub(super) type Floats = Mapped<f32>;
+/// An image table's observations, `H·W·C` bytes each.
+pub(super) type Bytes = Mapped<u8>;
 
-impl Default for Floats {
-    fn default() -> Floats {
-        Floats { ptr: std::ptr::NonNull::dangling().as_ptr(), len: 0, cap: 0 }
+// SAFETY: a `Mapped` owns its mapping alone, as a `Vec<T>` owns its buffer.
+unsafe impl<T: Copy + Send> Send for Mapped<T> {}
+// SAFETY: shared access only reads.
+unsafe impl<T: Copy + Sync> Sync for Mapped<T> {}
+
+impl<T: Copy> Default for Mapped<T> {
+    fn default() -> Mapped<T> {
+        Mapped { ptr: std::ptr::NonNull::dangling().as_ptr(), len: 0, cap: 0 }
     }
 }
 
-impl Floats {
-    /// `n` zeros (an anonymous mapping is zero until written).
-    pub(super) fn zeros(n: usize) -> Result<Floats> {
-        let mut f = Floats::default();
+impl<T: Copy> Mapped<T> {
+    /// `n` zeros (an anonymous mapping is zero until written; zero bytes are 0 for both types).
+    pub(super) fn zeros(n: usize) -> Result<Mapped<T>> {
+        let mut f = Mapped::default();
         f.reserve(n)?;
         f.len = n;
         Ok(f)
@@ -59,22 +65,22 @@ impl Floats {
     }
 
     /// Room for `n` values from the start: a new mapping when this one holds fewer (its values
-    /// are dropped with the old one; call it on an empty `Floats`). Huge pages are advised on
+    /// are dropped with the old one; call it on an empty `Mapped`). Huge pages are advised on
     /// the first `n` values' pages.
     pub(super) fn reserve(&mut self, n: usize) -> Result<()> {
         if n <= self.cap {
             return Ok(());
         }
-        *self = Floats::default();
-        let Some(bytes) = n.checked_mul(4) else { bail!("{n} float32 values do not fit in memory") };
-        self.ptr = map(bytes)?;
+        *self = Mapped::default();
+        let Some(bytes) = n.checked_mul(size_of::<T>()) else { bail!("{n} values do not fit in memory") };
+        self.ptr = map(bytes)?.cast();
         self.cap = n;
         advise_huge_pages(self.ptr as usize, bytes);
         Ok(())
     }
 
     /// The values, mutably.
-    pub(super) fn as_mut_slice(&mut self) -> &mut [f32] {
+    pub(super) fn as_mut_slice(&mut self) -> &mut [T] {
         if self.cap == 0 {
             return &mut [];
         }
@@ -82,11 +88,20 @@ impl Floats {
         // mapping's zeros); `&mut self` makes this the only reference.
         unsafe { std::slice::from_raw_parts_mut(self.ptr, self.len) }
     }
+
+    /// Appends `values` within the room reserved.
+    pub(super) fn extend(&mut self, values: &[T]) {
+        assert!(self.len + values.len() <= self.cap, "a block's array holds what was reserved for it");
+        // SAFETY: the destination lies within the mapping (checked above) and cannot overlap
+        // `values`, which is borrowed from elsewhere while `self` is borrowed mutably.
+        unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), self.ptr.add(self.len), values.len()) };
+        self.len += values.len();
+    }
 }
 
-impl Deref for Floats {
-    type Target = [f32];
-    fn deref(&self) -> &[f32] {
+impl<T: Copy> Deref for Mapped<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
         if self.cap == 0 {
             return &[];
         }
@@ -95,11 +110,18 @@ impl Deref for Floats {
     }
 }
 
-impl Drop for Floats {
+impl<T: Copy> Drop for Mapped<T> {
     fn drop(&mut self) {
         if self.cap > 0 {
-            unmap(self.ptr, self.cap * 4);
+            unmap(self.ptr.cast(), self.cap * size_of::<T>());
         }
+    }
+}
+
+/// Image bytes are appended within the room reserved, as floats are.
+impl crate::trajectory::read::ByteSink for Bytes {
+    fn push_bytes(&mut self, values: &[u8]) {
+        self.extend(values);
     }
 }
 
@@ -109,11 +131,7 @@ impl crate::trajectory::read::Sink for Floats {
         self.len
     }
     fn push_slice(&mut self, values: &[f32]) {
-        assert!(self.len + values.len() <= self.cap, "a block's array holds what was reserved for it");
-        // SAFETY: the destination lies within the mapping (checked above) and cannot overlap
-        // `values`, which is borrowed from elsewhere while `self` is borrowed mutably.
-        unsafe { std::ptr::copy_nonoverlapping(values.as_ptr(), self.ptr.add(self.len), values.len()) };
-        self.len += values.len();
+        self.extend(values);
     }
     fn push_each(&mut self, values: impl Iterator<Item = f32>) {
         for v in values {
@@ -129,7 +147,7 @@ impl crate::trajectory::read::Sink for Floats {
 }
 
 #[cfg(unix)]
-fn map(bytes: usize) -> Result<*mut f32> {
+fn map(bytes: usize) -> Result<*mut u8> {
     // SAFETY: an anonymous private mapping of `bytes`, owned by the caller from here on.
     let p = unsafe {
         libc::mmap(
@@ -152,7 +170,7 @@ fn map(bytes: usize) -> Result<*mut f32> {
 }
 
 #[cfg(unix)]
-fn unmap(p: *mut f32, bytes: usize) {
+fn unmap(p: *mut u8, bytes: usize) {
     // SAFETY: `p` is a mapping of `bytes` that `map` made and nothing refers to any more.
     unsafe {
         libc::munmap(p.cast(), bytes);
@@ -160,25 +178,25 @@ fn unmap(p: *mut f32, bytes: usize) {
 }
 
 #[cfg(not(unix))]
-fn map(bytes: usize) -> Result<*mut f32> {
+fn map(bytes: usize) -> Result<*mut u8> {
     let layout = std::alloc::Layout::from_size_align(bytes, 64)?;
     // SAFETY: a non-zero size (reserve is called with n > cap ≥ 0, and n > 0).
     let p = unsafe { std::alloc::alloc_zeroed(layout) };
     if p.is_null() {
         bail!("cannot allocate {} for the pool's blocks", crate::progress::bytes(bytes as u64));
     }
-    Ok(p.cast())
+    Ok(p)
 }
 
 #[cfg(not(unix))]
-fn unmap(p: *mut f32, bytes: usize) {
+fn unmap(p: *mut u8, bytes: usize) {
     // SAFETY: allocated by `map` with this layout.
     unsafe { std::alloc::dealloc(p.cast(), std::alloc::Layout::from_size_align(bytes, 64).expect("as mapped")) }
 }
 
 /// Advises the huge pages that lie wholly within `start..start + bytes` (Linux's default THP
 /// mode honours it; elsewhere it does nothing).
-fn advise_huge_pages(start: usize, bytes: usize) {
+pub(crate) fn advise_huge_pages(start: usize, bytes: usize) {
     #[cfg(target_os = "linux")]
     {
         let (from, to) = (start.next_multiple_of(HUGE), (start + bytes) / HUGE * HUGE);

@@ -8,13 +8,13 @@ use anyhow::{Context, Result, anyhow, bail};
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
 
-use super::buffers::Floats;
+use super::buffers::{Bytes, Floats};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::sampler::scored::ScoredTable;
 use crate::task::Task;
 use crate::trajectory::Footer;
 use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
-use crate::trajectory::read::{append, check_keys};
+use crate::trajectory::read::{append, append_images, check_keys};
 
 /// The share of the budget the goal reservoir may take.
 pub(super) const RESERVOIR_SHARE: f64 = 0.125;
@@ -77,6 +77,12 @@ pub struct Layout {
     pub(super) task: Task,
     pub(super) t: usize,
     pub(super) episodes: u64,
+    /// An image table's observation shape (its footer's `image_shape`); empty for states.
+    pub(super) image_shape: Vec<usize>,
+    /// Images each reservoir entry keeps (OGBench's `frame_stack`: a random goal's frames are
+    /// its own and those before it, which its block is gone by the time they are read); 1
+    /// otherwise.
+    pub(super) frames: usize,
     pub(super) shards: Vec<Shard>,
     pub(super) blocks: Vec<BlockInfo>,
     /// Episodes of the largest block: the size the plan counts every block at, and that every
@@ -118,7 +124,6 @@ impl Layout {
             let f = shard_footer(path)?;
             (f.clone(), vec![(path.to_path_buf(), f, 0)])
         };
-        footer.state_only(&path.display().to_string(), "the out-of-core pool")?;
         let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
         if t < 2 {
             bail!("{}: episodes of {t} step(s) hold no transition", path.display());
@@ -162,6 +167,8 @@ impl Layout {
             task: footer.task(),
             t,
             episodes: footer.episodes as u64,
+            image_shape: footer.image_shape.clone(),
+            frames: 1,
             shards: opened,
             blocks,
             largest,
@@ -197,6 +204,15 @@ impl Layout {
         self
     }
 
+    /// The layout with each reservoir entry of an image table keeping `frames` images: a random
+    /// goal's stacked frames (OGBench's `frame_stack`).
+    pub fn with_frames(mut self, frames: usize) -> Layout {
+        if self.is_image() {
+            self.frames = frames.max(1);
+        }
+        self
+    }
+
     /// The layout with one block per shard, all its row groups: a shard window's unit.
     pub fn by_shard(mut self) -> Layout {
         let mut merged: Vec<BlockInfo> = Vec::with_capacity(self.shards.len());
@@ -219,31 +235,48 @@ impl Layout {
         &self.task
     }
 
+    /// Whether observations are images (their bytes held as bytes, not float32).
+    pub fn is_image(&self) -> bool {
+        !self.image_shape.is_empty()
+    }
+
+    /// An image observation's shape; empty for states.
+    pub fn image_shape(&self) -> &[usize] {
+        &self.image_shape
+    }
+
+    /// Bytes one observation takes in memory: an image's bytes, or `obs_dim` float32 values.
+    fn obs_bytes(&self) -> u64 {
+        self.task.obs_dim as u64 * if self.is_image() { 1 } else { 4 }
+    }
+
     /// The scored table `with_scored` attached, taken back (to draw from β held whole).
     pub fn into_scored(self) -> Option<ScoredTable> {
         self.scored.map(|s| s.table)
     }
 
-    /// Float32 bytes of one episode as a block holds it, with its scored rows (a goal and a
-    /// priority each, and the goal's source when kept) when it carries them.
+    /// Bytes of one episode as a block holds it (float32 vectors; an image table's observations
+    /// as bytes), with its scored rows (a goal and a priority each, and the goal's source when
+    /// kept) when it carries them.
     pub(super) fn episode_bytes(&self) -> u64 {
         let (t, task) = (self.t as u64, &self.task);
         let scored = self
             .scored
             .as_ref()
             .map_or(0, |s| (t - 1) * s.per as u64 * (4 * (task.goal_dim as u64 + 1) + if s.sources { 8 } else { 0 }));
-        4 * (t * (task.obs_dim + task.goal_dim) as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64) + scored
+        t * self.obs_bytes() + 4 * (t * task.goal_dim as u64 + (t - 1) * (task.goal_dim + task.act_dim) as u64) + scored
     }
 
-    /// Float32 bytes of the whole table in memory.
+    /// Bytes of the whole table in memory.
     pub fn bytes(&self) -> u64 {
         self.episodes * self.episode_bytes()
     }
 
-    /// Bytes of one reservoir entry: an achieved goal, an observation, where they came from
-    /// (16 bytes: `Reservoir::at`) and its key (12 bytes: `Keys::slots`).
+    /// Bytes of one reservoir entry: an achieved goal, an observation (an image table's `frames`
+    /// of them), where they came from (16 bytes: `Reservoir::at`) and its key (12 bytes:
+    /// `Keys::slots`).
     pub(super) fn entry_bytes(&self) -> u64 {
-        4 * (self.task.obs_dim + self.task.goal_dim) as u64 + 16 + 12
+        self.obs_bytes() * self.frames as u64 + 4 * self.task.goal_dim as u64 + 16 + 12
     }
 
     /// Where block `id` is, for messages: its shard and row group(s).
@@ -290,7 +323,10 @@ impl Layout {
         let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
         let t = self.t;
         let task = &self.task;
-        let widest = task.obs_dim.max(task.goal_dim).max(task.act_dim);
+        let image = self.is_image();
+        // An image's bytes are a quarter of as many floats.
+        let obs_width = if image { task.obs_dim.div_ceil(4) } else { task.obs_dim };
+        let widest = obs_width.max(task.goal_dim).max(task.act_dim);
         let reader = builder
             .with_projection(mask)
             .with_row_groups(groups)
@@ -300,10 +336,11 @@ impl Layout {
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
         let largest = self.largest;
-        let mut out = into.0;
+        let Arrays { floats: mut out, mut images } = into;
+        images.clear();
         for (k, v) in out.iter_mut().enumerate() {
             v.clear();
-            if !which[k] {
+            if !which[k] || (image && k == 0) {
                 *v = Floats::default();
             } else {
                 // Room for the largest block, so an array recycled from a short block (a shard's
@@ -311,12 +348,21 @@ impl Layout {
                 v.reserve(largest * steps[k] * dims[k])?;
             }
         }
+        if image && which[0] {
+            images.reserve(largest * t * dims[0])?;
+        } else {
+            images = Bytes::default();
+        }
         let mut row = b.first_row;
         for batch in reader {
             let batch = batch.with_context(|| format!("{at}: cannot read the rows after row {row}"))?;
             check_keys(&at, &batch, row, &shard.footer)?;
             for (k, v) in out.iter_mut().enumerate().filter(|(k, _)| which[*k]) {
                 let col = batch.column_by_name(VECTORS[k]).expect("projected");
+                if image && k == 0 {
+                    append_images(&mut images, col, dims[0], row, t).map_err(|e| anyhow!("{at}: {e}"))?;
+                    continue;
+                }
                 append(v, col, VECTORS[k], dims[k], steps[k] < t, row, t).map_err(|e| anyhow!("{at}: {e}"))?;
             }
             row += batch.num_rows();
@@ -329,7 +375,7 @@ impl Layout {
             Some(s) if which.iter().all(|w| *w) => Some(self.read_scored(s, &b)?),
             _ => None,
         };
-        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u, aug })
+        Ok(Block { id, n: b.episodes, first_episode: b.first_episode, obs, ag, g, u, images, aug })
     }
 
     /// The scored rows of block `b`'s transitions: their goals, and their priorities ranked or
@@ -393,7 +439,7 @@ impl Plan {
         if slots < 2 {
             let need = fixed + 2 * block;
             bail!(
-                "a memory budget of {} holds fewer than two of the table's row groups ({} each as float32, {} more \
+                "a memory budget of {} holds fewer than two of the table's row groups ({} each in memory, {} more \
                  for reading and the goal reservoir); give at least {}, or convert with a smaller --row-group-rows",
                 crate::progress::bytes(budget),
                 crate::progress::bytes(block),
@@ -408,10 +454,13 @@ impl Plan {
     }
 }
 
-/// A block's four arrays (in [`VECTORS`] order), emptied: a leaving block's are handed back to
-/// the loader and filled with the next block's rows (`loader.rs` says why).
+/// A block's four arrays (in [`VECTORS`] order) and its images, emptied: a leaving block's are
+/// handed back to the loader and filled with the next block's rows (`loader.rs` says why).
 #[derive(Default)]
-pub(super) struct Arrays([Floats; 4]);
+pub(super) struct Arrays {
+    floats: [Floats; 4],
+    images: Bytes,
+}
 
 /// A resident block.
 pub(super) struct Block {
@@ -422,6 +471,8 @@ pub(super) struct Block {
     pub(super) ag: Floats,
     pub(super) g: Floats,
     pub(super) u: Floats,
+    /// An image table's observations (then `obs` is empty).
+    pub(super) images: Bytes,
     /// With `-mem`: the scored rows of its transitions.
     pub(super) aug: Option<ScoredRows>,
 }
@@ -441,7 +492,10 @@ impl Block {
     /// Its arrays, taken for the loader to fill again.
     pub(super) fn take_arrays(&mut self) -> Arrays {
         use std::mem::take;
-        Arrays([take(&mut self.obs), take(&mut self.ag), take(&mut self.g), take(&mut self.u)])
+        Arrays {
+            floats: [take(&mut self.obs), take(&mut self.ag), take(&mut self.g), take(&mut self.u)],
+            images: take(&mut self.images),
+        }
     }
 
     pub(super) fn obs(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
@@ -449,5 +503,9 @@ impl Block {
     }
     pub(super) fn ag(&self, e: usize, s: usize, t: usize, d: usize) -> &[f32] {
         &self.ag[(e * t + s) * d..][..d]
+    }
+    /// An image table's o[e, s] bytes (`d` of them); empty for states.
+    pub(super) fn image(&self, e: usize, s: usize, t: usize, d: usize) -> &[u8] {
+        if self.images.is_empty() { &[] } else { &self.images[(e * t + s) * d..][..d] }
     }
 }

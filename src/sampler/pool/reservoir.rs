@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use anyhow::Result;
 use rayon::prelude::*;
 
-use super::buffers::Floats;
+use super::buffers::{Bytes, Floats};
 use super::layout::{Block, IN_FLIGHT, Layout};
 use super::resident::Resident;
 use super::schedule::Keys;
@@ -17,10 +17,14 @@ use crate::sampler::view::GoalSource;
 
 pub(super) struct Reservoir {
     keys: Keys,
-    /// Each slot's table-wide (episode, step), achieved goal and observation.
+    /// Each slot's table-wide (episode, step), achieved goal and observation (an image table's
+    /// as its bytes, in `images`).
     at: Vec<(u64, u32)>,
     ag: Floats,
     obs: Floats,
+    images: Bytes,
+    /// Images a slot keeps: its goal's and the `frames − 1` before it (`Layout::with_frames`).
+    frames: usize,
     goal_dim: usize,
     obs_dim: usize,
 }
@@ -30,10 +34,13 @@ impl Reservoir {
     /// filled ([`Reservoir::fill`]).
     pub(super) fn new(layout: &Layout, keys: Keys) -> Result<Reservoir> {
         let (len, gd, od) = (keys.slots.len(), layout.task.goal_dim, layout.task.obs_dim);
+        let image = layout.is_image();
         Ok(Reservoir {
             at: vec![(0, 0); len],
             ag: Floats::zeros(len * gd)?,
-            obs: Floats::zeros(len * od)?,
+            obs: Floats::zeros(if image { 0 } else { len * od })?,
+            images: Bytes::zeros(if image { len * od * layout.frames } else { 0 })?,
+            frames: layout.frames,
             keys,
             goal_dim: gd,
             obs_dim: od,
@@ -82,24 +89,23 @@ impl Reservoir {
 
     /// Fills `slots`, whose keys name block `b`, from it.
     fn take(&mut self, b: &Block, slots: &[u32], t: usize) {
-        let (od, gd) = (self.obs_dim, self.goal_dim);
         for &slot in slots {
             let slot = slot as usize;
             let (_, e, s) = self.keys.slots[slot];
             let (e, s) = (e as usize, s as usize);
-            self.set(slot, (b.first_episode + e as u64, s as u32), b.ag(e, s, t, gd), b.obs(e, s, t, od));
+            self.set(slot, (b.first_episode + e as u64, s as u32), b, (e, s, t));
         }
     }
 
     /// Block `b` enters the pool: it replaces its share of the slots, oldest first
     /// ([`Keys::feed`]), with goals of its own.
     pub(super) fn enter(&mut self, layout: &Layout, b: &Block) {
-        let (t, od, gd, len) = (layout.t, self.obs_dim, self.goal_dim, self.len());
+        let (t, len) = (layout.t, self.len());
         for j in self.keys.feed(layout, b.id) {
             let slot = j % len;
             let (_, e, s) = self.keys.slots[slot];
             let (e, s) = (e as usize, s as usize);
-            self.set(slot, (b.first_episode + e as u64, s as u32), b.ag(e, s, t, gd), b.obs(e, s, t, od));
+            self.set(slot, (b.first_episode + e as u64, s as u32), b, (e, s, t));
         }
     }
 
@@ -114,14 +120,35 @@ impl Reservoir {
         &self.ag[slot as usize * self.goal_dim..][..self.goal_dim]
     }
 
+    /// A slot's observation (empty for an image table: [`Reservoir::image`]).
     pub(super) fn obs(&self, slot: u64) -> &[f32] {
-        &self.obs[slot as usize * self.obs_dim..][..self.obs_dim]
+        if self.obs.is_empty() { &[] } else { &self.obs[slot as usize * self.obs_dim..][..self.obs_dim] }
     }
 
-    /// Slot `slot` now holds the goal of table-wide (episode, step) `at`.
-    fn set(&mut self, slot: usize, at: (u64, u32), ag: &[f32], obs: &[f32]) {
+    /// An image table's slot's image `back` steps before its goal (clamped to the episode's
+    /// first step when the slot was filled); empty for states.
+    pub(super) fn image(&self, slot: u64, back: usize) -> &[u8] {
+        if self.images.is_empty() {
+            return &[];
+        }
+        let i = slot as usize * self.frames + self.frames - 1 - back;
+        &self.images[i * self.obs_dim..][..self.obs_dim]
+    }
+
+    /// Slot `slot` now holds the goal of table-wide (episode, step) `at`: (e, s) of block `b`,
+    /// whose episodes have `t` steps.
+    fn set(&mut self, slot: usize, at: (u64, u32), b: &Block, (e, s, t): (usize, usize, usize)) {
+        let (od, gd) = (self.obs_dim, self.goal_dim);
         self.at[slot] = at;
-        self.ag.as_mut_slice()[slot * ag.len()..][..ag.len()].copy_from_slice(ag);
-        self.obs.as_mut_slice()[slot * obs.len()..][..obs.len()].copy_from_slice(obs);
+        self.ag.as_mut_slice()[slot * gd..][..gd].copy_from_slice(b.ag(e, s, t, gd));
+        if self.images.is_empty() {
+            self.obs.as_mut_slice()[slot * od..][..od].copy_from_slice(b.obs(e, s, t, od));
+        } else {
+            // Oldest frame first, each clamped to the episode's first step.
+            let k = self.frames;
+            for (i, out) in self.images.as_mut_slice()[slot * k * od..][..k * od].chunks_exact_mut(od).enumerate() {
+                out.copy_from_slice(b.image(e, s.saturating_sub(k - 1 - i), t, od));
+            }
+        }
     }
 }
