@@ -20,10 +20,11 @@ fn visual(name: &str) -> PathBuf {
 }
 
 /// The rendered fixtures: (dataset, its environment).
-const FIXTURES: [(&str, &str); 3] = [
+const FIXTURES: [(&str, &str); 4] = [
     ("visual-cube-single-play-v0", "visual-cube-single-v0"),
     ("visual-puzzle-3x3-play-v0", "visual-puzzle-3x3-v0"),
     ("visual-antmaze-medium-navigate-v0", "visual-antmaze-medium-v0"),
+    ("visual-scene-play-v0", "visual-scene-v0"),
 ];
 
 fn convert_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
@@ -142,6 +143,45 @@ fn visual_goals_are_the_oracle_representation() {
     let (state, sm) = member(&visual("visual-antmaze-medium-navigate-v0"), "state_observations");
     let from_state: Vec<f32> = f32s(&state).chunks_exact(sm.shape[1]).flat_map(|o| o[..2].to_vec()).collect();
     assert_eq!(got, from_state);
+
+    // A scene: its cube from qpos (centred, scaled), its buttons' states, its drawer's and
+    // window's qpos × 18 and × 15 (`add_oracle_reps`), the state scene's goal values.
+    let (got, notes, footer) = goals("visual-scene-play-v0");
+    assert!(notes.contains("goal = qpos[14:17] + button_states[0:2] + qpos[23:24] + [24:25]"), "{notes}");
+    assert_eq!((footer["goal_dim"].as_u64(), footer["goal_metric"].as_str()), (Some(7), Some("scene")));
+    let (qpos, m) = member(&visual("visual-scene-play-v0"), "qpos");
+    let (buttons, _) = member(&visual("visual-scene-play-v0"), "button_states");
+    let b: Vec<i64> = buttons.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap())).collect();
+    let want: Vec<f32> = f32s(&qpos)
+        .chunks_exact(m.shape[1])
+        .enumerate()
+        .flat_map(|(r, q)| {
+            let q = |j: usize| q[j] as f64;
+            [
+                (q(14) - 0.425) * 10.0,
+                q(15) * 10.0,
+                q(16) * 10.0,
+                b[2 * r] as f64,
+                b[2 * r + 1] as f64,
+                q(23) * 18.0,
+                q(24) * 15.0,
+            ]
+            .map(|v| v as f32)
+        })
+        .collect();
+    assert_eq!(got, want, "the scene's goal is not its oracle representation");
+    assert!(
+        b.iter().any(|&v| v == 1) || want.chunks_exact(7).any(|g| g[5] != want[5]),
+        "a fixture where nothing moves"
+    );
+    // The state twin's observation holds the same values where the state scene's goal is.
+    let (state, sm) = member(&visual("visual-scene-play-v0"), "state_observations");
+    let from_state: Vec<f32> = f32s(&state)
+        .chunks_exact(sm.shape[1])
+        .flat_map(|o| [o[19], o[20], o[21], o[29], o[33], o[36], o[38]])
+        .collect();
+    let worst = got.iter().zip(&from_state).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(worst < 1e-5, "the scene's goal is {worst} from its state observation's");
 }
 
 /// A folder of visual shards (the cube fixture under two shard names) is one table folder of
@@ -238,7 +278,7 @@ fn write_raw_npz(path: &Path, members: &[(&str, &str, &str, &[u8])]) {
 }
 
 /// Each fault in one line naming the file, and nothing written: a cut-short image member,
-/// float "images", `--full-goal`, a visual scene (its goal not mapped), a visual cube file
+/// float "images", `--full-goal`, a visual scene without its button states, a visual cube file
 /// without its qpos; and an image table given to what reads observations as floats
 /// (`pgser-train`, with and without a memory budget, and export to Minari).
 #[test]
@@ -278,7 +318,11 @@ fn bad_visual_input_fails_in_one_line_and_leaves_nothing() {
     fails(&good, &["--full-goal", "--threshold", "1"], "--full-goal: observations are images");
     let scene = dir.path().join("visual-scene-play-v0.npz");
     write_npz(&scene, &small_visual(3, 5));
-    fails(&scene, &[], "not mapped yet");
+    fails(
+        &scene,
+        &[],
+        "visual-scene-v0's goal is its button_states (OGBench's oracle representation), and the file has none",
+    );
     let no_qpos = single("no_qpos");
     write_npz(&no_qpos, &small_visual(3, 5)[..3]);
     fails(&no_qpos, &[], "goal is its qpos");

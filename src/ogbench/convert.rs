@@ -120,16 +120,24 @@ pub fn convert_within(
         },
     }];
     let bytes = writer.finish(&footer)?;
-    let mut ranges = d.goal.ranges.iter().map(|r| format!("[{}:{}]", r.start, r.end)).collect::<Vec<_>>().join(" + ");
+    // Each range after the array it is of, named where it changes: `qpos[14:17] + [21:24]`.
+    let of = |i: usize| if d.goal.from_members() { d.goal.member_of(i) } else { "observations" };
+    let mut ranges = (0..d.goal.ranges.len())
+        .map(|i| {
+            let r = &d.goal.ranges[i];
+            let name = if i == 0 || of(i) != of(i - 1) { of(i) } else { "" };
+            format!("{name}[{}:{}]", r.start, r.end)
+        })
+        .collect::<Vec<_>>()
+        .join(" + ");
     if !d.goal.affine.is_empty() {
         ranges.push_str(", centred and scaled as OGBench's oracle representation");
     }
     let mut notes = vec![format!(
-        "{at}: OGBench's {} (environment {}): goal = {}{ranges}, success within {}{}; each transition's desired \
+        "{at}: OGBench's {} (environment {}): goal = {ranges}, success within {}{}; each transition's desired \
          goal is its episode's last (the data have no goals)",
         d.name,
         d.env,
-        d.goal.member.as_deref().unwrap_or("observations"),
         task.threshold,
         match d.goal.metric {
             crate::task::GoalMetric::EachObject => " for every cube",

@@ -25,10 +25,11 @@
 //!   drawer's and the window's positions, read from the observation, so the regular layout keeps
 //!   its goals too; each part is reached within its own tolerance ([`GoalMetric::Scene`]).
 //!
-//! - Visual datasets (`visual-antmaze-*`, `visual-cube-*`, `visual-puzzle-*`): observations are
-//!   images, so the goal is the oracle representation read from the file's state
-//!   ([`member_map`]): the agent's x, y from `qpos`, the cubes' positions from `qpos` centred and
-//!   scaled as a state observation has them, the buttons' states.
+//! - Visual datasets (`visual-antmaze-*`, `visual-cube-*`, `visual-puzzle-*`, `visual-scene-*`):
+//!   observations are images, so the goal is the oracle representation read from the file's
+//!   state ([`member_map`]): the agent's x, y from `qpos`, the cubes' positions from `qpos`
+//!   centred and scaled as a state observation has them, the buttons' states, and a scene's
+//!   cube, buttons, drawer and window from `qpos` and `button_states` both.
 //!
 //! OGBench evaluates with full-observation goals (`info["goal"]` is the goal state's whole
 //! observation); φ of that observation is the goal a pgser agent takes (examples/ogbench_eval.py).
@@ -55,9 +56,12 @@ pub struct GoalMap {
     pub ranges: Vec<Range<usize>>,
     pub threshold: f64,
     pub metric: GoalMetric,
-    /// The file's member the goal is, where it is not part of the observation (a puzzle's
-    /// `button_states`, a visual environment's `qpos`); None: the goal is observation values.
-    pub member: Option<String>,
+    /// The file's members the goal is read from, where it is not part of the observation (a
+    /// puzzle's `button_states`, a visual environment's `qpos`, a visual scene's both); empty:
+    /// the goal is observation values.
+    pub members: Vec<String>,
+    /// Per range, the index in `members` of the member it reads; empty: the first.
+    pub range_member: Vec<usize>,
     /// Per goal value, (centre, scale): the value is (x − centre) · scale, as OGBench's oracle
     /// representation of a cube is its position centred on the workspace and scaled by 10.
     /// Empty: the values as they are.
@@ -71,7 +75,23 @@ impl GoalMap {
         // One range: the goal is the whole observation (a Vec of ranges, not a range of values).
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..obs_dim];
-        GoalMap { ranges, threshold: f64::NAN, metric: GoalMetric::Euclidean, member: None, affine: Vec::new() }
+        GoalMap::of_observations(ranges, f64::NAN, GoalMetric::Euclidean)
+    }
+
+    /// Observation values `ranges` as the goal.
+    fn of_observations(ranges: Vec<Range<usize>>, threshold: f64, metric: GoalMetric) -> GoalMap {
+        GoalMap { ranges, threshold, metric, members: Vec::new(), range_member: Vec::new(), affine: Vec::new() }
+    }
+
+    /// Values `ranges` of one member's rows as the goal, each value affine-mapped by `affine`.
+    fn of_member(
+        key: &str,
+        ranges: Vec<Range<usize>>,
+        threshold: f64,
+        metric: GoalMetric,
+        affine: Vec<(f64, f64)>,
+    ) -> GoalMap {
+        GoalMap { ranges, threshold, metric, members: vec![key.to_string()], range_member: Vec::new(), affine }
     }
 
     /// A member's whole row of `width` values as the goal (a puzzle's `button_states`).
@@ -79,7 +99,17 @@ impl GoalMap {
         // One range: the member's whole row.
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..width];
-        GoalMap { ranges, threshold, metric, member: Some(key.to_string()), affine: Vec::new() }
+        GoalMap::of_member(key, ranges, threshold, metric, Vec::new())
+    }
+
+    /// Whether the goal is read from members of the file rather than from observations.
+    pub fn from_members(&self) -> bool {
+        !self.members.is_empty()
+    }
+
+    /// The member range `i` reads.
+    pub fn member_of(&self, i: usize) -> &str {
+        &self.members[self.range_member.get(i).copied().unwrap_or(0)]
     }
 
     pub fn goal_dim(&self) -> usize {
@@ -123,56 +153,87 @@ const CUBE_QPOS_VALUES: usize = 7;
 /// 10 (`CubeEnv.compute_observation`, `add_oracle_reps`).
 const CUBE_CENTRE: [f64; 3] = [0.425, 0.0, 0.0];
 const CUBE_SCALE: f64 = 10.0;
+/// A scene's drawer and window positions in its observation and oracle representation: qpos
+/// scaled by these (`SceneEnv.compute_observation`, `add_oracle_reps`).
+const DRAWER_SCALE: f64 = 18.0;
+const WINDOW_SCALE: f64 = 15.0;
 
-/// The member an environment's goal is read from, where it is not observation values: a puzzle's
-/// `button_states` (visual or not), and a visual maze's or cube scene's `qpos`, since its
-/// observations are images ([`member_map`] maps it).
-pub fn goal_member(env: &str) -> Option<&'static str> {
+/// The members an environment's goal is read from, where it is not observation values: a
+/// puzzle's `button_states` (visual or not), a visual maze's or cube scene's `qpos`, since its
+/// observations are images, and a visual scene's `qpos` and `button_states` ([`member_map`] maps
+/// them). Empty: the goal is observation values.
+pub fn goal_members(env: &str) -> &'static [&'static str] {
     match family(env) {
-        ("puzzle", _) => Some("button_states"),
-        ("antmaze" | "humanoidmaze" | "cube", true) => Some("qpos"),
-        _ => None,
+        ("puzzle", _) => &["button_states"],
+        ("antmaze" | "humanoidmaze" | "cube", true) => &["qpos"],
+        ("scene", true) => &["qpos", "button_states"],
+        _ => &[],
     }
 }
 
-/// The goal map over rows of `width` values of [`goal_member`]'s member, OGBench's oracle
-/// representation (`add_oracle_reps`) and its success test:
+/// The goal map over [`goal_members`]' rows, of `widths` values each (in that order), OGBench's
+/// oracle representation (`add_oracle_reps`) and its success test:
 /// - a puzzle's button states, every one within 0.5 of its target state (0 or 1);
 /// - a visual maze's agent x, y (`qpos[0:2]`), within `goal_tol` (0.5 for the ant and the
 ///   humanoid; OGBench has no visual pointmaze);
 /// - a visual cube scene's cube positions (`qpos[14 + 7i : 17 + 7i]`), centred and scaled as a
-///   state observation has them, every cube within 0.4 (0.04 m).
-pub fn member_map(env: &str, width: usize) -> Result<GoalMap> {
-    let Some(key) = goal_member(env) else { bail!("{env}: its goal is observation values, not a member's") };
-    let need = |n: usize, what: &str| -> Result<()> {
-        if width < n {
-            bail!("{env}: {key} has {width} values a row; {what} needs {n}");
+///   state observation has them, every cube within 0.4 (0.04 m);
+/// - a visual scene's cube position (centred and scaled), its 2 buttons' states
+///   (`button_states`), the drawer's position (`qpos[23]` × 18) and the window's (`qpos[24]` ×
+///   15), the values and the per-part test of the state scene's goal ([`GoalMetric::Scene`]).
+pub fn member_map(env: &str, widths: &[usize]) -> Result<GoalMap> {
+    let keys = goal_members(env);
+    if keys.is_empty() {
+        bail!("{env}: its goal is observation values, not a member's");
+    }
+    if widths.len() != keys.len() {
+        bail!("{env}: its goal is read from {}; {} widths given", keys.join(" and "), widths.len());
+    }
+    let need = |m: usize, n: usize, what: &str| -> Result<()> {
+        if widths[m] < n {
+            bail!("{env}: {} has {} values a row; {what} needs {n}", keys[m], widths[m]);
         }
         Ok(())
     };
-    let maze = |tol: f64| -> Result<GoalMap> {
-        need(2, "the agent's x, y (its first 2)")?;
-        #[allow(clippy::single_range_in_vec_init)]
-        let ranges = vec![0..2];
-        Ok(GoalMap {
-            ranges,
-            threshold: tol,
-            metric: GoalMetric::Euclidean,
-            member: Some(key.into()),
-            affine: Vec::new(),
-        })
+    let cube_ranges = |cubes: usize| -> Vec<Range<usize>> {
+        (0..cubes).map(|i| CUBE_QPOS + CUBE_QPOS_VALUES * i..CUBE_QPOS + CUBE_QPOS_VALUES * i + 3).collect()
     };
+    let cube_affine =
+        |cubes: usize| -> Vec<(f64, f64)> { (0..cubes).flat_map(|_| CUBE_CENTRE.map(|c| (c, CUBE_SCALE))).collect() };
     match family(env).0 {
-        "puzzle" => Ok(GoalMap::member(key, width, 0.5, GoalMetric::EachValue)),
-        "antmaze" | "humanoidmaze" => maze(0.5),
+        "puzzle" => Ok(GoalMap::member(keys[0], widths[0], 0.5, GoalMetric::EachValue)),
+        "antmaze" | "humanoidmaze" => {
+            need(0, 2, "the agent's x, y (its first 2)")?;
+            #[allow(clippy::single_range_in_vec_init)]
+            let ranges = vec![0..2];
+            Ok(GoalMap::of_member(keys[0], ranges, 0.5, GoalMetric::Euclidean, Vec::new()))
+        }
+        "scene" => {
+            use crate::task::SCENE_BUTTONS;
+            // One cube, then a qpos value per button, then the drawer and the window
+            // (`add_oracle_reps`' qpos_drawer_idx, qpos_window_idx).
+            let drawer = CUBE_QPOS + CUBE_QPOS_VALUES + SCENE_BUTTONS;
+            need(0, drawer + 2, "a scene of one cube, two buttons, a drawer and a window")?;
+            need(1, SCENE_BUTTONS, "the scene's two buttons")?;
+            let mut ranges = cube_ranges(1);
+            ranges.extend([0..SCENE_BUTTONS, drawer..drawer + 1, drawer + 1..drawer + 2]);
+            let mut affine = cube_affine(1);
+            affine.extend([(0.0, 1.0); SCENE_BUTTONS]);
+            affine.extend([(0.0, DRAWER_SCALE), (0.0, WINDOW_SCALE)]);
+            Ok(GoalMap {
+                ranges,
+                threshold: 1.0,
+                metric: GoalMetric::Scene,
+                members: keys.iter().map(|k| k.to_string()).collect(),
+                range_member: vec![0, 1, 0, 0],
+                affine,
+            })
+        }
         _ => {
             let cubes = cube_count(env)
                 .with_context(|| format!("{env}: a visual cube scene names its cubes (visual-cube-double-v0)"))?;
-            need(CUBE_QPOS + CUBE_QPOS_VALUES * cubes, &format!("a scene of {cubes} cube(s)"))?;
-            let ranges =
-                (0..cubes).map(|i| CUBE_QPOS + CUBE_QPOS_VALUES * i..CUBE_QPOS + CUBE_QPOS_VALUES * i + 3).collect();
-            let affine = (0..cubes).flat_map(|_| CUBE_CENTRE.map(|c| (c, CUBE_SCALE))).collect();
-            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: Some(key.into()), affine })
+            need(0, CUBE_QPOS + CUBE_QPOS_VALUES * cubes, &format!("a scene of {cubes} cube(s)"))?;
+            Ok(GoalMap::of_member(keys[0], cube_ranges(cubes), 0.4, GoalMetric::EachObject, cube_affine(cubes)))
         }
     }
 }
@@ -200,7 +261,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
         }
         #[allow(clippy::single_range_in_vec_init)]
         let ranges = vec![0..2];
-        Ok(GoalMap { ranges, threshold: tol, metric: GoalMetric::Euclidean, member: None, affine: Vec::new() })
+        Ok(GoalMap::of_observations(ranges, tol, GoalMetric::Euclidean))
     };
     match family {
         "pointmaze" => maze(1.0),
@@ -221,7 +282,7 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
             }
             let ranges =
                 (0..cubes).map(|i| CUBE_PROPRIO + CUBE_VALUES * i..CUBE_PROPRIO + CUBE_VALUES * i + 3).collect();
-            Ok(GoalMap { ranges, threshold: 0.4, metric: GoalMetric::EachObject, member: None, affine: Vec::new() })
+            Ok(GoalMap::of_observations(ranges, 0.4, GoalMetric::EachObject))
         }
         "scene" => {
             use crate::task::SCENE_BUTTONS;
@@ -242,45 +303,38 @@ pub fn goal_map(env: &str, obs_dim: usize) -> Result<GoalMap> {
             // The state one-hot's second value is the state (np.eye(2)[state]).
             ranges.extend((0..SCENE_BUTTONS).map(|b| buttons + BUTTON_VALUES * b + 1..buttons + BUTTON_VALUES * b + 2));
             ranges.extend([drawer..drawer + 1, drawer + 2..drawer + 3]);
-            Ok(GoalMap { ranges, threshold: 1.0, metric: GoalMetric::Scene, member: None, affine: Vec::new() })
+            Ok(GoalMap::of_observations(ranges, 1.0, GoalMetric::Scene))
         }
         "puzzle" => {
             bail!("{env}: a puzzle's goal is its button states (the dataset's button_states), not observation values")
         }
         "visual" => bail!(
             "{env}: a visual environment's observations are images; its goal is read from the dataset's qpos \
-             (mazes, cube scenes) or button_states (puzzles); a visual scene's, from both, is not mapped yet"
+             (mazes, cube scenes), button_states (puzzles) or both (scenes)"
         ),
         _ => bail!(
-            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (visual observations are images, not \
-             mapped yet)",
+            "{env}: {family} datasets: pgser maps the goals of OGBench's {} (and of their visual datasets)",
             FAMILIES.join(", ")
         ),
     }
 }
 
 impl GoalMap {
-    /// φ of a member's rows (`row_len` values of `dtype` each, as the file stores them): the
-    /// goal's ranges of each row, centred and scaled where [`GoalMap::affine`] says, in float64
-    /// from the stored value (as numpy's `(qpos - centre) * scale` computes it), as goal rows of
-    /// `size`-byte little-endian floats appended to `out`.
-    pub fn member_goal_rows(
-        &self,
-        rows: &[u8],
-        dtype: crate::dtype::Dtype,
-        row_len: usize,
-        size: usize,
-        out: &mut Vec<u8>,
-    ) {
-        let mut picked = Vec::with_capacity(self.goal_dim() * dtype.size);
-        let mut values = Vec::with_capacity(self.goal_dim() * size);
-        for row in rows.chunks_exact(row_len * dtype.size) {
-            picked.clear();
-            for r in &self.ranges {
-                picked.extend_from_slice(&row[r.start * dtype.size..r.end * dtype.size]);
-            }
+    /// φ of the members' rows (`rows[m]`: member m's bytes, `row_len` values of `dtype` each, as
+    /// the file stores them, one row per observation): for each observation, each range of its
+    /// member's row, centred and scaled where [`GoalMap::affine`] says, in float64 from the stored
+    /// value (as numpy's `(qpos - centre) * scale` computes it), as goal rows of `size`-byte
+    /// little-endian floats appended to `out`.
+    pub fn member_goal_rows(&self, rows: &[MemberRows<'_>], size: usize, out: &mut Vec<u8>) {
+        let n = rows.first().map_or(0, |m| m.bytes.len() / (m.row_len * m.dtype.size).max(1));
+        let mut values = Vec::with_capacity(self.goal_dim() * 8);
+        for r in 0..n {
             values.clear();
-            member_rows(&picked, dtype, 8, &mut values);
+            for (i, range) in self.ranges.iter().enumerate() {
+                let m = &rows[self.range_member.get(i).copied().unwrap_or(0)];
+                let row = &m.bytes[r * m.row_len * m.dtype.size..][..m.row_len * m.dtype.size];
+                member_rows(&row[range.start * m.dtype.size..range.end * m.dtype.size], m.dtype, 8, &mut values);
+            }
             for (i, v) in values.chunks_exact(8).enumerate() {
                 let mut x = f64::from_le_bytes(v.try_into().expect("8 bytes"));
                 if let Some(&(centre, scale)) = self.affine.get(i) {
@@ -294,6 +348,14 @@ impl GoalMap {
             }
         }
     }
+}
+
+/// One member's rows, as [`GoalMap::member_goal_rows`] reads them.
+pub struct MemberRows<'a> {
+    pub bytes: &'a [u8],
+    pub dtype: crate::dtype::Dtype,
+    /// Values a row.
+    pub row_len: usize,
 }
 
 /// A member's rows of values of `dtype` (as the file stores them) as goal rows of `size`-byte
@@ -354,12 +416,12 @@ mod tests {
     #[allow(clippy::single_range_in_vec_init)]
     fn a_visual_cube_goal_is_its_qpos_centred_and_scaled() {
         use crate::dtype::Dtype;
-        let g = member_map("visual-cube-double-v0", 28).unwrap();
-        assert_eq!((g.ranges.clone(), g.member.as_deref(), g.threshold), (vec![14..17, 21..24], Some("qpos"), 0.4));
+        let g = member_map("visual-cube-double-v0", &[28]).unwrap();
+        assert_eq!((g.ranges.clone(), g.member_of(1), g.threshold), (vec![14..17, 21..24], "qpos", 0.4));
         let row: Vec<f32> = (0..28).map(|i| i as f32 / 8.0).collect();
         let bytes: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
         let mut out = Vec::new();
-        g.member_goal_rows(&bytes, Dtype::F32, 28, 4, &mut out);
+        g.member_goal_rows(&[MemberRows { bytes: &bytes, dtype: Dtype::F32, row_len: 28 }], 4, &mut out);
         let got: Vec<f32> = out.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
         // numpy's (qpos - [0.425, 0, 0]) * 10 on float32 qpos, in float64, then float32.
         let want: Vec<f32> = [14, 15, 16, 21, 22, 23]
@@ -368,10 +430,56 @@ mod tests {
             .map(|(i, &j)| ((row[j] as f64 - if i % 3 == 0 { 0.425 } else { 0.0 }) * 10.0) as f32)
             .collect();
         assert_eq!(got, want);
-        assert!(member_map("visual-cube-double-v0", 27).unwrap_err().to_string().contains("needs 28"));
-        let m = member_map("visual-antmaze-large-v0", 15).unwrap();
+        assert!(member_map("visual-cube-double-v0", &[27]).unwrap_err().to_string().contains("needs 28"));
+        let m = member_map("visual-antmaze-large-v0", &[15]).unwrap();
         assert_eq!((m.ranges.clone(), m.threshold, m.affine.len()), (vec![0..2], 0.5, 0));
-        assert!(member_map("visual-cube-v0", 28).is_err());
+        assert!(member_map("visual-cube-v0", &[28]).is_err());
+    }
+
+    /// A visual scene's goal: its cube's qpos centred and scaled, its button states, its
+    /// drawer's and window's qpos × 18 and × 15, as `add_oracle_reps` computes them.
+    #[test]
+    fn a_visual_scene_goal_reads_qpos_and_button_states() {
+        use crate::dtype::Dtype;
+        let g = member_map("visual-scene-v0", &[25, 2]).unwrap();
+        assert_eq!(g.ranges, vec![14..17, 0..2, 23..24, 24..25]);
+        assert_eq!(
+            (g.goal_dim(), g.metric, g.member_of(1), g.member_of(2)),
+            (7, GoalMetric::Scene, "button_states", "qpos")
+        );
+        let qpos: Vec<f32> = (0..50).map(|i| i as f32 / 16.0).collect();
+        let buttons: Vec<i64> = vec![1, 0, 0, 1];
+        let (qb, bb): (Vec<u8>, Vec<u8>) = (
+            qpos.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            buttons.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        );
+        let mut out = Vec::new();
+        g.member_goal_rows(
+            &[
+                MemberRows { bytes: &qb, dtype: Dtype::F32, row_len: 25 },
+                MemberRows { bytes: &bb, dtype: Dtype::I64, row_len: 2 },
+            ],
+            4,
+            &mut out,
+        );
+        let got: Vec<f32> = out.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        let want = |r: usize| -> Vec<f32> {
+            let q = |j: usize| qpos[25 * r + j] as f64;
+            [
+                (q(14) - 0.425) * 10.0,
+                q(15) * 10.0,
+                q(16) * 10.0,
+                buttons[2 * r] as f64,
+                buttons[2 * r + 1] as f64,
+                q(23) * 18.0,
+                q(24) * 15.0,
+            ]
+            .map(|v| v as f32)
+            .to_vec()
+        };
+        assert_eq!(got, [want(0), want(1)].concat());
+        assert!(member_map("visual-scene-v0", &[24, 2]).unwrap_err().to_string().contains("needs 25"));
+        assert!(member_map("visual-scene-v0", &[25]).is_err());
     }
 
     #[test]
@@ -390,12 +498,12 @@ mod tests {
         assert_eq!(s.ranges, vec![19..22, 29..30, 33..34, 36..37, 38..39]);
         assert_eq!((s.goal_dim(), s.threshold, s.metric), (7, 1.0, GoalMetric::Scene));
         assert!(goal_map("scene-v0", 41).unwrap_err().to_string().contains("(40 with one cube)"));
-        assert!(goal_map("visual-scene-v0", 40).unwrap_err().to_string().contains("not mapped yet"));
-        assert_eq!(goal_member("puzzle-4x5-v0"), Some("button_states"));
-        assert_eq!(goal_member("visual-puzzle-4x5-v0"), Some("button_states"));
-        assert_eq!(goal_member("cube-double-v0"), None);
-        assert_eq!(goal_member("visual-scene-v0"), None);
-        let p = member_map("puzzle-4x5-v0", 20).unwrap();
+        assert!(goal_map("visual-scene-v0", 40).unwrap_err().to_string().contains("or both (scenes)"));
+        assert_eq!(goal_members("puzzle-4x5-v0"), ["button_states"]);
+        assert_eq!(goal_members("visual-puzzle-4x5-v0"), ["button_states"]);
+        assert!(goal_members("cube-double-v0").is_empty());
+        assert_eq!(goal_members("visual-scene-v0"), ["qpos", "button_states"]);
+        let p = member_map("puzzle-4x5-v0", &[20]).unwrap();
         assert_eq!((p.ranges.clone(), p.threshold, p.metric), (vec![0..20], 0.5, GoalMetric::EachValue));
         assert!(goal_map("visual-cube-single-v0", 28).is_err());
     }

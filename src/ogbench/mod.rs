@@ -201,9 +201,12 @@ impl Dataset {
             (None, Some(_)) => Layout::Compact,
             (None, None) => Layout::Dataset,
         };
-        let goal = match goal::goal_member(&env) {
-            _ if full_goal => GoalMap::full(observations.row_len()),
-            Some(key) => {
+        let keys = goal::goal_members(&env);
+        let goal = if full_goal {
+            GoalMap::full(observations.row_len())
+        } else if !keys.is_empty() {
+            let mut widths = Vec::with_capacity(keys.len());
+            for &key in keys {
                 let m = get(key).with_context(|| {
                     format!("{at}: {env}'s goal is its {key} (OGBench's oracle representation), and the file has none")
                 })?;
@@ -225,14 +228,16 @@ impl Dataset {
                         observations.rows()
                     );
                 }
-                goal::member_map(&env, m.row_len()).with_context(|| format!("{at}"))?
+                widths.push(m.row_len());
             }
-            None if image => bail!(
+            goal::member_map(&env, &widths).with_context(|| format!("{at}"))?
+        } else if image {
+            bail!(
                 "{at}: observations are images, and {env} is no environment whose goal pgser reads from the dataset's \
-                 state (visual-antmaze, visual-humanoidmaze, visual-cube, visual-puzzle; a visual scene's goal needs \
-                 both qpos and button_states, not mapped yet)"
-            ),
-            None => goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?,
+                 state (visual-antmaze, visual-humanoidmaze, visual-cube, visual-puzzle, visual-scene)"
+            )
+        } else {
+            goal_map(&env, observations.row_len()).with_context(|| format!("{at}"))?
         };
         let n = observations.rows();
         for m in members.iter().filter(|m| m.key != "observations") {

@@ -6,7 +6,7 @@ use std::io::Read;
 
 use anyhow::{Context, Result};
 
-use super::goal::GoalMap;
+use super::goal::{GoalMap, MemberRows};
 use super::{ARRAY_KEYS, Dataset, Layout};
 use crate::trajectory::{EpisodeArrays, ExtraArray, FloatArray, Passthrough};
 
@@ -26,8 +26,10 @@ pub(super) struct Window {
     raw_next: Vec<u8>,
     /// Each passthrough member's spec and bytes per file row, and the window's rows of it.
     extras: Vec<(Passthrough, usize, Vec<u8>)>,
-    /// The passthrough member that is the goal (a puzzle's `button_states`), by its index.
-    goal_member: Option<usize>,
+    /// The passthrough members the goal is read from (a puzzle's `button_states`, a visual
+    /// scene's `qpos` and `button_states`), by their index, in the goal map's order; empty: the
+    /// goal is observation values.
+    goal_members: Vec<usize>,
 }
 
 impl Window {
@@ -44,7 +46,12 @@ impl Window {
             raw_act: Vec::new(),
             raw_next: Vec::new(),
             extras: d.extras.iter().map(|(m, p)| (p.clone(), m.row_len() * m.dtype.size, Vec::new())).collect(),
-            goal_member: d.goal.member.as_ref().and_then(|k| d.extras.iter().position(|(m, _)| &m.key == k)),
+            goal_members: d
+                .goal
+                .members
+                .iter()
+                .map(|k| d.extras.iter().position(|(m, _)| &m.key == k).expect("a goal member is a passthrough member"))
+                .collect(),
         }
     }
 
@@ -84,15 +91,20 @@ impl Window {
                 self.arrays[0].extend_from_slice(&n[(file_rows - 1) * orow..]);
             }
             let mut ag = Vec::with_capacity(t * grow);
-            match self.goal_member {
-                // A member's rows (one per observation: the regular layout is refused for it).
-                Some(i) => {
-                    let (p, row_bytes, buf) = &self.extras[i];
-                    let rows = &buf[e * file_rows * row_bytes..(e + 1) * file_rows * row_bytes];
-                    let row_len = p.shape.iter().product();
-                    self.goal.member_goal_rows(rows, p.dtype, row_len, self.goal_size, &mut ag);
-                }
-                None => self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag),
+            if self.goal_members.is_empty() {
+                self.goal.map_bytes(&self.arrays[0][start..], od, os, &mut ag);
+            } else {
+                // The members' rows (one per observation: the regular layout is refused for them).
+                let rows: Vec<MemberRows<'_>> = self
+                    .goal_members
+                    .iter()
+                    .map(|&i| {
+                        let (p, row_bytes, buf) = &self.extras[i];
+                        let bytes = &buf[e * file_rows * row_bytes..(e + 1) * file_rows * row_bytes];
+                        MemberRows { bytes, dtype: p.dtype, row_len: p.shape.iter().product() }
+                    })
+                    .collect();
+                self.goal.member_goal_rows(&rows, self.goal_size, &mut ag);
             }
             let last = ag[(t - 1) * grow..].to_vec();
             self.arrays[1].extend_from_slice(&ag);

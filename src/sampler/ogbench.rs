@@ -324,7 +324,8 @@ fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
 /// (`compute_oracle_observation`'s values, from the observation). A table converted with
 /// `--full-goal` has whole observations as goals.
 fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
-    let family = task.name.split('-').next().unwrap_or_default();
+    // A visual dataset's family is its state twin's (its goal is read from the file's state).
+    let family = task.name.strip_prefix("visual-").unwrap_or(&task.name).split('-').next().unwrap_or_default();
     let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
     // Every family OGBench's goal map maps has its oracle representation as its goal.
     if !crate::ogbench::goal::FAMILIES.contains(&family) || full {

@@ -2,7 +2,7 @@
 """Small OGBench dataset files of the environments pgser does not simulate, in OGBench's on-disk
 format, from ogbench's own environments with uniform random actions.
 
-    /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench [FOLDER ...]
+    /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench [FOLDER | NAME ...]
     MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa /tmp/ogvenv/bin/python tests/py/make_ogbench_random_fixtures.py tests/fixtures/ogbench visual
 
 (ogbench 1.2.2, mujoco 3.17.0, numpy<2; the visual sets render with MuJoCo, on CPU through OSMesa:
@@ -26,10 +26,12 @@ Writes, each with its -val.npz (1 episode):
   cube's position, the buttons' states, the drawer's and the window's positions);
   these for examples/ogbench_eval.py's test in OGBench's own environments (tests/python/test_ogbench.py);
 - visual/visual-cube-single-play-v0.npz, visual/visual-puzzle-3x3-play-v0.npz,
-  visual/visual-antmaze-medium-navigate-v0.npz: 2 episodes of 21 rows each of OGBench's visual
+  visual/visual-antmaze-medium-navigate-v0.npz, visual/visual-scene-play-v0.npz: 2 episodes of
+  21 rows each of OGBench's visual
   datasets' format: `observations` the 64x64 RGB frames the env renders (uint8 [N, 64, 64, 3];
   camera `front_pixels` for the scenes, `back` for the maze), with the generator's other keys
-  (actions, terminals, qpos, qvel, and button_states for the puzzle), made as its generators make
+  (actions, terminals, qpos, qvel, and button_states for the puzzle and the scene), made as its
+  generators make
   a visual env: `gymnasium.make("visual-cube-single-v0", terminate_at_goal=False,
   mode="data_collection", max_episode_steps=21)` as `generate_manipspace.py` does (the scene
   randomized at each reset), `gymnasium.make("visual-antmaze-medium-v0", terminate_at_goal=False,
@@ -106,10 +108,11 @@ def main():
             ("scene", "scene-v0", "scene-play-v0", 2, 21, {}),
             ("visual", "visual-cube-single-v0", "visual-cube-single-play-v0", 2, 21, collect),
             ("visual", "visual-puzzle-3x3-v0", "visual-puzzle-3x3-play-v0", 2, 21, collect),
-            ("visual", "visual-antmaze-medium-v0", "visual-antmaze-medium-navigate-v0", 2, 21, {})]
+            ("visual", "visual-antmaze-medium-v0", "visual-antmaze-medium-navigate-v0", 2, 21, {}),
+            ("visual", "visual-scene-v0", "visual-scene-play-v0", 2, 21, collect)]
     only = sys.argv[2:]
     for folder, env_id, name, episodes, rows, kwargs in sets:
-        if only and folder not in only:
+        if only and folder not in only and name not in only:
             continue
         os.makedirs(os.path.join(out, folder), exist_ok=True)
         np.random.seed(0)
