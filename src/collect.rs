@@ -119,7 +119,12 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
     let mut sink = if pickle {
         Sink::Pickle(PickleSink::create(&opts.output)?)
     } else {
-        Sink::Table(TrajectoryWriter::create(&opts.output, &task, float, WriterOptions::new(opts.row_group_rows))?)
+        Sink::Table(Box::new(TrajectoryWriter::create(
+            &opts.output,
+            &task,
+            float,
+            WriterOptions::new(opts.row_group_rows),
+        )?))
     };
     // Whole row groups per chunk keep the table's row groups where `convert` puts them.
     let per_group = trajectory::episodes_per_group(opts.row_group_rows, task.t);
@@ -159,7 +164,7 @@ pub fn collect(opts: &CollectOptions, bar: &ProgressBar) -> Result<CollectSummar
 }
 
 enum Sink {
-    Table(TrajectoryWriter),
+    Table(Box<TrajectoryWriter>),
     Pickle(PickleSink),
 }
 

@@ -86,6 +86,17 @@ pub fn last_evaluation(last: &[(u64, f64)], by_success: bool) -> String {
     s
 }
 
+/// Bytes for people: "512 B", "3.2 MB", "1.50 GB" (powers of 1000, as `--memory-budget` takes them).
+pub fn bytes(n: u64) -> String {
+    let x = n as f64;
+    match n {
+        0..1_000 => format!("{n} B"),
+        1_000..1_000_000 => format!("{:.1} kB", x / 1e3),
+        1_000_000..1_000_000_000 => format!("{:.1} MB", x / 1e6),
+        _ => format!("{:.2} GB", x / 1e9),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -108,16 +119,5 @@ mod tests {
         assert_eq!(last_evaluation(&last, true), "; last evaluation (20.0k): success 50.0 % (40.0–60.0 %)");
         assert_eq!(last_evaluation(&[(500, 12.5)], true), "; last evaluation (500): success 12.5 %");
         assert_eq!(last_evaluation(&[], false), "");
-    }
-}
-
-/// Bytes for people: "512 B", "3.2 MB", "1.50 GB" (powers of 1000, as `--memory-budget` takes them).
-pub fn bytes(n: u64) -> String {
-    let x = n as f64;
-    match n {
-        0..1_000 => format!("{n} B"),
-        1_000..1_000_000 => format!("{:.1} kB", x / 1e3),
-        1_000_000..1_000_000_000 => format!("{:.1} MB", x / 1e6),
-        _ => format!("{:.2} GB", x / 1e9),
     }
 }

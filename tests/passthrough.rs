@@ -373,7 +373,7 @@ fn a_footer_with_a_dtype_no_column_holds_is_refused_by_name() {
             assert!(!e.contains("panicked"), "{name}: {cmd}: {e}");
             says(cmd, &said);
         }
-        let e = pgser::trajectory::Episodes::load(&table).err().expect("the loader accepted the table");
+        let e = pgser::trajectory::Episodes::load(&table).expect_err("the loader accepted the table");
         says("load", &format!("{e:#}"));
     }
     assert!(n > 4, "no inputs in tests/fixtures/fuzz/footer");

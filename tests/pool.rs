@@ -411,7 +411,7 @@ fn a_failed_block_read_fails_every_later_batch_by_name() {
     assert!(first.contains("coded-3.parquet") && first.contains(&format!("row group {last}")), "{first}");
     // No batch from blocks that should have left: every later call fails with the same fault.
     for _ in 0..3 {
-        let again = s.next_batch().err().expect("a batch drawn after the pool failed");
+        let again = s.next_batch().expect_err("a batch drawn after the pool failed");
         assert_eq!(format!("{again:#}"), first);
     }
 }

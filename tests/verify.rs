@@ -220,8 +220,7 @@ fn every_reader_refuses_a_corrupt_table() {
     flipped(&scored, &bad_scored, middle_of(&scored, "q"), 0);
     let e = pgser::sampler::scored::ScoredTable::open(&bad_scored)
         .and_then(|t| t.check_whole())
-        .err()
-        .expect("a corrupt q column is refused");
+        .expect_err("a corrupt q column is refused");
     assert!(format!("{e:#}").contains("column q") && names_the_file(&e, &bad_scored), "{e:#}");
 }
 
@@ -327,8 +326,7 @@ fn inputs_the_fuzzers_found_fail_in_one_line() {
         }
         let e = pgser::sampler::scored::ScoredTable::open(&p)
             .and_then(|t| t.check_whole())
-            .err()
-            .expect("a corrupt scored table opened and checked");
+            .expect_err("a corrupt scored table opened and checked");
         assert!(names_the_file(&e, &p), "{e:#}");
     }
     assert!(found > 0, "no inputs in {folders:?}");

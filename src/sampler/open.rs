@@ -41,7 +41,7 @@ impl Beta {
         match self {
             Beta::Whole(d) => (vec![&d.obs[..]], vec![&d.g[..], &d.ag[..]]),
             Beta::Pool(p) => {
-                let (obs, g, ag) = p.resident_arrays();
+                let [obs, g, ag] = p.resident_arrays();
                 (obs, g.into_iter().chain(ag).collect())
             }
         }
@@ -84,7 +84,7 @@ pub struct Planned {
 
 enum How {
     /// β whole, loaded from `data`, with the scored table whole beside it when there is one.
-    Whole(Option<ScoredTable>),
+    Whole(Option<Box<ScoredTable>>),
     /// One shard resident at a time, the next after this many draws (`--shard-window`).
     Window(Box<Layout>, u64),
     /// A pool within `budget` bytes, as the plan split it.
@@ -118,7 +118,7 @@ pub fn plan(data: &Path, budget: Budget, scoring: Option<Scoring>, observations:
         }))
     };
     let how = match budget {
-        Budget::Unbounded => How::Whole(scoring.map(|s| s.table)),
+        Budget::Unbounded => How::Whole(scoring.map(|s| Box::new(s.table))),
         Budget::ShardWindow(rows) => {
             if let Some(beta) = is_beta {
                 bail!("{at}: --is-beta {beta} with --shard-window: priorities are the held shard's own");
@@ -128,7 +128,7 @@ pub fn plan(data: &Path, budget: Budget, scoring: Option<Scoring>, observations:
         Budget::Bytes { bytes, draws_per_row } => {
             let layout = layout(scoring)?;
             match Plan::of(&layout, bytes)? {
-                Plan::Whole => How::Whole(layout.into_scored()),
+                Plan::Whole => How::Whole(layout.into_scored().map(Box::new)),
                 Plan::Pool { slots, reservoir } => {
                     if let Some(beta) = is_beta {
                         bail!(
@@ -164,8 +164,8 @@ impl Planned {
     pub fn open(self, seed: u64, at: Position) -> Result<Opened> {
         Ok(match self.how {
             How::Whole(scored) => {
-                let data = load_whole(&self.data, scored.as_ref(), self.observations)?;
-                Opened { data: Beta::Whole(Arc::new(data)), scored }
+                let data = load_whole(&self.data, scored.as_deref(), self.observations)?;
+                Opened { data: Beta::Whole(Arc::new(data)), scored: scored.map(|t| *t) }
             }
             How::Window(layout, rows) => {
                 Opened { data: Beta::Pool(Box::new(Pool::window(*layout, rows, seed, at)?)), scored: None }

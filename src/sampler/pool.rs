@@ -276,13 +276,13 @@ impl Pool {
 
     /// The resident blocks' arrays (observations, desired goals, achieved goals): what a trainer
     /// fits its normalizer on, a uniform sample of the table's blocks.
-    pub fn resident_arrays(&self) -> (Vec<&[f32]>, Vec<&[f32]>, Vec<&[f32]>) {
+    pub fn resident_arrays(&self) -> [Vec<&[f32]>; 3] {
         let r = &self.resident;
-        (
+        [
             r.iter().map(|b| &b.obs[..]).collect(),
             r.iter().map(|b| &b.g[..]).collect(),
             r.iter().map(|b| &b.ag[..]).collect(),
-        )
+        ]
     }
 
     /// Whether the blocks carry a scored table's rows (`-mem`).

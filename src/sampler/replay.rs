@@ -165,6 +165,38 @@ pub fn empty(task: &Task) -> Episodes {
     }
 }
 
+/// Writes `d` as a float32 trajectory table at `path` with row groups of about `row_group_rows`
+/// rows (whole episodes), not yet in place (the caller commits it). What a replay buffer is saved
+/// as, and how tests make tables of coded episodes.
+pub fn stage_table(d: &Episodes, path: &Path, row_group_rows: usize, footer: &Footer) -> Result<AtomicFile> {
+    let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, WriterOptions::new(row_group_rows))?;
+    // A few row groups at a time, so the byte copy beside the episodes stays small; cuts fall
+    // on row-group boundaries, so the file does not depend on them.
+    let chunk = w.episodes_per_group() * 4;
+    let (t, task) = (d.t, &d.task);
+    let dims = [(t, task.obs_dim), (t, task.goal_dim), (t - 1, task.act_dim), (t - 1, task.goal_dim)];
+    for start in (0..d.n).step_by(chunk.max(1)) {
+        let end = (start + chunk).min(d.n);
+        let bytes: Vec<Vec<u8>> = [&d.obs, &d.ag, &d.u, &d.g]
+            .iter()
+            .zip(dims)
+            .map(|(v, (steps, dim))| {
+                v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect()
+            })
+            .collect();
+        let arrays = std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
+        let src = EpisodeArrays {
+            origin: path.display().to_string(),
+            keys: KEYS,
+            arrays,
+            episodes: end - start,
+            extras: Vec::new(),
+        };
+        w.append(&src, 0, end - start)?;
+    }
+    w.finish_staged(footer)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -223,36 +255,4 @@ mod tests {
         let err = Replay::load(&path, &task, 10, "after cycle 8").err().unwrap().to_string();
         assert!(err.contains("after cycle 7") && err.contains("another point"), "{err}");
     }
-}
-
-/// Writes `d` as a float32 trajectory table at `path` with row groups of about `row_group_rows`
-/// rows (whole episodes), not yet in place (the caller commits it). What a replay buffer is saved
-/// as, and how tests make tables of coded episodes.
-pub fn stage_table(d: &Episodes, path: &Path, row_group_rows: usize, footer: &Footer) -> Result<AtomicFile> {
-    let mut w = TrajectoryWriter::create(path, &d.task, FloatType::Float32, WriterOptions::new(row_group_rows))?;
-    // A few row groups at a time, so the byte copy beside the episodes stays small; cuts fall
-    // on row-group boundaries, so the file does not depend on them.
-    let chunk = w.episodes_per_group() * 4;
-    let (t, task) = (d.t, &d.task);
-    let dims = [(t, task.obs_dim), (t, task.goal_dim), (t - 1, task.act_dim), (t - 1, task.goal_dim)];
-    for start in (0..d.n).step_by(chunk.max(1)) {
-        let end = (start + chunk).min(d.n);
-        let bytes: Vec<Vec<u8>> = [&d.obs, &d.ag, &d.u, &d.g]
-            .iter()
-            .zip(dims)
-            .map(|(v, (steps, dim))| {
-                v[start * steps * dim..end * steps * dim].iter().flat_map(|x| x.to_le_bytes()).collect()
-            })
-            .collect();
-        let arrays = std::array::from_fn(|k| FloatArray { data: &bytes[k], size: 4, steps: dims[k].0, dim: dims[k].1 });
-        let src = EpisodeArrays {
-            origin: path.display().to_string(),
-            keys: KEYS,
-            arrays,
-            episodes: end - start,
-            extras: Vec::new(),
-        };
-        w.append(&src, 0, end - start)?;
-    }
-    w.finish_staged(footer)
 }
