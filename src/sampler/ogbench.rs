@@ -169,7 +169,7 @@ impl OgbenchStream {
     }
 
     fn of(source: Source, cfg: OgbenchConfig, seed: u64) -> Result<OgbenchStream> {
-        check(source.view(), &cfg)?;
+        cfg.check_table(source.view())?;
         Ok(OgbenchStream { source, cfg, seed, next: 0 })
     }
 
@@ -214,7 +214,7 @@ impl OgbenchStream {
         if fixed(&cfg) != fixed(&self.cfg) {
             bail!("a config change of layout, oracle_reps, frame_stack or p_swapgoal's use needs a new sampler");
         }
-        check(self.source.view(), &cfg)?;
+        cfg.check_table(self.source.view())?;
         self.cfg = cfg;
         Ok(())
     }
@@ -272,72 +272,6 @@ impl OgbenchStream {
             DatasetClass::HGCDataset => hierarchical::draw(&ctx, &mut rng, n),
         })
     }
-}
-
-/// What a table must hold for `cfg`: a transition per episode, subgoals that fit an episode, and
-/// achieved goals that are oracle representations where `oracle_reps` reads them.
-fn check(view: &dyn View, cfg: &OgbenchConfig) -> Result<()> {
-    cfg.validate()?;
-    let t = view.t();
-    if t < 2 {
-        bail!("episodes of {t} step(s) hold no transition");
-    }
-    if cfg.dataset_class == DatasetClass::HGCDataset {
-        let (value, actor) = cfg.subgoal_steps_of()?;
-        for (k, v) in [("value subgoal steps", value), ("actor subgoal steps", actor)] {
-            if v >= t as u64 {
-                bail!("{k} = {v}: longer than this table's episodes ({} transitions each)", t - 1);
-            }
-        }
-    }
-    if cfg.oracle_reps {
-        oracle_reps_of(view.task())?;
-    }
-    let images = view.image_shape();
-    if images.is_empty() {
-        let pixels = [
-            (cfg.p_aug > 0.0).then(|| format!("p_aug = {}: random crops are of images", cfg.p_aug)),
-            cfg.frame_stack.map(|k| format!("frame_stack = {k}: frames stacked are images")),
-        ];
-        if let Some(k) = pixels.into_iter().flatten().next() {
-            bail!(
-                "{k}, and this table's observations are states ({} floats; a visual dataset's are images)",
-                view.task().obs_dim
-            );
-        }
-    } else if images.len() != 3 {
-        bail!("images of shape {}: OGBench's are [H, W, C]", crate::trajectory::shape_text(images));
-    }
-    if let Some(k) = cfg.frame_stack
-        && k > t as u64
-    {
-        bail!("frame_stack = {k}: longer than this table's episodes ({t} observations each)");
-    }
-    Ok(())
-}
-
-/// The families whose table goals are OGBench's oracle representations (`add_oracle_reps`):
-/// a maze's x, y (`qpos[:2]`, which its observations start with), and each cube's position
-/// centred on (0.425, 0, 0) and scaled by 10 (the goal map's cube values, OGBench's
-/// `compute_oracle_observation`, which tests/ogbench.rs checks row for row), and a puzzle's
-/// button states (its `button_states`, as floats), and a scene's cube, buttons, drawer and window
-/// (`compute_oracle_observation`'s values, from the observation). A table converted with
-/// `--full-goal` has whole observations as goals.
-fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
-    // A visual dataset's family is its state twin's (its goal is read from the file's state).
-    let family = task.name.strip_prefix("visual-").unwrap_or(&task.name).split('-').next().unwrap_or_default();
-    let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
-    // Every family OGBench's goal map maps has its oracle representation as its goal.
-    if !crate::ogbench::goal::FAMILIES.contains(&family) || full {
-        bail!(
-            "oracle_reps = True: {}'s table goals are not OGBench's oracle representations ({}); pgser has them for \
-             tables of {} datasets converted without --full-goal",
-            task.name,
-            if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" },
-            crate::ogbench::goal::FAMILIES.join(", ")
-        );
-    }
-    Ok(())
 }
 
 /// What a batch is drawn from, and with which settings.

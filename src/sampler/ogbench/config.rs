@@ -1,10 +1,13 @@
 //! The settings of OGBench's and Horizon Reduction's dataset classes, as an agent's config
 //! names them: which code's classes, which class, the goal fractions, the hierarchical classes'
-//! subgoal keys, and pgser's own (`oracle_reps`, `clip_actions`, `p_swapgoal`); what each class
-//! refuses, and what a key another class reads is refused as.
+//! subgoal keys, OGBench's pixel keys, and pgser's own (`oracle_reps`, `clip_actions`,
+//! `p_swapgoal`); what each class refuses, what a key another class reads is refused as, and
+//! what a table must hold for the settings.
 
 use anyhow::{Result, bail};
 use serde::{Deserialize, Serialize};
+
+use crate::sampler::view::View;
 
 /// Whose dataset classes a stream follows: the user says which (`layout=`), never guessed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -235,4 +238,74 @@ impl OgbenchConfig {
     pub(super) fn actor(&self) -> Fractions {
         (self.actor_p_curgoal, self.actor_p_trajgoal, self.actor_geom_sample, self.discount)
     }
+}
+
+impl OgbenchConfig {
+    /// What a table must hold for these settings: a transition per episode, subgoals and frame
+    /// stacks that fit an episode, achieved goals that are oracle representations where
+    /// `oracle_reps` reads them, and images where `p_aug` or `frame_stack` asks for them.
+    pub(super) fn check_table(&self, view: &dyn View) -> Result<()> {
+        let cfg = self;
+        cfg.validate()?;
+        let t = view.t();
+        if t < 2 {
+            bail!("episodes of {t} step(s) hold no transition");
+        }
+        if cfg.dataset_class == DatasetClass::HGCDataset {
+            let (value, actor) = cfg.subgoal_steps_of()?;
+            for (k, v) in [("value subgoal steps", value), ("actor subgoal steps", actor)] {
+                if v >= t as u64 {
+                    bail!("{k} = {v}: longer than this table's episodes ({} transitions each)", t - 1);
+                }
+            }
+        }
+        if cfg.oracle_reps {
+            oracle_reps_of(view.task())?;
+        }
+        let images = view.image_shape();
+        if images.is_empty() {
+            let pixels = [
+                (cfg.p_aug > 0.0).then(|| format!("p_aug = {}: random crops are of images", cfg.p_aug)),
+                cfg.frame_stack.map(|k| format!("frame_stack = {k}: frames stacked are images")),
+            ];
+            if let Some(k) = pixels.into_iter().flatten().next() {
+                bail!(
+                    "{k}, and this table's observations are states ({} floats; a visual dataset's are images)",
+                    view.task().obs_dim
+                );
+            }
+        } else if images.len() != 3 {
+            bail!("images of shape {}: OGBench's are [H, W, C]", crate::trajectory::shape_text(images));
+        }
+        if let Some(k) = cfg.frame_stack
+            && k > t as u64
+        {
+            bail!("frame_stack = {k}: longer than this table's episodes ({t} observations each)");
+        }
+        Ok(())
+    }
+}
+
+/// The families whose table goals are OGBench's oracle representations (`add_oracle_reps`):
+/// a maze's x, y (`qpos[:2]`, which its observations start with), and each cube's position
+/// centred on (0.425, 0, 0) and scaled by 10 (the goal map's cube values, OGBench's
+/// `compute_oracle_observation`, which tests/ogbench.rs checks row for row), and a puzzle's
+/// button states (its `button_states`, as floats), and a scene's cube, buttons, drawer and window
+/// (`compute_oracle_observation`'s values, from the observation). A table converted with
+/// `--full-goal` has whole observations as goals.
+fn oracle_reps_of(task: &crate::task::Task) -> Result<()> {
+    // A visual dataset's family is its state twin's (its goal is read from the file's state).
+    let family = task.name.strip_prefix("visual-").unwrap_or(&task.name).split('-').next().unwrap_or_default();
+    let full = task.goal_dim == task.obs_dim && task.obs_dim > 2;
+    // Every family OGBench's goal map maps has its oracle representation as its goal.
+    if !crate::ogbench::goal::FAMILIES.contains(&family) || full {
+        bail!(
+            "oracle_reps = True: {}'s table goals are not OGBench's oracle representations ({}); pgser has them for \
+             tables of {} datasets converted without --full-goal",
+            task.name,
+            if full { "they are whole observations (--full-goal)" } else { "no oracle representation is mapped" },
+            crate::ogbench::goal::FAMILIES.join(", ")
+        );
+    }
+    Ok(())
 }
