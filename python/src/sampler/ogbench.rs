@@ -238,7 +238,7 @@ pub(super) fn og_worker(
                 r
             }
         };
-        let n = match r {
+        let (n, evaluation) = match r {
             Request::Config(cfg) => {
                 if let Some(failed) = drop_queue(&mut stream, &mut ready) {
                     ready.push_back(failed);
@@ -249,7 +249,6 @@ pub(super) fn og_worker(
             }
             Request::Batch(n, evaluation) => (n, evaluation),
         };
-        let (n, evaluation) = n;
         // Batches drawn ahead are training batches of the default size; any other is drawn at
         // its request, the queue given back first.
         let b = if let Some(e) = refused.take() {
