@@ -60,21 +60,10 @@ pub enum GoalSource {
     /// HER: the achieved goal of this step of the same episode (always later than the row's).
     Future(usize),
     /// Alg. 1: the achieved goal of a random source (its episode and step are table-wide).
-    Swapped(view::GoalSource),
+    Swapped(view::RandomGoal),
 }
 
-/// Where a training row's transition and goal are in β: (episode, step) of the transition and
-/// (goal_episode, goal_step) of the achieved goal it is trained on; goal_step −1 is the
-/// transition's own desired goal. Every batch row is one: β's own rows (original, HER, swapped on
-/// the fly) and the scored table's prioritized ones (which store exactly these four columns).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RowKey {
-    pub episode: u32,
-    pub step: u32,
-    pub goal_episode: u32,
-    /// −1: the transition's own desired goal.
-    pub goal_step: i32,
-}
+pub use crate::score::RowKey;
 
 impl RowKey {
     /// The key of a row drawn from β: `e` is the transition's table-wide episode number.

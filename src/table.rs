@@ -29,6 +29,9 @@ use rayon::prelude::*;
 
 use crate::output::AtomicFile;
 
+mod shard;
+pub use shard::ShardFile;
+
 /// Footer key-value metadata key holding pgser's JSON description of a table.
 pub const FOOTER_KEY: &str = "pgser";
 /// Bumped when a table's columns or footer change meaning.
@@ -271,7 +274,6 @@ fn append_all(
 /// Checks a table's column chunks against the checksums in its footer.
 pub struct Verifier {
     path: PathBuf,
-    file: File,
     /// Byte range of each (row group, leaf column).
     ranges: Vec<Vec<(u64, u64)>>,
     /// Leaf column paths, for messages and [`Verifier::columns_of`].
@@ -285,7 +287,6 @@ impl Verifier {
     /// nothing ([`Verifier::verifiable`] says so).
     pub fn new(path: &Path, meta: &parquet::file::metadata::ParquetMetaData) -> Result<Verifier> {
         let at = path.display();
-        let file = crate::output::open_input(path)?;
         // Not `ColumnChunkMetaData::byte_range`, which panics on the negative offsets a corrupt
         // footer can hold (found by fuzz/fuzz_targets/scored.rs).
         let mut ranges: Vec<Vec<(u64, u64)>> = Vec::new();
@@ -336,7 +337,7 @@ impl Verifier {
             Some(Err(_)) => bail!("{at}: the `{FOOTER_KEY}` footer is not valid JSON: the file is corrupt"),
             None => None,
         };
-        Ok(Verifier { path: path.to_path_buf(), file, ranges, leaves, sums })
+        Ok(Verifier { path: path.to_path_buf(), ranges, leaves, sums })
     }
 
     /// Whether the file has checksums to check.
@@ -374,14 +375,17 @@ impl Verifier {
     }
 
     fn check_chunks(&self, groups: &[usize], columns: &[usize], parallel: bool) -> Result<()> {
-        let Some(sums) = &self.sums else { return Ok(()) };
+        if self.sums.is_none() {
+            return Ok(());
+        }
+        let file = crate::output::open_input(&self.path)?;
         let chunks: Vec<(usize, usize)> = groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
         let one = |&(rg, c): &(usize, usize)| -> Result<Option<(usize, usize, u32)>> {
             let (start, len) = self.ranges[rg][c];
-            let got = crc_range(&self.file, start, len).with_context(|| {
+            let got = crc_range(&file, start, len).with_context(|| {
                 format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
             })?;
-            Ok((got != sums[rg][c]).then_some((rg, c, got)))
+            Ok(self.mismatch(rg, c, got))
         };
         let bad = if parallel {
             chunks.par_iter().map(one).collect::<Result<Vec<_>>>()?
@@ -398,17 +402,36 @@ impl Verifier {
                 Ok::<_, anyhow::Error>(all)
             })?
         };
-        if let Some((rg, c, got)) = bad.into_iter().flatten().min() {
-            let (start, len) = self.ranges[rg][c];
-            bail!(
-                "{}: row group {rg}, column {}, bytes {start}..{}: checksum mismatch (crc32 {got:08x}, written {:08x}): the file is corrupt",
-                self.path.display(),
-                self.leaves[c],
-                start + len,
-                sums[rg][c]
-            );
+        match bad.into_iter().flatten().min() {
+            Some((rg, c, got)) => Err(self.mismatch_error(rg, c, got)),
+            None => Ok(()),
         }
-        Ok(())
+    }
+
+    /// Checks chunk (row group `rg`, leaf `c`) given its bytes, already read (a [`ShardFile`]
+    /// read, which decodes these very bytes).
+    fn check_bytes(&self, rg: usize, c: usize, bytes: &[u8]) -> Result<()> {
+        match self.sums.is_some().then(|| self.mismatch(rg, c, crc32fast::hash(bytes))).flatten() {
+            Some((rg, c, got)) => Err(self.mismatch_error(rg, c, got)),
+            None => Ok(()),
+        }
+    }
+
+    /// `Some` when `got` is not the checksum written for chunk (`rg`, `c`).
+    fn mismatch(&self, rg: usize, c: usize, got: u32) -> Option<(usize, usize, u32)> {
+        let sums = self.sums.as_ref()?;
+        (got != sums[rg][c]).then_some((rg, c, got))
+    }
+
+    fn mismatch_error(&self, rg: usize, c: usize, got: u32) -> anyhow::Error {
+        let (start, len) = self.ranges[rg][c];
+        let written = self.sums.as_ref().map_or(0, |s| s[rg][c]);
+        anyhow!(
+            "{}: row group {rg}, column {}, bytes {start}..{}: checksum mismatch (crc32 {got:08x}, written {written:08x}): the file is corrupt",
+            self.path.display(),
+            self.leaves[c],
+            start + len,
+        )
     }
 
     /// Checks every column chunk.

@@ -9,7 +9,8 @@ use std::sync::OnceLock;
 
 use common::*;
 use pgser::sampler::priority::PriorityConfig;
-use pgser::sampler::scored::{BLOCK_BATCHES, ScoredSampler, ScoredTable};
+use pgser::sampler::scored::{BLOCK_BATCHES, ScoredSampler};
+use pgser::score::ScoredTable;
 
 fn train(args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_pgser-train")).args(args).output().unwrap();

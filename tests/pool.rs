@@ -432,7 +432,7 @@ fn a_shard_replaced_after_the_pool_opened_is_refused_as_changed_not_corrupt() {
     std::fs::rename(data.join("coded-1.parquet.new"), &shard).unwrap();
     let e = (0..2 * PASS_BATCHES).find_map(|_| s.next_batch().err()).expect("a block of the replaced shard is read");
     let e = format!("{e:#}");
-    assert!(e.contains("coded-1.parquet") && e.contains("changed since the pool opened it"), "{e}");
+    assert!(e.contains("coded-1.parquet") && e.contains("changed since it was opened"), "{e}");
 }
 
 /// Every goal the reservoir holds is the achieved goal and the observation of the (episode,

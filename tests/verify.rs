@@ -218,7 +218,7 @@ fn every_reader_refuses_a_corrupt_table() {
     // The scored table's sampler checks the columns it reads (q and the keys).
     let bad_scored = tmp.path().join("bad_scored.parquet");
     flipped(&scored, &bad_scored, middle_of(&scored, "q"), 0);
-    let e = pgser::sampler::scored::ScoredTable::open(&bad_scored)
+    let e = pgser::score::ScoredTable::open(&bad_scored)
         .and_then(|t| t.check_whole())
         .expect_err("a corrupt q column is refused");
     assert!(format!("{e:#}").contains("column q") && names_the_file(&e, &bad_scored), "{e:#}");
@@ -324,7 +324,7 @@ fn inputs_the_fuzzers_found_fail_in_one_line() {
                 "{cmd}: {line}"
             );
         }
-        let e = pgser::sampler::scored::ScoredTable::open(&p)
+        let e = pgser::score::ScoredTable::open(&p)
             .and_then(|t| t.check_whole())
             .expect_err("a corrupt scored table opened and checked");
         assert!(names_the_file(&e, &p), "{e:#}");

@@ -138,7 +138,7 @@ enum At {
     /// A resident episode's step.
     Resident(usize, usize),
     /// A `random_goal` source.
-    Source(super::view::GoalSource),
+    Source(super::view::RandomGoal),
     /// A scored row's stored goal, in a pool's block.
     Scored(ScoredDraw),
 }

@@ -16,7 +16,7 @@ use anyhow::{Result, bail};
 
 use super::pool::{Layout, Plan, Pool, PoolConfig, Position};
 use super::priority::PriorityConfig;
-use super::scored::ScoredTable;
+use crate::score::ScoredTable;
 use super::view::{Budget, View};
 use crate::trajectory::Episodes;
 

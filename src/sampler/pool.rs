@@ -81,7 +81,7 @@ mod reservoir;
 mod resident;
 mod schedule;
 
-use super::view::{GoalSource, View};
+use super::view::{RandomGoal, View};
 use crate::nprandom::NpRandom;
 use crate::task::Task;
 pub(crate) use buffers::advise_huge_pages;
@@ -443,23 +443,23 @@ impl View for Pool {
         let (b, l) = self.block(e);
         b.first_episode + l as u64
     }
-    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+    fn random_goal(&self, rng: &mut NpRandom) -> RandomGoal {
         if self.reservoir.is_empty() {
             // A shard window: uniform over the held shard's observations; the slot is the row.
             let (e, s) = (rng.below(self.resident.episodes()), rng.below(self.layout.t));
             let (episode, slot) = (self.episode_number(e), (e * self.layout.t + s) as u64);
-            return GoalSource { episode, step: s as u32, slot };
+            return RandomGoal { episode, step: s as u32, slot };
         }
         self.reservoir.draw(rng)
     }
-    fn goal_ag(&self, g: GoalSource) -> &[f32] {
+    fn goal_ag(&self, g: RandomGoal) -> &[f32] {
         if self.reservoir.is_empty() {
             let t = self.layout.t as u64;
             return self.ag((g.slot / t) as usize, (g.slot % t) as usize);
         }
         self.reservoir.ag(g.slot)
     }
-    fn goal_obs(&self, g: GoalSource) -> &[f32] {
+    fn goal_obs(&self, g: RandomGoal) -> &[f32] {
         if self.reservoir.is_empty() {
             let t = self.layout.t as u64;
             return self.obs((g.slot / t) as usize, (g.slot % t) as usize);
@@ -473,7 +473,7 @@ impl View for Pool {
         let (b, l) = self.block(e);
         b.image(l, s, self.layout.t, self.layout.task.obs_dim)
     }
-    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+    fn goal_image(&self, g: RandomGoal, back: usize) -> &[u8] {
         if self.reservoir.is_empty() {
             let t = self.layout.t as u64;
             return self.image((g.slot / t) as usize, ((g.slot % t) as usize).saturating_sub(back));

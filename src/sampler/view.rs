@@ -22,7 +22,7 @@ use crate::trajectory::Episodes;
 
 /// Where a random goal came from, and where its vectors can be read in the view that drew it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct GoalSource {
+pub struct RandomGoal {
     /// The table-wide episode number of the goal's observation.
     pub episode: u64,
     /// Its step, in `0..t()`.
@@ -50,11 +50,11 @@ pub trait View: Send + Sync {
     fn episode_number(&self, e: usize) -> u64;
     /// An observation drawn uniformly from the whole table (every episode of every shard, every
     /// step `0..T`), as a goal source.
-    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource;
+    fn random_goal(&self, rng: &mut NpRandom) -> RandomGoal;
     /// The achieved goal of a source `random_goal` returned.
-    fn goal_ag(&self, g: GoalSource) -> &[f32];
+    fn goal_ag(&self, g: RandomGoal) -> &[f32];
     /// The observation of a source `random_goal` returned.
-    fn goal_obs(&self, g: GoalSource) -> &[f32];
+    fn goal_obs(&self, g: RandomGoal) -> &[f32];
     /// The shape of an image observation, [H, W, C], when the table's observations are images
     /// (then `obs` and `goal_obs` are empty and `image` and `goal_image` hold them); empty for
     /// state observations. Only OGBench's layout opens image tables.
@@ -65,7 +65,7 @@ pub trait View: Send + Sync {
     /// first step (the frames OGBench stacks before a goal; `back` 0 is the goal's own image). A
     /// pool's reservoir keeps the frames its layout was opened with (`Layout::with_frames`):
     /// `back` is less than that.
-    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8];
+    fn goal_image(&self, g: RandomGoal, back: usize) -> &[u8];
     /// Called before each batch with the number of transitions it will draw: a pool counts
     /// them and takes in the blocks its loader has read when their turn comes (after as many
     /// draws as the leaving block has transitions), so what is resident depends on the draws
@@ -103,14 +103,14 @@ impl View for Episodes {
         e as u64
     }
     /// `swap::random_goal`: one draw of `below(n · t)`, as the in-memory sampler has always made it.
-    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+    fn random_goal(&self, rng: &mut NpRandom) -> RandomGoal {
         let (e, s) = crate::swap::random_goal(self.n, self.t, rng);
-        GoalSource { episode: e as u64, step: s as u32, slot: (e * self.t + s) as u64 }
+        RandomGoal { episode: e as u64, step: s as u32, slot: (e * self.t + s) as u64 }
     }
-    fn goal_ag(&self, g: GoalSource) -> &[f32] {
+    fn goal_ag(&self, g: RandomGoal) -> &[f32] {
         Episodes::ag(self, g.episode as usize, g.step as usize)
     }
-    fn goal_obs(&self, g: GoalSource) -> &[f32] {
+    fn goal_obs(&self, g: RandomGoal) -> &[f32] {
         View::obs(self, g.episode as usize, g.step as usize)
     }
     fn image_shape(&self) -> &[usize] {
@@ -119,7 +119,7 @@ impl View for Episodes {
     fn image(&self, e: usize, s: usize) -> &[u8] {
         if self.images.is_empty() { &[] } else { Episodes::image(self, e, s) }
     }
-    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+    fn goal_image(&self, g: RandomGoal, back: usize) -> &[u8] {
         View::image(self, g.episode as usize, (g.step as usize).saturating_sub(back))
     }
 }
@@ -153,13 +153,13 @@ impl View for InMemory {
     fn episode_number(&self, e: usize) -> u64 {
         e as u64
     }
-    fn random_goal(&self, rng: &mut NpRandom) -> GoalSource {
+    fn random_goal(&self, rng: &mut NpRandom) -> RandomGoal {
         View::random_goal(&*self.0, rng)
     }
-    fn goal_ag(&self, g: GoalSource) -> &[f32] {
+    fn goal_ag(&self, g: RandomGoal) -> &[f32] {
         View::goal_ag(&*self.0, g)
     }
-    fn goal_obs(&self, g: GoalSource) -> &[f32] {
+    fn goal_obs(&self, g: RandomGoal) -> &[f32] {
         View::goal_obs(&*self.0, g)
     }
     fn image_shape(&self) -> &[usize] {
@@ -168,7 +168,7 @@ impl View for InMemory {
     fn image(&self, e: usize, s: usize) -> &[u8] {
         View::image(&*self.0, e, s)
     }
-    fn goal_image(&self, g: GoalSource, back: usize) -> &[u8] {
+    fn goal_image(&self, g: RandomGoal, back: usize) -> &[u8] {
         View::goal_image(&*self.0, g, back)
     }
 }

@@ -15,6 +15,7 @@
 pub mod folder;
 mod read;
 mod stats;
+mod table;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -37,6 +38,7 @@ use crate::task::{GoalMetric, Task};
 use crate::trajectory::{self, Episodes, FloatType, vector_field};
 
 pub use stats::{BINS, Histogram, QStats, merged};
+pub use table::{BlockGoals, RowKey, ScoredTable};
 
 /// Footer `kind` of a transition table.
 pub const KIND: &str = "transition";

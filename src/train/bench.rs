@@ -12,7 +12,8 @@ use crate::agent::{Agent, AgentConfig, Backend, Batch, Normalizer, Shards};
 use crate::nprandom::NpRandom;
 use crate::sampler::open::beta_of;
 use crate::sampler::priority::PriorityConfig;
-use crate::sampler::scored::{ScoredSampler, ScoredTable};
+use crate::sampler::scored::ScoredSampler;
+use crate::score::ScoredTable;
 
 /// `pgser-train bench`: updates/s of the agent alone on random batches of a task's dimensions,
 /// the figure `make bench` compares with the same update in PyTorch; with `agents` > 1, a stack

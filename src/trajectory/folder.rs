@@ -25,6 +25,7 @@ use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
 use super::Footer;
+use crate::table::ShardFile;
 
 /// The manifest's file name inside a table folder.
 pub const MANIFEST: &str = "manifest.json";
@@ -165,6 +166,14 @@ pub fn shard_footer(path: &Path) -> Result<Footer> {
     Footer::from_json(&path.display().to_string(), json)
 }
 
+/// The shard at `path` opened for reading row groups, with its trajectory footer: its Parquet
+/// metadata parsed once for both.
+pub fn open_shard(path: &Path) -> Result<(ShardFile, Footer)> {
+    let file = ShardFile::open(path)?;
+    let footer = Footer::from_json(&path.display().to_string(), file.footer_json()?)?;
+    Ok((file, footer))
+}
+
 impl Manifest {
     /// The manifest of shards `files` (in folder order) inside `dir`, their footers read and
     /// checked to agree, each file hashed. `command` is the folder's.
@@ -280,6 +289,17 @@ impl TableFolder {
     /// manifest says, with a footer that agrees with it (counts, task, columns). The shards'
     /// bytes are not hashed here (`pgser-etl verify` does): opening reads footers only.
     pub fn open(dir: &Path) -> Result<TableFolder> {
+        Self::open_inner(dir, false).map(|(folder, _)| folder)
+    }
+
+    /// As [`TableFolder::open`], keeping every shard opened for reading row groups, with its
+    /// footer (in folder order): a reader of the shards' rows (the out-of-core pool) parses each
+    /// shard's metadata once, here.
+    pub fn open_shards(dir: &Path) -> Result<(TableFolder, Vec<(ShardFile, Footer)>)> {
+        Self::open_inner(dir, true)
+    }
+
+    fn open_inner(dir: &Path, keep: bool) -> Result<(TableFolder, Vec<(ShardFile, Footer)>)> {
         let path = dir.join(MANIFEST);
         let at = path.display();
         let (m, _): (Manifest, _) = read_manifest(
@@ -290,6 +310,7 @@ impl TableFolder {
         )?;
         let footer = Footer::from_json(&at.to_string(), serde_json::to_value(&m.footer).expect("serializes"))?;
         let (mut rows, mut episodes) = (0usize, 0usize);
+        let mut opened = Vec::with_capacity(if keep { m.shards.len() } else { 0 });
         for (i, s) in m.shards.iter().enumerate() {
             let shard = dir.join(&s.file);
             let len = std::fs::metadata(&shard)
@@ -302,7 +323,12 @@ impl TableFolder {
                     s.bytes
                 );
             }
-            let f = shard_footer(&shard)?;
+            let (file, f) = if keep {
+                let (file, f) = open_shard(&shard)?;
+                (Some(file), f)
+            } else {
+                (None, shard_footer(&shard)?)
+            };
             if (f.rows, f.episodes) != (s.rows, s.episodes) {
                 bail!(
                     "{}: {} rows in {} episodes where the manifest says {} in {} (shard {i})",
@@ -325,6 +351,7 @@ impl TableFolder {
             }
             rows += s.rows;
             episodes += s.episodes;
+            opened.extend(file.map(|file| (file, f)));
         }
         if (rows, episodes) != (m.rows, m.episodes) || (footer.rows, footer.episodes) != (rows, episodes) {
             bail!(
@@ -333,7 +360,7 @@ impl TableFolder {
                 m.episodes
             );
         }
-        Ok(TableFolder { dir: dir.to_path_buf(), manifest: m })
+        Ok((TableFolder { dir: dir.to_path_buf(), manifest: m }, opened))
     }
 
     /// The shards' paths, in folder order.

@@ -26,7 +26,7 @@ use crate::sampler::RowKey;
 use crate::sampler::open::{self, Beta, Observations, Opened, Scoring};
 use crate::sampler::pool::{Pool, Position};
 use crate::sampler::priority::{PriorityConfig, SumTree};
-use crate::sampler::scored::ScoredTable;
+use crate::score::ScoredTable;
 use crate::sampler::view::{Budget, View};
 use crate::trajectory::Episodes;
 

@@ -2,18 +2,17 @@
 //! splits between resident blocks, blocks in flight and the goal reservoir ([`Plan`]), and reading
 //! one block, checked, as float32.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, Result, anyhow, bail};
-use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
 
 use super::buffers::{Bytes, Floats};
 use crate::sampler::priority::{PriorityConfig, SumTree};
-use crate::sampler::scored::ScoredTable;
+use crate::score::ScoredTable;
 use crate::task::Task;
 use crate::trajectory::Footer;
-use crate::trajectory::folder::{TableFolder, is_folder, shard_footer};
+use crate::table::ShardFile;
+use crate::trajectory::folder::{TableFolder, is_folder, open_shard};
 use crate::trajectory::read::{append, append_images, check_keys};
 
 /// The share of the budget the goal reservoir may take.
@@ -26,36 +25,11 @@ pub(super) const VECTORS: [&str; 4] = ["obs", "achieved_goal", "desired_goal", "
 
 /// One shard of the table, as the pool reads it.
 pub(super) struct Shard {
-    pub(super) path: PathBuf,
+    /// The file, opened once: its metadata, checksums and identity (a block read from a file
+    /// replaced since is refused as changed).
+    pub(super) file: ShardFile,
     /// The shard's own footer (its own rows and episodes): what `check_keys` checks rows against.
     pub(super) footer: Footer,
-    pub(super) meta: ArrowReaderMetadata,
-    /// The file as it was opened: a block read from another file (replaced, rewritten) is
-    /// refused as changed, not read against metadata that is no longer its own.
-    identity: Identity,
-}
-
-/// What tells one file from another at the same path: device, inode, size, modification time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Identity {
-    dev: u64,
-    ino: u64,
-    len: u64,
-    modified: Option<std::time::SystemTime>,
-}
-
-impl Identity {
-    fn of(file: &std::fs::File, path: &Path) -> Result<Identity> {
-        let m = file.metadata().with_context(|| format!("{}: cannot stat", path.display()))?;
-        #[cfg(unix)]
-        let (dev, ino) = {
-            use std::os::unix::fs::MetadataExt;
-            (m.dev(), m.ino())
-        };
-        #[cfg(not(unix))]
-        let (dev, ino) = (0, 0);
-        Ok(Identity { dev, ino, len: m.len(), modified: m.modified().ok() })
-    }
 }
 
 /// One block: a row group of a shard, holding whole episodes.
@@ -108,36 +82,23 @@ impl Layout {
     /// The blocks of a table file or table folder; a row group that does not hold whole
     /// episodes is refused, naming the shard and row group.
     pub fn open(path: &Path) -> Result<Layout> {
-        let (footer, shards): (Footer, Vec<(PathBuf, Footer, u64)>) = if is_folder(path) {
-            let folder = TableFolder::open(path)?;
-            let shards = folder
-                .manifest
-                .shards
-                .iter()
-                .map(|s| {
-                    let p = folder.dir.join(&s.file);
-                    Ok((p.clone(), shard_footer(&p)?, s.first_episode as u64))
-                })
-                .collect::<Result<_>>()?;
+        let (footer, shards): (Footer, Vec<(ShardFile, Footer, u64)>) = if is_folder(path) {
+            let (folder, files) = TableFolder::open_shards(path)?;
+            let firsts = folder.manifest.shards.iter().map(|s| s.first_episode as u64);
+            let shards = files.into_iter().zip(firsts).map(|((file, f), first)| (file, f, first)).collect();
             (folder.footer().clone(), shards)
         } else {
-            let f = shard_footer(path)?;
-            (f.clone(), vec![(path.to_path_buf(), f, 0)])
+            let (file, f) = open_shard(path)?;
+            (f.clone(), vec![(file, f, 0)])
         };
         let (t, mut blocks, mut opened) = (footer.t, Vec::new(), Vec::new());
         if t < 2 {
             bail!("{}: episodes of {t} step(s) hold no transition", path.display());
         }
-        for (i, (p, f, first_episode)) in shards.into_iter().enumerate() {
-            let file = crate::output::open_input(&p)?;
-            let identity = Identity::of(&file, &p)?;
-            let meta = ArrowReaderMetadata::load(&file, ArrowReaderOptions::new())
-                .with_context(|| format!("{}: not a readable Parquet file", p.display()))?;
+        for (i, (file, f, first_episode)) in shards.into_iter().enumerate() {
+            let p = file.path().to_path_buf();
             let mut row = 0usize;
-            for (g, rg) in meta.metadata().row_groups().iter().enumerate() {
-                let Ok(rows) = usize::try_from(rg.num_rows()) else {
-                    bail!("{}: row group {g} has a negative row count: the file is corrupt", p.display());
-                };
+            for (g, rows) in file.group_rows()?.into_iter().enumerate() {
                 if !row.is_multiple_of(t) || !rows.is_multiple_of(t) {
                     bail!(
                         "{}: row group {g} holds rows {row}..{}, not whole episodes of T = {t} (pgser's writers cut row \
@@ -160,7 +121,7 @@ impl Layout {
             if row != f.rows {
                 bail!("{}: its row groups hold {row} rows but its footer says {}", p.display(), f.rows);
             }
-            opened.push(Shard { path: p, footer: f, meta, identity });
+            opened.push(Shard { file, footer: f });
         }
         let largest = largest(&blocks);
         Ok(Layout {
@@ -282,7 +243,7 @@ impl Layout {
     /// Where block `id` is, for messages: its shard and row group(s).
     pub(super) fn at(&self, id: usize) -> String {
         let b = self.blocks[id];
-        let path = self.shards[b.shard].path.display();
+        let path = self.shards[b.shard].file.path().display();
         match b.groups {
             1 => format!("{path} (row group {})", b.group),
             n => format!("{path} (row groups {}..{})", b.group, b.group + n),
@@ -303,36 +264,16 @@ impl Layout {
         let shard = &self.shards[b.shard];
         let at = self.at(id);
         let groups: Vec<usize> = (b.group..b.group + b.groups).collect();
-        let file = crate::output::open_input(&shard.path)?;
-        if Identity::of(&file, &shard.path)? != shard.identity {
-            bail!(
-                "{at}: the file changed since the pool opened it (replaced or rewritten while training); start again \
-                 on data that stays as it is"
-            );
-        }
-        let verifier = crate::table::Verifier::new(&shard.path, shard.meta.metadata())?;
         let mut names = vec!["episode", "step"];
         names.extend(VECTORS.iter().zip(which).filter(|(_, w)| **w).map(|(n, _)| *n));
-        verifier.check_row_groups_here(&groups, &verifier.columns_of(&names))?;
-        let builder = ParquetRecordBatchReaderBuilder::new_with_metadata(file, shard.meta.clone());
-        let schema = builder.schema().clone();
-        let roots = names
-            .iter()
-            .map(|n| schema.index_of(n).map_err(|_| anyhow!("{at}: no `{n}` column")))
-            .collect::<Result<Vec<_>>>()?;
-        let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
         let t = self.t;
         let task = &self.task;
         let image = self.is_image();
         // An image's bytes are a quarter of as many floats.
         let obs_width = if image { task.obs_dim.div_ceil(4) } else { task.obs_dim };
         let widest = obs_width.max(task.goal_dim).max(task.act_dim);
-        let reader = builder
-            .with_projection(mask)
-            .with_row_groups(groups)
-            .with_batch_size(decode_rows(widest))
-            .build()
-            .with_context(|| format!("{at}: cannot read"))?;
+        // Every chunk decoded is read once and checked first, on the loader's own threads.
+        let reader = shard.file.read(&groups, &names, None, decode_rows(widest))?;
         let dims = [task.obs_dim, task.goal_dim, task.goal_dim, task.act_dim];
         let steps = [t, t, t - 1, t - 1];
         let largest = self.largest;

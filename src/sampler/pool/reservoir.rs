@@ -13,7 +13,7 @@ use super::layout::{Block, IN_FLIGHT, Layout};
 use super::resident::Resident;
 use super::schedule::Keys;
 use crate::nprandom::NpRandom;
-use crate::sampler::view::GoalSource;
+use crate::sampler::view::RandomGoal;
 
 pub(super) struct Reservoir {
     keys: Keys,
@@ -109,11 +109,11 @@ impl Reservoir {
         }
     }
 
-    /// A goal drawn uniformly from the slots: the slot is its `GoalSource::slot`.
-    pub(super) fn draw(&self, rng: &mut NpRandom) -> GoalSource {
+    /// A goal drawn uniformly from the slots: the slot is its `RandomGoal::slot`.
+    pub(super) fn draw(&self, rng: &mut NpRandom) -> RandomGoal {
         let i = rng.below(self.len());
         let (episode, step) = self.at[i];
-        GoalSource { episode, step, slot: i as u64 }
+        RandomGoal { episode, step, slot: i as u64 }
     }
 
     pub(super) fn ag(&self, slot: u64) -> &[f32] {
