@@ -151,30 +151,52 @@ const PARALLEL_FLOATS: usize = 1 << 16;
 /// has more than 2 threads. On 2 cores the out-of-core pool's loader and the drawing thread
 /// already fill them, and copying on the thread pool measured 1,052 against 1,341 batches/s on
 /// humanoidmaze's shape (in memory, with no loader, the two were alike). The same values at any
-/// thread count.
+/// thread count. The output is never zeroed first: every value is written once (a `calloc`'s
+/// memset of each key was 7 % of the drawing thread's time on humanoidmaze's shape).
 pub(crate) fn gather_rows<'a, R: Sync>(rows: &[R], dim: usize, of: impl Fn(&R) -> &'a [f32] + Sync) -> Vec<f32> {
     use rayon::prelude::*;
-    let mut out = vec![0.0f32; rows.len() * dim];
-    if rows.len() * dim < PARALLEL_FLOATS || rayon::current_num_threads() <= 2 {
-        copy_rows(&mut out, rows, dim, &of);
+    let n = rows.len() * dim;
+    let mut out: Vec<f32> = Vec::with_capacity(n);
+    let spare = &mut out.spare_capacity_mut()[..n];
+    if n < PARALLEL_FLOATS || rayon::current_num_threads() <= 2 {
+        copy_rows(spare, rows, dim, &of);
     } else {
-        out.par_chunks_mut(GATHER_CHUNK * dim)
+        spare
+            .par_chunks_mut(GATHER_CHUNK * dim)
             .zip(rows.par_chunks(GATHER_CHUNK))
             .for_each(|(o, rs)| copy_rows(o, rs, dim, &of));
     }
+    // SAFETY: `copy_rows` wrote all `dim` values of each of the `rows.len()` rows, every one of
+    // the first `n` (it asserts each row's vector is `dim` wide).
+    unsafe { out.set_len(n) };
     out
 }
 
-/// Copies each row's vector into its place in `out`. A vector of a few floats (PointMaze's 2, a
-/// Fetch goal's 3) is copied as a fixed-size array: a `memcpy` call per row of 8 bytes was most of
-/// the out-of-core pool's drawing time (perf, bench_scale.py's pgser side on 100M PointMaze rows).
-fn copy_rows<'a, R>(out: &mut [f32], rows: &[R], dim: usize, of: &impl Fn(&R) -> &'a [f32]) {
-    fn fixed<'a, R, const D: usize>(out: &mut [f32], rows: &[R], of: &impl Fn(&R) -> &'a [f32]) {
+/// Rows ahead of the copy whose vectors are prefetched: enough to keep several cache misses in
+/// flight while one row is copied.
+const PREFETCH_ROWS: usize = 8;
+
+/// Copies each row's vector into its place in `out` (every value of it written). A vector of a
+/// few floats (PointMaze's 2, a Fetch goal's 3) is copied as a fixed-size array: a `memcpy` call
+/// per row of 8 bytes was most of the out-of-core pool's drawing time (perf, bench_scale.py's
+/// pgser side on 100M PointMaze rows). A wider one is prefetched [`PREFETCH_ROWS`] rows ahead:
+/// rows drawn at random from a gigabyte of resident blocks each miss the cache, and copied one
+/// after another their misses were waited for one at a time (the copies were 44 % of the drawing
+/// thread's time on humanoidmaze's shape, 69 floats a row).
+fn copy_rows<'a, R>(out: &mut [std::mem::MaybeUninit<f32>], rows: &[R], dim: usize, of: &impl Fn(&R) -> &'a [f32]) {
+    fn fixed<'a, R, const D: usize>(
+        out: &mut [std::mem::MaybeUninit<f32>],
+        rows: &[R],
+        of: &impl Fn(&R) -> &'a [f32],
+    ) {
         for (o, r) in out.chunks_exact_mut(D).zip(rows) {
-            let o: &mut [f32; D] = o.try_into().expect("chunks of D");
-            *o = *<&[f32; D]>::try_from(of(r)).expect("a row's vector is D wide");
+            let v = <&[f32; D]>::try_from(of(r)).expect("a row's vector is D wide");
+            for (o, v) in o.iter_mut().zip(v) {
+                o.write(*v);
+            }
         }
     }
+    assert_eq!(out.len(), rows.len() * dim, "room for every row");
     match dim {
         0 => {}
         1 => fixed::<R, 1>(out, rows, of),
@@ -186,11 +208,53 @@ fn copy_rows<'a, R>(out: &mut [f32], rows: &[R], dim: usize, of: &impl Fn(&R) ->
         7 => fixed::<R, 7>(out, rows, of),
         8 => fixed::<R, 8>(out, rows, of),
         _ => {
-            for (o, r) in out.chunks_exact_mut(dim).zip(rows) {
-                o.copy_from_slice(of(r));
+            // The source of row i + PREFETCH_ROWS is looked up once, prefetched, and kept in a
+            // ring until its copy.
+            let mut ahead: [&[f32]; PREFETCH_ROWS] = [&[]; PREFETCH_ROWS];
+            for (i, r) in rows.iter().take(PREFETCH_ROWS).enumerate() {
+                ahead[i] = of(r);
+                prefetch(ahead[i]);
+            }
+            for (i, o) in out.chunks_exact_mut(dim).enumerate() {
+                let v = ahead[i % PREFETCH_ROWS];
+                if let Some(r) = rows.get(i + PREFETCH_ROWS) {
+                    let next = of(r);
+                    prefetch(next);
+                    ahead[i % PREFETCH_ROWS] = next;
+                }
+                assert_eq!(v.len(), dim, "a row's vector is dim wide");
+                // SAFETY: `o` and `v` are `dim` values each (asserted), `f32` and
+                // `MaybeUninit<f32>` have one layout, and `out` cannot overlap the shared `v`.
+                unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), o.as_mut_ptr().cast::<f32>(), dim) };
             }
         }
     }
+}
+
+/// Asks the CPU to bring `v`'s cache lines in (a hint: it never faults, and does nothing where
+/// the architecture has no such instruction here).
+#[inline(always)]
+fn prefetch(v: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let p = v.as_ptr().cast::<i8>();
+        let bytes = std::mem::size_of_val(v);
+        // Every line from the first byte's to the last byte's (a row need not start a line).
+        let mut at = 0;
+        while at < bytes {
+            // SAFETY: a prefetch reads nothing architecturally and cannot fault; the address is
+            // within `v`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(at)) };
+            at += 64;
+        }
+        if bytes > 0 {
+            // SAFETY: as above; the last byte of `v`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(bytes - 1)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
 }
 
 /// β as an engine holds it (`Engine::hold`).
@@ -236,6 +300,26 @@ pub fn rows(data: &Episodes, keys: impl IntoIterator<Item = RowKey>) -> Rows {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every row's vector lands whole in its place, in row order, whatever the width (the
+    /// fixed-size copies, and the prefetching ring beyond them) and however many rows there are
+    /// against the ring's length; on one thread and on four.
+    #[test]
+    fn gathered_rows_are_each_rows_vector_in_order() {
+        let source: Vec<f32> = (0..300 * 80).map(|i| i as f32).collect();
+        for threads in [1, 4] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            for dim in (0..=12).chain([69, 80]) {
+                for n in [0, 1, 7, 8, 9, 17, 300, 1000] {
+                    // Rows in a scrambled order, some repeated.
+                    let rows: Vec<usize> = (0..n).map(|i| (i * 7919 + 13) % 300).collect();
+                    let got = pool.install(|| gather_rows(&rows, dim, |&r| &source[r * 80..r * 80 + dim]));
+                    let want: Vec<f32> = rows.iter().flat_map(|&r| source[r * 80..r * 80 + dim].iter().copied()).collect();
+                    assert_eq!(got, want, "dim {dim}, {n} rows, {threads} threads");
+                }
+            }
+        }
+    }
 
     /// A table whose values say where they are (`Episodes::coded`); desired goals are reached
     /// (equal to the next achieved goal) on even steps.
