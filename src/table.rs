@@ -353,55 +353,26 @@ impl Verifier {
         (0..self.leaves.len()).filter(|&i| names.iter().any(|n| of(&self.leaves[i], n))).collect()
     }
 
-    /// Checks `columns` (leaf indices) of every row group, in parallel; the first mismatch names
-    /// its row group, column and bytes.
+    /// Checks `columns` (leaf indices) of every row group, in parallel on the global rayon pool;
+    /// the first mismatch names its row group, column and bytes. A reader of some row groups
+    /// reads and checks them through [`ShardFile::read`] instead, on threads of its own.
     pub fn check(&self, columns: &[usize]) -> Result<()> {
-        self.check_row_groups(&(0..self.ranges.len()).collect::<Vec<_>>(), columns)
-    }
-
-    /// Checks `columns` (leaf indices) of the row groups `groups` only: what a reader that
-    /// decodes some row groups (the out-of-core pool) pays for.
-    pub fn check_row_groups(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
-        self.check_chunks(groups, columns, true)
-    }
-
-    /// As [`Verifier::check_row_groups`], on threads of its own (the calling one and, for more
-    /// than one chunk, up to three it starts and joins), never the global rayon pool: for a
-    /// thread that must not wait on that pool (the out-of-core pool's loader: `pool/loader.rs`
-    /// says why). The chunks are a block's columns, megabytes each, so a thread start (tens of
-    /// microseconds) is small beside what it checks.
-    pub fn check_row_groups_here(&self, groups: &[usize], columns: &[usize]) -> Result<()> {
-        self.check_chunks(groups, columns, false)
-    }
-
-    fn check_chunks(&self, groups: &[usize], columns: &[usize], parallel: bool) -> Result<()> {
         if self.sums.is_none() {
             return Ok(());
         }
         let file = crate::output::open_input(&self.path)?;
-        let chunks: Vec<(usize, usize)> = groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
-        let one = |&(rg, c): &(usize, usize)| -> Result<Option<(usize, usize, u32)>> {
-            let (start, len) = self.ranges[rg][c];
-            let got = crc_range(&file, start, len).with_context(|| {
-                format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
-            })?;
-            Ok(self.mismatch(rg, c, got))
-        };
-        let bad = if parallel {
-            chunks.par_iter().map(one).collect::<Result<Vec<_>>>()?
-        } else {
-            let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, 4).min(chunks.len());
-            // Thread i checks chunks i, i + threads, …: chunks of one column are alike in size.
-            let part = |i: usize| chunks.iter().skip(i).step_by(threads.max(1)).map(one).collect::<Result<Vec<_>>>();
-            std::thread::scope(|scope| {
-                let others: Vec<_> = (1..threads).map(|i| scope.spawn(move || part(i))).collect();
-                let mut all = part(0)?;
-                for h in others {
-                    all.extend(h.join().expect("a checksum thread does not panic")?);
-                }
-                Ok::<_, anyhow::Error>(all)
-            })?
-        };
+        let chunks: Vec<(usize, usize)> =
+            (0..self.ranges.len()).flat_map(|rg| columns.iter().map(move |&c| (rg, c))).collect();
+        let bad = chunks
+            .par_iter()
+            .map(|&(rg, c)| -> Result<Option<(usize, usize, u32)>> {
+                let (start, len) = self.ranges[rg][c];
+                let got = crc_range(&file, start, len).with_context(|| {
+                    format!("{}: row group {rg}, column {}: cannot read", self.path.display(), self.leaves[c])
+                })?;
+                Ok(self.mismatch(rg, c, got))
+            })
+            .collect::<Result<Vec<_>>>()?;
         match bad.into_iter().flatten().min() {
             Some((rg, c, got)) => Err(self.mismatch_error(rg, c, got)),
             None => Ok(()),

@@ -8,5 +8,5 @@ use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let p = common::file("s.parquet", data);
-    let _ = pgser::sampler::scored::ScoredTable::open(&p);
+    let _ = pgser::score::ScoredTable::open(&p);
 });
