@@ -184,11 +184,7 @@ const PREFETCH_ROWS: usize = 8;
 /// after another their misses were waited for one at a time (the copies were 44 % of the drawing
 /// thread's time on humanoidmaze's shape, 69 floats a row).
 fn copy_rows<'a, R>(out: &mut [std::mem::MaybeUninit<f32>], rows: &[R], dim: usize, of: &impl Fn(&R) -> &'a [f32]) {
-    fn fixed<'a, R, const D: usize>(
-        out: &mut [std::mem::MaybeUninit<f32>],
-        rows: &[R],
-        of: &impl Fn(&R) -> &'a [f32],
-    ) {
+    fn fixed<'a, R, const D: usize>(out: &mut [std::mem::MaybeUninit<f32>], rows: &[R], of: &impl Fn(&R) -> &'a [f32]) {
         for (o, r) in out.chunks_exact_mut(D).zip(rows) {
             let v = <&[f32; D]>::try_from(of(r)).expect("a row's vector is D wide");
             for (o, v) in o.iter_mut().zip(v) {
@@ -314,7 +310,8 @@ mod tests {
                     // Rows in a scrambled order, some repeated.
                     let rows: Vec<usize> = (0..n).map(|i| (i * 7919 + 13) % 300).collect();
                     let got = pool.install(|| gather_rows(&rows, dim, |&r| &source[r * 80..r * 80 + dim]));
-                    let want: Vec<f32> = rows.iter().flat_map(|&r| source[r * 80..r * 80 + dim].iter().copied()).collect();
+                    let want: Vec<f32> =
+                        rows.iter().flat_map(|&r| source[r * 80..r * 80 + dim].iter().copied()).collect();
                     assert_eq!(got, want, "dim {dim}, {n} rows, {threads} threads");
                 }
             }

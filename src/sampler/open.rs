@@ -16,8 +16,8 @@ use anyhow::{Result, bail};
 
 use super::pool::{Layout, Plan, Pool, PoolConfig, Position};
 use super::priority::PriorityConfig;
-use crate::score::ScoredTable;
 use super::view::{Budget, View};
+use crate::score::ScoredTable;
 use crate::trajectory::Episodes;
 
 /// β for a sampler: whole, or a pool.

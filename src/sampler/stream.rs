@@ -17,11 +17,11 @@ use super::open::{self, Beta, Observations, Opened, Scoring};
 use super::pool::{Pool, Position, ScoredDraw};
 use super::priority::PriorityConfig;
 use super::scored::ScoredSampler;
-use crate::score::ScoredTable;
 use super::view::{Budget, View};
 use super::{RowKey, SamplerConfig, Swap};
 use crate::agent::{Batch, Rows};
 use crate::nprandom::NpRandom;
+use crate::score::ScoredTable;
 use crate::task::Task;
 use crate::trajectory::Episodes;
 

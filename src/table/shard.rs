@@ -93,9 +93,11 @@ impl ShardFile {
     /// [`read_footer`]: super::read_footer
     pub fn footer_json(&self) -> Result<serde_json::Value> {
         let at = self.path.display();
-        let text =
-            self.footer_text().with_context(|| format!("{at}: no `{}` footer: not written by pgser", super::FOOTER_KEY))?;
-        serde_json::from_str(text).with_context(|| format!("{at}: the `{}` footer is not valid JSON", super::FOOTER_KEY))
+        let text = self
+            .footer_text()
+            .with_context(|| format!("{at}: no `{}` footer: not written by pgser", super::FOOTER_KEY))?;
+        serde_json::from_str(text)
+            .with_context(|| format!("{at}: the `{}` footer is not valid JSON", super::FOOTER_KEY))
     }
 
     /// Each row group's row count; a negative one (a corrupt footer) is refused by row group.
@@ -207,8 +209,7 @@ impl Verifier {
     /// threads of its own read them; the first mismatch in (row group, column) order is reported.
     fn read_checked(&self, file: &File, groups: &[usize], columns: &[usize]) -> Result<Vec<(u64, Bytes)>> {
         use std::os::unix::fs::FileExt;
-        let wanted: Vec<(usize, usize)> =
-            groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
+        let wanted: Vec<(usize, usize)> = groups.iter().flat_map(|&rg| columns.iter().map(move |&c| (rg, c))).collect();
         let one = |&(rg, c): &(usize, usize)| -> Result<(u64, Bytes)> {
             let (start, len) = self.ranges[rg][c];
             let len = usize::try_from(len).map_err(|_| anyhow!("{}: a chunk too large", self.path.display()))?;
@@ -237,7 +238,12 @@ impl Verifier {
         let mut chunks = all.into_iter().map(|(_, r)| r).collect::<Result<Vec<_>>>()?;
         chunks.sort_by_key(|(o, _)| *o);
         if let Some(w) = chunks.windows(2).find(|w| w[0].0 + w[0].1.len() as u64 > w[1].0) {
-            bail!("{}: column chunks at bytes {} and {} overlap: the file is corrupt", self.path.display(), w[0].0, w[1].0);
+            bail!(
+                "{}: column chunks at bytes {} and {} overlap: the file is corrupt",
+                self.path.display(),
+                w[0].0,
+                w[1].0
+            );
         }
         Ok(chunks)
     }
@@ -303,7 +309,10 @@ mod tests {
         let only_first = values(file.read(&[0], &["x"], None, 256).unwrap()).unwrap();
         assert_eq!(only_first.len(), 1000);
         let e = format!("{:#}", file.read(&[1], &["x"], None, 256).err().expect("the changed chunk is refused"));
-        assert!(e.contains("t.parquet") && e.contains("row group 1, column x") && e.contains("checksum mismatch"), "{e}");
+        assert!(
+            e.contains("t.parquet") && e.contains("row group 1, column x") && e.contains("checksum mismatch"),
+            "{e}"
+        );
         let e = format!("{:#}", file.read(&[0], &["y"], None, 256).err().expect("no such column"));
         assert!(e.contains("no `y` column"), "{e}");
     }
@@ -322,10 +331,7 @@ mod tests {
     }
 
     fn chunks() -> Chunks {
-        Chunks {
-            len: 100,
-            chunks: vec![(10, Bytes::from_static(b"abcdef")), (40, Bytes::from_static(b"0123456789"))],
-        }
+        Chunks { len: 100, chunks: vec![(10, Bytes::from_static(b"abcdef")), (40, Bytes::from_static(b"0123456789"))] }
     }
 
     /// Reads inside a fetched chunk give its bytes; a read that starts outside every chunk, or

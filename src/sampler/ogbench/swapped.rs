@@ -26,8 +26,8 @@ use crate::sampler::RowKey;
 use crate::sampler::open::{self, Beta, Observations, Opened, Scoring};
 use crate::sampler::pool::{Pool, Position};
 use crate::sampler::priority::{PriorityConfig, SumTree};
-use crate::score::ScoredTable;
 use crate::sampler::view::{Budget, View};
+use crate::score::ScoredTable;
 use crate::trajectory::Episodes;
 
 /// A source of prioritized swapped rows for OGBench's layout.

@@ -9,9 +9,9 @@ use anyhow::{Context, Result, anyhow, bail};
 use super::buffers::{Bytes, Floats};
 use crate::sampler::priority::{PriorityConfig, SumTree};
 use crate::score::ScoredTable;
+use crate::table::ShardFile;
 use crate::task::Task;
 use crate::trajectory::Footer;
-use crate::table::ShardFile;
 use crate::trajectory::folder::{TableFolder, is_folder, open_shard};
 use crate::trajectory::read::{append, append_images, check_keys};
 
